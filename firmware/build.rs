@@ -1,0 +1,35 @@
+//! Runs od-gen on the device description and hands the root `memory.x` to the linker for target builds.
+
+use std::{env, fs, path::PathBuf};
+
+fn main() {
+    let manifest_dir = PathBuf::from(env::var("CARGO_MANIFEST_DIR").unwrap_or_default());
+    let out_dir = PathBuf::from(env::var("OUT_DIR").unwrap_or_default());
+    let description = manifest_dir.join("device.toml");
+    println!("cargo:rerun-if-changed={}", description.display());
+
+    if let Err(report) = od_gen::generate_all(&description, &out_dir) {
+        // Every mistake in the description, with file, object and reason; the build stops here.
+        for line in report.lines() {
+            println!("cargo:warning={line}");
+        }
+        eprintln!("{report}");
+        std::process::exit(1);
+    }
+
+    // The single flash map lives at the workspace root; copy it where the linker looks for `memory.x`.
+    let memory_x = manifest_dir.join("../memory.x");
+    println!("cargo:rerun-if-changed={}", memory_x.display());
+    if env::var("CARGO_CFG_TARGET_OS").as_deref() == Ok("none") {
+        if let Err(e) = fs::copy(&memory_x, out_dir.join("memory.x")) {
+            eprintln!("cannot copy {}: {e}", memory_x.display());
+            std::process::exit(1);
+        }
+        println!("cargo:rustc-link-search={}", out_dir.display());
+        println!("cargo:rustc-link-arg-bins=--nmagic");
+        println!("cargo:rustc-link-arg-bins=-Tlink.x");
+        if env::var("CARGO_FEATURE_DEFMT").is_ok() {
+            println!("cargo:rustc-link-arg-bins=-Tdefmt.x");
+        }
+    }
+}

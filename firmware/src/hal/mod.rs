@@ -1,0 +1,1 @@
+//! Hardware abstraction: narrow traits only. `hal-sim` implements them on the host, `board/` on the target.
