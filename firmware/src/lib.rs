@@ -16,5 +16,7 @@
     )
 )]
 
+pub mod control;
+pub mod drive;
 pub mod hal;
 pub mod od;

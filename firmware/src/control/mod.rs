@@ -1,0 +1,1 @@
+//! Pure control math in fixed point: frames, angles, transforms, controllers, modulation.
