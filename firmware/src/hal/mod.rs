@@ -1,1 +1,4 @@
-//! Hardware abstraction: narrow traits only. `hal-sim` implements them on the host, `board/` on the target.
+//! Hardware abstraction: narrow traits and the plain data the tiers exchange with the hardware.
+//! `hal-sim` implements them on the host, `board/` on the target.
+
+pub mod power;
