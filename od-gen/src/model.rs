@@ -154,6 +154,29 @@ impl DataType {
             Self::Domain => "DOMAIN",
         }
     }
+
+    /// Whether values of this type are two's-complement signed integers.
+    pub const fn is_signed(self) -> bool {
+        matches!(self, Self::Integer8 | Self::Integer16 | Self::Integer32 | Self::Integer64)
+    }
+
+    /// Whether this is an integer type (BOOLEAN included): the types `min`, `max` and `values` apply to.
+    pub const fn is_integer(self) -> bool {
+        self.range().is_some()
+    }
+
+    /// Length in bits of a PDO mapping entry for this type (BOOLEAN maps as 1 bit), or `None` for types that
+    /// cannot be mapped (strings, domains).
+    pub const fn pdo_bits(self) -> Option<u16> {
+        match self {
+            Self::Boolean => Some(1),
+            Self::Integer8 | Self::Unsigned8 => Some(8),
+            Self::Integer16 | Self::Unsigned16 => Some(16),
+            Self::Integer32 | Self::Unsigned32 => Some(32),
+            Self::Integer64 | Self::Unsigned64 => Some(64),
+            Self::VisibleString | Self::OctetString | Self::Domain => None,
+        }
+    }
 }
 
 /// Access type.
@@ -182,6 +205,45 @@ pub enum Pdo {
     Both,
 }
 
+impl Access {
+    /// Whether an SDO download may write the entry.
+    pub const fn writable(self) -> bool {
+        matches!(self, Self::WriteOnly | Self::ReadWrite)
+    }
+
+    /// The word the description uses (`ro`, `wo`, `rw`, `const`).
+    pub const fn word(self) -> &'static str {
+        match self {
+            Self::ReadOnly => "ro",
+            Self::WriteOnly => "wo",
+            Self::ReadWrite => "rw",
+            Self::Const => "const",
+        }
+    }
+}
+
+impl Pdo {
+    /// Whether the entry may be mapped into a receive PDO.
+    pub const fn rx(self) -> bool {
+        matches!(self, Self::Rx | Self::Both)
+    }
+
+    /// Whether the entry may be mapped into a transmit PDO.
+    pub const fn tx(self) -> bool {
+        matches!(self, Self::Tx | Self::Both)
+    }
+
+    /// The word the description uses (`no`, `rx`, `tx`, `both`).
+    pub const fn word(self) -> &'static str {
+        match self {
+            Self::No => "no",
+            Self::Rx => "rx",
+            Self::Tx => "tx",
+            Self::Both => "both",
+        }
+    }
+}
+
 /// When writes are accepted.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum WriteCondition {
@@ -195,6 +257,18 @@ pub enum WriteCondition {
     PreOperationalPowerDisabled,
 }
 
+impl WriteCondition {
+    /// The word the description uses (`always`, `pre-op`, ...).
+    pub const fn word(self) -> &'static str {
+        match self {
+            Self::Always => "always",
+            Self::PreOperational => "pre-op",
+            Self::PowerDisabled => "power-disabled",
+            Self::PreOperationalPowerDisabled => "pre-op-power-disabled",
+        }
+    }
+}
+
 /// Where the value lives in the firmware.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum StorageKind {
@@ -204,6 +278,55 @@ pub enum StorageKind {
     Const,
     /// Served by the application.
     Application,
+}
+
+impl StorageKind {
+    /// The word the description uses (`ram`, `const`, `application`).
+    pub const fn word(self) -> &'static str {
+        match self {
+            Self::Ram => "ram",
+            Self::Const => "const",
+            Self::Application => "application",
+        }
+    }
+}
+
+/// Area of the index space an object belongs to (CiA 301 7.4.1, Table 43).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Area {
+    /// 0x1000..0x1FFF: communication profile area.
+    Communication,
+    /// 0x2000..0x5FFF: manufacturer-specific profile area.
+    Manufacturer,
+    /// 0x6000..0x9FFF: standardised device profile area (CiA 402).
+    DeviceProfile,
+    /// 0xA000..0xFFFF: interface profile and reserved areas.
+    Other,
+}
+
+impl Area {
+    /// Every area, in index order.
+    pub const ALL: [Area; 4] = [Area::Communication, Area::Manufacturer, Area::DeviceProfile, Area::Other];
+
+    /// The area `index` lies in (indices below 0x1000 are counted as communication; validation rejects them).
+    pub const fn of(index: u16) -> Self {
+        match index {
+            0x0000..=0x1FFF => Self::Communication,
+            0x2000..=0x5FFF => Self::Manufacturer,
+            0x6000..=0x9FFF => Self::DeviceProfile,
+            _ => Self::Other,
+        }
+    }
+
+    /// Human-readable title with the index range.
+    pub const fn title(self) -> &'static str {
+        match self {
+            Self::Communication => "Communication profile area (0x1000..0x1FFF)",
+            Self::Manufacturer => "Manufacturer-specific area (0x2000..0x5FFF)",
+            Self::DeviceProfile => "Device profile area (0x6000..0x9FFF)",
+            Self::Other => "Interface profile and reserved areas (0xA000..0xFFFF)",
+        }
+    }
 }
 
 /// A default value.

@@ -1,0 +1,173 @@
+//! Generation from `tests/fixtures/valid.toml`, a small description that uses every form of the format.
+//!
+//! The generated Rust is kept as a golden file (`tests/fixtures/valid.od_generated.rs`, rewritten by
+//! `UPDATE_SNAPSHOTS=1`) and compiled right here against the firmware's own `entry.rs`, so the tables' shape is
+//! checked by the compiler and their contents by the tests below, without building the firmware.
+
+mod common;
+
+use std::path::PathBuf;
+
+use od_gen::model::{DataType, Value};
+
+#[path = "../../firmware/src/od/entry.rs"]
+#[allow(dead_code)]
+mod entry;
+
+#[allow(dead_code, missing_docs, clippy::all)]
+mod generated {
+    use super::entry::*;
+    include!("fixtures/valid.od_generated.rs");
+}
+
+use entry::{Limits, Storage};
+use generated::{handles, DEFAULT_VALUES, ENTRIES, OBJECTS};
+
+fn fixture(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures").join(name)
+}
+
+fn description() -> od_gen::model::Description {
+    od_gen::load(&fixture("valid.toml")).unwrap_or_else(|report| panic!("{report}"))
+}
+
+#[test]
+fn golden_rust_tables_are_current() {
+    let rust = od_gen::rust_gen::rust(&description()).expect("generation");
+    assert!(rust.starts_with("// @generated"));
+    if let Err(e) = common::check(&fixture("valid.od_generated.rs"), &rust) {
+        panic!("{e}\nRun UPDATE_SNAPSHOTS=1 cargo test -p od-gen to accept the change.");
+    }
+}
+
+#[test]
+fn model_is_sorted_expanded_and_resolved() {
+    let d = description();
+    let indices: Vec<u16> = d.objects.iter().map(|o| o.index).collect();
+    let mut sorted = indices.clone();
+    sorted.sort_unstable();
+    assert_eq!(indices, sorted);
+    let mapping = d.object(0x1600).expect("0x1600");
+    let names: Vec<&str> = mapping.subs.iter().map(|s| s.name.as_str()).collect();
+    assert_eq!(
+        names,
+        ["Number of mapped objects", "Mapped object 1", "Mapped object 2", "Mapped object 3", "Mapped object 4"]
+    );
+    assert_eq!(d.entry(0x1600, 2).map(|s| &s.default), Some(&Value::Int(0x6060_0008)));
+    assert_eq!(d.entry(0x1400, 1).map(|s| &s.default), Some(&Value::NodeIdPlus(0x200)));
+    assert_eq!(d.entry(0x2100, 0).map(|s| &s.default), Some(&Value::Int(1)));
+    assert_eq!(d.entry(0x605A, 0).and_then(|s| s.values.clone()), Some(vec![0, 1, 2, 5, 6]));
+    assert_eq!(d.entry(0x1F50, 1).map(|s| s.data_type), Some(DataType::Domain));
+}
+
+#[test]
+fn entries_are_sorted_and_objects_point_at_them() {
+    assert!(ENTRIES.windows(2).all(|w| (w[0].index, w[0].sub) < (w[1].index, w[1].sub)));
+    assert!(OBJECTS.windows(2).all(|w| w[0].index < w[1].index));
+    let mut next = 0;
+    for o in &OBJECTS {
+        assert_eq!(usize::from(o.first_entry), next);
+        let entries = &ENTRIES[next..next + usize::from(o.entry_count)];
+        assert!(entries.iter().all(|e| e.index == o.index && e.object_code == o.object_code));
+        assert_eq!(entries.iter().map(|e| e.sub).max(), Some(o.max_sub));
+        next += usize::from(o.entry_count);
+    }
+    assert_eq!(next, ENTRIES.len());
+}
+
+fn entry(index: u16, sub: u8) -> &'static entry::Entry {
+    ENTRIES.iter().find(|e| e.index == index && e.sub == sub).expect("entry")
+}
+
+#[test]
+fn limits_storage_and_node_id_defaults() {
+    assert_eq!(entry(0x605A, 0).limits, Limits::OneOf(&[0, 1, 2, 5, 6]));
+    // Only `min` given: the type's maximum fills in.
+    assert_eq!(entry(0x6060, 0).limits, Limits::Signed { min: -1, max: 127 });
+    assert_eq!(entry(0x1400, 2).limits, Limits::Unsigned { min: 0, max: 255 });
+    assert_eq!(entry(0x6040, 0).limits, Limits::None);
+    assert_eq!(entry(0x1008, 0).storage, Storage::Const(b"FIX-1"));
+    assert_eq!(entry(0x1018, 1).storage, Storage::Const(&[0xCE, 0x0A, 0x00, 0x00]));
+    assert_eq!(entry(0x1F50, 1).storage, Storage::Application);
+    assert!(entry(0x1400, 1).node_id_relative);
+    assert!(!entry(0x1400, 2).node_id_relative);
+}
+
+#[test]
+fn ram_values_are_aligned_disjoint_and_hold_the_defaults() {
+    let mut slots: Vec<(usize, usize)> = Vec::new();
+    for e in &ENTRIES {
+        if let Storage::Ram { offset, len } = e.storage {
+            let (offset, len) = (usize::from(offset), usize::from(len));
+            if let Some(size) = e.data_type.fixed_size() {
+                assert_eq!(len, size);
+                assert_eq!(offset % size, 0, "0x{:04X}:{:02X} misaligned", e.index, e.sub);
+            }
+            slots.push((offset, len));
+        }
+    }
+    slots.sort_unstable();
+    assert!(slots.windows(2).all(|w| w[0].0 + w[0].1 <= w[1].0));
+    assert_eq!(slots.last().map(|(o, l)| o + l), Some(DEFAULT_VALUES.len()));
+
+    let at = |offset: usize, len: usize| &DEFAULT_VALUES[offset..offset + len];
+    assert_eq!(at(handles::MODES_OF_OPERATION.offset(), 1), [0xFF]);
+    assert_eq!(at(handles::ENABLE_FLAG.offset(), 1), [1]);
+    assert_eq!(at(handles::BIG_COUNTER.offset(), 8), 7u64.to_le_bytes());
+    assert_eq!(at(handles::CONTROLWORD.offset(), 2), [0, 0]);
+    // A $NODEID default holds just the offset.
+    let Storage::Ram { offset, .. } = entry(0x1400, 1).storage else { panic!("0x1400:01 not in RAM") };
+    assert_eq!(at(usize::from(offset), 4), 0x200u32.to_le_bytes());
+}
+
+#[test]
+fn handles_have_the_rust_type_of_their_data_type() {
+    let _: entry::Handle<u16> = handles::CONTROLWORD;
+    let _: entry::Handle<u16> = handles::STATUSWORD;
+    let _: entry::Handle<i8> = handles::MODES_OF_OPERATION;
+    let _: entry::Handle<i32> = handles::POSITION_ACTUAL_VALUE;
+    let _: entry::Handle<bool> = handles::ENABLE_FLAG;
+    let _: entry::Handle<u64> = handles::BIG_COUNTER;
+    assert_eq!(generated::VENDOR_ID, 0x0ACE);
+    assert_eq!(generated::DEVICE_NAME, "FIX-1");
+    assert_eq!(generated::MAX_PDO_BYTES_CANOPEN, 8);
+    assert_eq!(generated::PROCESS_IN_START, 0x1180);
+}
+
+#[test]
+fn object_reference_lists_every_entry_by_area() {
+    let d = description();
+    let md = od_gen::markdown::markdown(&d);
+    assert!(md.starts_with("<!-- @generated"));
+    for title in ["## Communication profile area", "## Manufacturer-specific area", "## Device profile area"] {
+        assert!(md.contains(title), "missing {title}");
+    }
+    assert!(md.contains("| 0x1600:02 | Mapped object 2 | UNSIGNED32 | rw (pre-op) | no | 0x60600008 |"), "{md}");
+    assert!(md.contains("| 0x1400:01 | COB-ID used by RxPDO 1 | UNSIGNED32 | rw | no | $NODEID+0x200 |"), "{md}");
+    assert!(md.contains("one of 0, 1, 2, 5, 6"));
+    assert!(md.contains("Note: A note \\| with a pipe"));
+    let rows = md.lines().filter(|l| l.starts_with("| 0x") || l.starts_with("| **0x")).count();
+    let composite = d.objects.iter().filter(|o| o.code != od_gen::model::ObjectCode::Var).count();
+    let entries: usize = d.objects.iter().map(|o| o.subs.len()).sum();
+    assert_eq!(rows, entries + composite);
+}
+
+#[test]
+fn generate_all_writes_every_file() {
+    let out = std::env::temp_dir().join(format!("od-gen-test-{}", std::process::id()));
+    std::fs::create_dir_all(&out).expect("temp dir");
+    od_gen::generate_all(&fixture("valid.toml"), &out).expect("generate_all");
+    for name in ["od_generated.rs", "object-reference.md", "drive.eds", "drive-esi.xml", "drive-sii.bin"] {
+        assert!(out.join(name).exists(), "{name} not written");
+    }
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[test]
+fn errors_stop_generation_with_the_full_report() {
+    let out = std::env::temp_dir().join(format!("od-gen-test-err-{}", std::process::id()));
+    let report = od_gen::generate_all(&fixture("errors/every_mistake_reported.toml"), &out).expect_err("must fail");
+    // Without the shared header there is no [device] either: five mistakes in all.
+    assert_eq!(report.lines().count(), 5, "{report}");
+    assert!(!out.exists());
+}

@@ -1,0 +1,31 @@
+#!/usr/bin/env bash
+# Runs every check and test of the project: the README's test command, and what .ci/run calls.
+# Works on a fresh machine of the project's kind: scripts/setup.sh installs what the tests need.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+step() { printf '\n==> %s\n' "$*"; }
+
+step "setup (toolchain, QEMU, Python packages)"
+scripts/setup.sh
+
+step "format"
+cargo fmt --all -- --check
+
+step "clippy (host, all targets, warnings denied)"
+cargo clippy --workspace --all-targets -- -D warnings
+
+step "clippy (thumbv7em-none-eabihf firmware, with and without defmt, QEMU image)"
+cargo clippy -p firmware --target thumbv7em-none-eabihf --bins -- -D warnings
+cargo clippy -p firmware --target thumbv7em-none-eabihf --bins --features defmt -- -D warnings
+cargo clippy -p firmware --target thumbv7em-none-eabihf --bins --features qemu -- -D warnings
+
+step "target build (release, LTO) with and without defmt"
+cargo build -p firmware --release --target thumbv7em-none-eabihf
+cargo build -p firmware --release --target thumbv7em-none-eabihf --features defmt
+
+step "docs (warnings denied)"
+RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps
+
+step "tests (host unit, property, scenario, generated-file, Python-master and QEMU tests)"
+cargo test --workspace
