@@ -2,6 +2,9 @@
 
 use std::{env, fs, path::PathBuf};
 
+#[path = "build_flash_map.rs"]
+mod build_flash_map;
+
 fn main() {
     let manifest_dir = PathBuf::from(env::var("CARGO_MANIFEST_DIR").unwrap_or_default());
     let out_dir = PathBuf::from(env::var("OUT_DIR").unwrap_or_default());
@@ -20,9 +23,22 @@ fn main() {
     // The single flash map lives at the workspace root; copy it where the linker looks for `memory.x`.
     let memory_x = manifest_dir.join("../memory.x");
     println!("cargo:rerun-if-changed={}", memory_x.display());
+    // ...and turn its regions into `crate::flash_map` constants.
+    println!("cargo:rerun-if-changed={}", manifest_dir.join("build_flash_map.rs").display());
+    if let Err(e) = build_flash_map::generate(&memory_x, &out_dir) {
+        eprintln!("{e}");
+        std::process::exit(1);
+    }
     if env::var("CARGO_CFG_TARGET_OS").as_deref() == Ok("none") {
         if let Err(e) = fs::copy(&memory_x, out_dir.join("memory.x")) {
             eprintln!("cannot copy {}: {e}", memory_x.display());
+            std::process::exit(1);
+        }
+        // cortex-m-rt's `device` feature INCLUDEs device.x; the interrupt table itself is Rust (board::vectors).
+        let device_x = manifest_dir.join("src/board/device.x");
+        println!("cargo:rerun-if-changed={}", device_x.display());
+        if let Err(e) = fs::copy(&device_x, out_dir.join("device.x")) {
+            eprintln!("cannot copy {}: {e}", device_x.display());
             std::process::exit(1);
         }
         println!("cargo:rustc-link-search={}", out_dir.display());

@@ -231,7 +231,8 @@ impl Entry {
     pub const fn bit_size(&self) -> Option<u16> {
         match self.data_type.fixed_size() {
             Some(1) if matches!(self.data_type, DataType::Boolean) => Some(1),
-            Some(n) => Some((n as u16) * 8),
+            // Fixed sizes are 1..=8 bytes, so the shift cannot overflow.
+            Some(n) => Some((n as u16) << 3),
             None => None,
         }
     }
