@@ -1,1 +1,23 @@
 //! Pure control math in fixed point: frames, angles, transforms, controllers, modulation.
+//!
+//! Everything here is `no_std`, allocation-free, float-free and panic-free for every input, so that it can run in
+//! the 25 kHz interrupt (tier 1 of `shared/design/ARCHITECTURE.md`) and be property-tested on the host.
+//! Arithmetic is saturating or wrapping by deliberate choice, with the range argument next to each wrapping site
+//! (convention 10). Formats: currents and voltages `I16F16` ([`frames`]), sin/cos `I2F30` ([`trig`]), angles a
+//! wrapping `u32` turn ([`angle`]), PI gains `I8F24` and `I1F31` ([`pi`]).
+//!
+//! - [`angle`]: `ElectricalAngle`, a wrapping fraction of a turn.
+//! - [`trig`]: table sin/cos with interpolation.
+//! - [`frames`]: `Amps`, `Volts`, `Abc`, `AlphaBeta`, `Dq`.
+//! - [`transforms`]: Clarke, Park, inverse Park.
+//! - [`pi`]: PI with back-calculation anti-windup, gains from IDX 0x30A0.
+//! - [`svpwm`]: voltage limit, bus compensation, SVPWM, duty clamp.
+//! - [`current_loop`]: the whole FOC step, [`current_loop::foc_step`].
+
+pub mod angle;
+pub mod current_loop;
+pub mod frames;
+pub mod pi;
+pub mod svpwm;
+pub mod transforms;
+pub mod trig;
