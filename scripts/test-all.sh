@@ -16,9 +16,9 @@ step "clippy (host, all targets, warnings denied)"
 cargo clippy --workspace --all-targets -- -D warnings
 
 step "clippy (thumbv7em-none-eabihf firmware, with and without defmt, QEMU image)"
-cargo clippy -p firmware --target thumbv7em-none-eabihf --bins -- -D warnings
-cargo clippy -p firmware --target thumbv7em-none-eabihf --bins --features defmt -- -D warnings
-cargo clippy -p firmware --target thumbv7em-none-eabihf --bins --features qemu -- -D warnings
+cargo clippy -p firmware --target thumbv7em-none-eabihf --lib --bins -- -D warnings
+cargo clippy -p firmware --target thumbv7em-none-eabihf --lib --bins --features defmt -- -D warnings
+cargo clippy -p firmware --target thumbv7em-none-eabihf --lib --bins --features qemu -- -D warnings
 
 step "target build (release, LTO) with and without defmt"
 cargo build -p firmware --release --target thumbv7em-none-eabihf

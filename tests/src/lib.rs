@@ -1,1 +1,3 @@
 //! Shared helpers of the host-run firmware tests.
+
+pub mod qemu;

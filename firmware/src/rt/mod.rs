@@ -1,0 +1,86 @@
+//! The runtime (target only): the three timing tiers of `shared/design/ARCHITECTURE.md` on the STM32F405.
+//!
+//! | tier | rate    | runs as                                               | priority        | code            |
+//! |------|---------|-------------------------------------------------------|-----------------|-----------------|
+//! | 1    | 25 kHz  | raw handler of the ADC interrupt (JEOC of ADC1)       | 0 (highest)     | [`tier1`]       |
+//! | 2    | 2.5 kHz | embassy `InterruptExecutor` on a spare vector (IRQ 44) | `TIER2_PRIORITY` | [`tier2`]      |
+//! | 3    | -       | embassy thread executor, WFE when idle                | thread mode     | [`tier3`]       |
+//!
+//! Every item shared between tiers has exactly one writer:
+//!
+//! | item                        | kind                         | writer            | readers                 |
+//! |-----------------------------|------------------------------|-------------------|-------------------------|
+//! | tier-1 state (power stage, `Drive`) | slot, set before the IRQ is unmasked | start-up, then tier 1; tiers 2/3 via `tier1::with_drive` (interrupts off) | tier 1 |
+//! | `tier1::FAST_TICK_MAX`      | `AtomicU32`                  | tier 1            | tier 3, QEMU bench      |
+//! | `tier1::FAST_TICKS`         | `AtomicU32`                  | tier 1            | tier 3, QEMU bench      |
+//! | `tier1::OVERRUN`            | `AtomicBool`, latched        | tier 1            | tier 2, tier 3          |
+//! | `tier2::SLOW_TICK`          | [`signal::TickSignal`]       | tier 1 (raise)    | tier-2 slow loop (wait) |
+//! | `tier2::SLOW_TICKS`         | `AtomicU32`                  | tier 2            | tier 3, QEMU bench      |
+//! | `tier2::SLOW_TICK_MAX`      | `AtomicU32`                  | tier 2            | tier 3, QEMU bench      |
+//! | `tier2::SLOW_MISSED`        | `AtomicU32`                  | tier 2            | tier 3, QEMU bench      |
+//! | `tier3::TICK`               | [`signal::TickSignal`]       | tier 2 (raise)    | tier-3 supervisor       |
+//! | TIM1 registers (duties, MOE)| peripheral                   | tier 1; the panic/fault handlers force MOE off | - |
+//!
+//! Start-up order: board init (outputs off) -> tier 2 started (its interrupt unmasked, slow loop spawned) ->
+//! tier 1 started (ADC interrupt unmasked) -> tier 3 runs forever. Logging (defmt, feature `defmt`) happens in
+//! start-up, tier 2 and tier 3, never in tier 1 ([`log`]).
+
+pub mod app;
+pub mod log;
+mod panic;
+pub mod signal;
+pub mod tier1;
+pub mod tier2;
+pub mod tier3;
+
+#[cfg(feature = "qemu")]
+pub mod bench;
+
+use cortex_m::peripheral::NVIC;
+
+use crate::board::{self, vectors::Interrupt};
+
+/// NVIC priority of tier 1 (the F405 implements the top 4 bits: 16 levels, 0 highest).
+pub const TIER1_PRIORITY: u8 = 0x00;
+/// NVIC priority of tier 2's executor interrupt: below tier 1, above thread mode.
+pub const TIER2_PRIORITY: u8 = 0x40;
+
+/// Brings the board up and runs the three tiers forever. Called from the application's entry point.
+pub fn run() -> ! {
+    let board = match board::init() {
+        Ok(board) => board,
+        Err(_e) => {
+            crate::rt_error!("clock start-up failed: {}", defmt::Debug2Format(&_e));
+            halt("clock start-up failed");
+        }
+    };
+    crate::rt_info!("board up");
+    let Some(mut peripherals) = cortex_m::Peripherals::take() else {
+        halt("core peripherals already taken");
+    };
+    // SAFETY: priorities are set before either interrupt is unmasked, so no priority-based critical section can
+    // be broken by the change.
+    unsafe {
+        peripherals.NVIC.set_priority(Interrupt::Adc, TIER1_PRIORITY);
+        peripherals.NVIC.set_priority(Interrupt::Tier2, TIER2_PRIORITY);
+    }
+    let _ = tier2::start();
+    tier1::start(board.power, app::new_drive());
+    crate::rt_info!("tiers 1 and 2 running");
+    tier3::run()
+}
+
+/// Stops for good with the power stage off: after an unrecoverable start-up error.
+pub fn halt(_why: &'static str) -> ! {
+    board::safe_state();
+    NVIC::mask(Interrupt::Adc);
+    #[cfg(feature = "qemu")]
+    {
+        board::semihosting::eprint(format_args!("halt: {_why}\n"));
+        board::semihosting::exit(board::semihosting::EXIT_CHECK_FAILED);
+    }
+    #[cfg(not(feature = "qemu"))]
+    loop {
+        cortex_m::asm::wfi();
+    }
+}

@@ -1,0 +1,124 @@
+//! Tier 1: the 25 kHz current loop as a raw interrupt handler (ADC JEOC, highest priority).
+//!
+//! Each period: read the measurements, call the pure fast tick, write the PWM command, account the cost, and
+//! raise tier 2 when the fast tick says a slow tick is due (every `SLOW_TICK_DIVIDER`-th period). No allocation,
+//! no logging, no locks, no panics.
+//! The fast tick's own cost is measured with the board's cost counter (cycles on the board, instructions under
+//! QEMU); the maximum is kept, and a tick over budget latches an overrun that tier 2 turns into a fault.
+
+use core::cell::UnsafeCell;
+use core::sync::atomic::{compiler_fence, AtomicBool, AtomicU32, Ordering};
+
+use cortex_m::peripheral::NVIC;
+
+use super::app::{self, FastState};
+use crate::board::counter;
+use crate::board::vectors::Interrupt;
+use crate::board::PowerStage;
+
+/// Cost budget of one fast tick in counter units: half the 6,720-cycle period at 168 MHz, the rest is left to
+/// the interrupt entry/exit and tiers 2 and 3.
+pub const FAST_TICK_BUDGET: u32 = 3_360;
+
+/// Largest fast-tick cost seen (counter units, overhead subtracted). Writer: tier 1.
+pub static FAST_TICK_MAX: AtomicU32 = AtomicU32::new(0);
+/// Fast ticks run. Writer: tier 1.
+pub static FAST_TICKS: AtomicU32 = AtomicU32::new(0);
+/// Latched when a fast tick exceeded `FAST_TICK_BUDGET`. Writer: tier 1 (sets only).
+pub static OVERRUN: AtomicBool = AtomicBool::new(false);
+
+/// What tier 1 owns.
+struct Tier1 {
+    power: PowerStage,
+    fast: FastState,
+    overhead: u32,
+}
+
+/// Tier 1's state: written once by [`start`] before the ADC interrupt is unmasked, then used by the ADC handler, and
+/// by [`with_drive`] with all interrupts masked.
+struct Slot(UnsafeCell<Option<Tier1>>);
+
+// SAFETY: see `Slot`: one writer before the interrupt is enabled; afterwards the ADC handler (which cannot preempt
+// itself) and `with_drive`, which runs with interrupts disabled and so never overlaps the handler or itself.
+unsafe impl Sync for Slot {}
+
+static TIER1: Slot = Slot(UnsafeCell::new(None));
+
+/// Hands the power stage and the fast state to tier 1 and unmasks the ADC interrupt. Call once, from start-up,
+/// with interrupts of tier 1 still masked.
+pub(crate) fn start(power: PowerStage, fast: FastState) {
+    let overhead = empty_call_cost();
+    NVIC::mask(Interrupt::Adc);
+    compiler_fence(Ordering::SeqCst);
+    // SAFETY: the ADC interrupt is masked, so its handler (the slot's only other user) cannot run now.
+    unsafe { *TIER1.0.get() = Some(Tier1 { power, fast, overhead }) };
+    compiler_fence(Ordering::SeqCst);
+    // SAFETY: the handler's state is in place; unmasking cannot break a critical section (none is held here).
+    unsafe { NVIC::unmask(Interrupt::Adc) };
+}
+
+/// The ADC interrupt: one current-loop period.
+///
+/// # Safety
+/// Only the vector table calls this (`board::vectors`): as the ADC handler it never preempts itself, and
+/// `with_drive` keeps interrupts off while it holds the state.
+pub unsafe extern "C" fn on_adc() {
+    // SAFETY: see `# Safety`: no other reference to the slot is live while the handler runs.
+    let Some(t) = (unsafe { &mut *TIER1.0.get() }) else {
+        // An ADC interrupt before start-up finished: nothing to run; keep the power stage off.
+        crate::board::safe_state();
+        return;
+    };
+    let measurements = t.power.read();
+    let start = counter::now();
+    compiler_fence(Ordering::SeqCst);
+    let tick = app::fast_tick(&measurements, &mut t.fast);
+    compiler_fence(Ordering::SeqCst);
+    let cost = counter::now().wrapping_sub(start).saturating_sub(t.overhead);
+    t.power.write(&tick.pwm);
+
+    if cost > FAST_TICK_MAX.load(Ordering::Relaxed) {
+        FAST_TICK_MAX.store(cost, Ordering::Relaxed);
+    }
+    if cost > FAST_TICK_BUDGET {
+        OVERRUN.store(true, Ordering::Relaxed);
+    }
+    FAST_TICKS.store(FAST_TICKS.load(Ordering::Relaxed).wrapping_add(1), Ordering::Relaxed);
+    if tick.slow_tick_due {
+        super::tier2::SLOW_TICK.raise();
+    }
+}
+
+/// Runs `f` on tier 1's drive with all interrupts disabled (tier 1 held off for its duration; a conversion that
+/// ends meanwhile is served right after). For tier 2's slow tick and tier 3's commands. `None` before `start`.
+///
+/// This is the interim answer to the drive being one object with a tier-1 and a tier-2 entry point: keep `f` short
+/// (its duration adds to tier 1's latency); the QEMU bench reports the slow tick's cost as `insn.slow_tick_max`.
+pub fn with_drive<R>(f: impl FnOnce(&mut FastState) -> R) -> Option<R> {
+    cortex_m::interrupt::free(|_| {
+        // SAFETY: interrupts are disabled, so the ADC handler cannot run, and no other `with_drive` is active (it
+        // would have to be an interrupted one, and nothing interrupts this closure).
+        let slot = unsafe { &mut *TIER1.0.get() };
+        slot.as_mut().map(|t| f(&mut t.fast))
+    })
+}
+
+/// An empty call with the fast tick's shape (result pointer, measurements, state), for calibration. Its body is an
+/// optimisation barrier only (no instructions): without it LLVM deletes the call altogether.
+#[inline(never)]
+fn empty(_: &crate::hal::power::Measurements, _: &mut u32, out: &mut core::mem::MaybeUninit<crate::drive::FastTick>) {
+    core::hint::black_box(out);
+}
+
+/// Cost of calling an empty function the way [`on_adc`] calls the fast tick, with the two counter reads: the
+/// overhead subtracted from each measurement.
+pub fn empty_call_cost() -> u32 {
+    let m = core::hint::black_box(crate::hal::power::Measurements::default());
+    let mut s = 0u32;
+    let start = counter::now();
+    compiler_fence(Ordering::SeqCst);
+    let mut out = core::mem::MaybeUninit::uninit();
+    empty(&m, &mut s, &mut out);
+    compiler_fence(Ordering::SeqCst);
+    counter::now().wrapping_sub(start)
+}

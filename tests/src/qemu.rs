@@ -1,0 +1,283 @@
+//! Boots the target image in QEMU and collects what it reports.
+//!
+//! # How the image boots
+//! The application links at `ORIGIN(FLASH)` = 0x0802_0000 (slot A in the root `memory.x`, the single source of
+//! the flash map), behind the future bootloader. QEMU's `netduinoplus2` resets like the silicon: the Cortex-M4
+//! reads its initial stack pointer and reset vector from address 0, which aliases flash 0x0800_0000, where no
+//! bootloader exists yet. So the runner plays the bootloader's part without repeating any address:
+//!
+//! 1. it reads the first two words of the ELF's `.vector_table` section (initial SP, reset vector) — wherever
+//!    the linker put the table;
+//! 2. it writes them to an 8-byte file next to the ELF and hands QEMU
+//!    `-device loader,file=<that>,addr=0x08000000,force-raw=on` (the boot alias is a property of the MCU, not of
+//!    our map). A file loader registers a ROM blob, which the CPU's reset sees; a `data=` loader is applied after
+//!    the CPU reset has already fetched zeros;
+//! 3. `-kernel <elf>` loads the image itself at its link addresses;
+//! 4. cortex-m-rt's `set-vtor` feature makes the reset handler point VTOR at the image's own table, so every
+//!    exception and interrupt after reset uses slot A's vectors (on the board the bootloader jumps the same way).
+//!
+//! The image is built with the `qemu` feature: no clock or peripheral set-up (QEMU models neither the RCC nor
+//! TIM1/ADC), tier 1 fed from a built-in plant, TIM2 as instruction counter under `-icount shift=0` (one count per
+//! executed instruction, exact and repeatable), results as `key=value` lines on semihosting stdout, and the
+//! semihosting exit status as QEMU's exit status (0 ok, 1 failed check, 101 panic, 102 HardFault, 103
+//! unexpected interrupt).
+
+use std::collections::BTreeMap;
+use std::fmt;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// The target the image is built for.
+pub const TARGET: &str = "thumbv7em-none-eabihf";
+/// The firmware binary that is the QEMU image (the drive application with the `qemu` feature).
+pub const IMAGE_BIN: &str = "drive";
+/// How long one QEMU run may take before it is killed (a hung image: panic-halt, lockup, endless loop).
+pub const RUN_TIMEOUT: Duration = Duration::from_secs(60);
+/// QEMU boot alias of flash on the STM32F405: where the core fetches SP and reset vector at reset.
+const BOOT_ALIAS: u32 = 0x0800_0000;
+
+/// What went wrong before the image could report.
+#[derive(Debug)]
+pub enum Error {
+    /// `qemu-system-arm` is not installed.
+    QemuMissing,
+    /// The image did not build.
+    Build(String),
+    /// The ELF could not be read or has no vector table.
+    Elf(String),
+    /// QEMU could not be started or did not finish in time.
+    Run(String),
+}
+
+impl fmt::Display for Error {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Error::QemuMissing => {
+                write!(f, "qemu-system-arm not found: run scripts/setup.sh (installs Debian's qemu-system-arm)")
+            }
+            Error::Build(e) => write!(f, "building the QEMU image failed:\n{e}"),
+            Error::Elf(e) => write!(f, "reading the image: {e}"),
+            Error::Run(e) => write!(f, "running QEMU: {e}"),
+        }
+    }
+}
+
+impl std::error::Error for Error {}
+
+/// Flash and RAM use of an image (Berkeley format, as `size` prints it).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ImageSize {
+    /// Code, read-only data and vector table (flash).
+    pub text: u64,
+    /// Initialised data (flash and RAM).
+    pub data: u64,
+    /// Zero-initialised and uninitialised RAM.
+    pub bss: u64,
+}
+
+/// One finished QEMU run.
+#[derive(Clone, Debug)]
+pub struct Run {
+    /// QEMU's exit status (the image's semihosting exit code); `None` if killed by a signal.
+    pub status: Option<i32>,
+    /// Every `key=value` line of the image's stdout, e.g. `insn.foc_step` -> `156`.
+    pub values: BTreeMap<String, String>,
+    /// Full stdout.
+    pub stdout: String,
+    /// Full stderr (panic messages, QEMU diagnostics).
+    pub stderr: String,
+}
+
+impl Run {
+    /// An instruction count the image reported as `insn.<name>=<count>`.
+    pub fn insn(&self, name: &str) -> Option<u64> {
+        self.values.get(&format!("insn.{name}")).and_then(|v| v.parse().ok())
+    }
+
+    /// All `insn.*` counts, by name without the prefix.
+    pub fn insns(&self) -> BTreeMap<String, u64> {
+        self.values.iter().filter_map(|(k, v)| Some((k.strip_prefix("insn.")?.to_owned(), v.parse().ok()?))).collect()
+    }
+}
+
+/// The workspace root (this package's parent directory).
+pub fn workspace_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).parent().map(Path::to_path_buf).unwrap_or_default()
+}
+
+/// Target directory of the image build: `QEMU_IMAGE_TARGET_DIR`, else `target/qemu-image` under the workspace. A
+/// directory of its own, so that the inner cargo never waits for the lock of the cargo that runs us.
+pub fn image_target_dir() -> PathBuf {
+    std::env::var_os("QEMU_IMAGE_TARGET_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| workspace_root().join("target").join("qemu-image"))
+}
+
+/// Whether `qemu-system-arm` can be started.
+pub fn qemu_available() -> bool {
+    Command::new("qemu-system-arm")
+        .arg("--version")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success())
+}
+
+/// Builds the release image with the `qemu` feature (plus `extra_features`) and returns the ELF's path.
+pub fn build_image(extra_features: &[&str]) -> Result<PathBuf, Error> {
+    let target_dir = image_target_dir();
+    let mut features = vec!["qemu"];
+    features.extend_from_slice(extra_features);
+    let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
+    let output = Command::new(cargo)
+        .current_dir(workspace_root())
+        // The outer cargo's settings are for the host build; the image gets its own.
+        .env_remove("RUSTFLAGS")
+        .env_remove("CARGO_ENCODED_RUSTFLAGS")
+        .env_remove("CARGO_BUILD_RUSTFLAGS")
+        .env_remove("CARGO_BUILD_TARGET")
+        .env("CARGO_TARGET_DIR", &target_dir)
+        .args(["build", "-p", "firmware", "--release", "--target", TARGET, "--bin", IMAGE_BIN, "--features"])
+        .arg(features.join(","))
+        .output()
+        .map_err(|e| Error::Build(format!("cannot start cargo: {e}")))?;
+    if !output.status.success() {
+        return Err(Error::Build(String::from_utf8_lossy(&output.stderr).into_owned()));
+    }
+    Ok(target_dir.join(TARGET).join("release").join(IMAGE_BIN))
+}
+
+fn u16_at(b: &[u8], at: usize) -> Option<u16> {
+    Some(u16::from_le_bytes(b.get(at..at + 2)?.try_into().ok()?))
+}
+
+fn u32_at(b: &[u8], at: usize) -> Option<u32> {
+    Some(u32::from_le_bytes(b.get(at..at + 4)?.try_into().ok()?))
+}
+
+/// The contents of an ELF32 little-endian section, by name, with its address.
+pub fn elf_section(elf: &[u8], name: &str) -> Option<(u32, Vec<u8>)> {
+    if elf.get(0..6)? != b"\x7fELF\x01\x01" {
+        return None; // not ELF32 little-endian
+    }
+    let shoff = u32_at(elf, 0x20)? as usize;
+    let shentsize = usize::from(u16_at(elf, 0x2E)?);
+    let shnum = usize::from(u16_at(elf, 0x30)?);
+    let shstrndx = usize::from(u16_at(elf, 0x32)?);
+    let header = |i: usize| shoff.checked_add(i.checked_mul(shentsize)?);
+    let strtab = u32_at(elf, header(shstrndx)? + 16)? as usize;
+    (0..shnum).find_map(|i| {
+        let h = header(i)?;
+        let name_at = strtab + u32_at(elf, h)? as usize;
+        let end = elf.get(name_at..)?.iter().position(|&c| c == 0)?;
+        if elf.get(name_at..name_at + end)? != name.as_bytes() {
+            return None;
+        }
+        let (addr, offset, size) = (u32_at(elf, h + 12)?, u32_at(elf, h + 16)? as usize, u32_at(elf, h + 20)? as usize);
+        Some((addr, elf.get(offset..offset + size)?.to_vec()))
+    })
+}
+
+/// Initial stack pointer and reset vector: the first two words of the image's vector table.
+pub fn boot_words(elf: &Path) -> Result<[u8; 8], Error> {
+    let bytes = std::fs::read(elf).map_err(|e| Error::Elf(format!("{}: {e}", elf.display())))?;
+    let (_, table) = elf_section(&bytes, ".vector_table")
+        .ok_or_else(|| Error::Elf(format!("{}: no .vector_table section", elf.display())))?;
+    table
+        .get(0..8)
+        .and_then(|w| w.try_into().ok())
+        .ok_or_else(|| Error::Elf(format!("{}: vector table shorter than 8 bytes", elf.display())))
+}
+
+/// Runs the image once: `netduinoplus2`, semihosting, `-icount shift=0,align=off,sleep=off`, killed after
+/// [`RUN_TIMEOUT`].
+pub fn run_image(elf: &Path) -> Result<Run, Error> {
+    if !qemu_available() {
+        return Err(Error::QemuMissing);
+    }
+    let boot = elf.with_extension("boot.bin");
+    std::fs::write(&boot, boot_words(elf)?).map_err(|e| Error::Run(format!("{}: {e}", boot.display())))?;
+    let mut child = Command::new("qemu-system-arm")
+        .args(["-machine", "netduinoplus2", "-cpu", "cortex-m4", "-display", "none", "-monitor", "none"])
+        .args(["-serial", "none", "-semihosting-config", "enable=on,target=native"])
+        .args(["-icount", "shift=0,align=off,sleep=off"])
+        .arg("-device")
+        .arg(format!("loader,file={},addr={BOOT_ALIAS:#010x},force-raw=on", boot.display()))
+        .arg("-kernel")
+        .arg(elf)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .map_err(|e| Error::Run(format!("cannot start qemu-system-arm: {e}")))?;
+
+    // Drain both pipes on threads so that a chatty image cannot block on a full pipe.
+    let drain = |pipe: Option<Box<dyn std::io::Read + Send>>| {
+        std::thread::spawn(move || {
+            let mut text = String::new();
+            if let Some(mut p) = pipe {
+                let _ = p.read_to_string(&mut text);
+            }
+            text
+        })
+    };
+    let out = drain(child.stdout.take().map(|p| Box::new(p) as Box<dyn std::io::Read + Send>));
+    let err = drain(child.stderr.take().map(|p| Box::new(p) as Box<dyn std::io::Read + Send>));
+    let deadline = Instant::now() + RUN_TIMEOUT;
+    let status = loop {
+        match child.try_wait() {
+            Ok(Some(status)) => break status,
+            Ok(None) if Instant::now() < deadline => std::thread::sleep(Duration::from_millis(5)),
+            Ok(None) => {
+                let _ = child.kill();
+                let _ = child.wait();
+                return Err(Error::Run(format!("no exit within {RUN_TIMEOUT:?} (image hung)")));
+            }
+            Err(e) => return Err(Error::Run(e.to_string())),
+        }
+    };
+    let stdout = out.join().unwrap_or_default();
+    let stderr = err.join().unwrap_or_default();
+    let values = stdout
+        .lines()
+        .filter_map(|l| l.split_once('='))
+        .map(|(k, v)| (k.trim().to_owned(), v.trim().to_owned()))
+        .collect();
+    Ok(Run { status: status.code(), values, stdout, stderr })
+}
+
+/// Builds and runs the QEMU image.
+pub fn build_and_run() -> Result<(PathBuf, Run), Error> {
+    if !qemu_available() {
+        return Err(Error::QemuMissing);
+    }
+    let elf = build_image(&[])?;
+    let run = run_image(&elf)?;
+    Ok((elf, run))
+}
+
+/// `llvm-size` from the toolchain's llvm-tools component, else `arm-none-eabi-size`.
+fn size_tool() -> Option<PathBuf> {
+    let sysroot = Command::new("rustc").args(["--print", "sysroot"]).output().ok()?;
+    let verbose = Command::new("rustc").arg("-vV").output().ok()?;
+    let host =
+        String::from_utf8_lossy(&verbose.stdout).lines().find_map(|l| l.strip_prefix("host: ").map(str::to_owned))?;
+    let llvm = PathBuf::from(String::from_utf8_lossy(&sysroot.stdout).trim())
+        .join("lib/rustlib")
+        .join(host)
+        .join("bin/llvm-size");
+    if llvm.exists() {
+        return Some(llvm);
+    }
+    Command::new("arm-none-eabi-size").arg("--version").output().ok().map(|_| "arm-none-eabi-size".into())
+}
+
+/// Text/data/bss of an ELF, or `None` if no size tool is installed.
+pub fn image_size(elf: &Path) -> Option<ImageSize> {
+    let output = Command::new(size_tool()?).arg(elf).output().ok()?;
+    let text = String::from_utf8_lossy(&output.stdout);
+    // Berkeley format: a header line, then "text data bss dec hex filename".
+    let mut fields = text.lines().nth(1)?.split_whitespace().map(str::parse::<u64>);
+    Some(ImageSize { text: fields.next()?.ok()?, data: fields.next()?.ok()?, bss: fields.next()?.ok()? })
+}

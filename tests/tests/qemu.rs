@@ -1,0 +1,61 @@
+//! Boots the target image in QEMU (`netduinoplus2`, `-icount shift=0`) and checks the current loop's instruction
+//! budgets (issue, part 4): the FOC step (Clarke to SVPWM, with the voltage limit and bus compensation) at most
+//! 200 instructions, the whole fast tick at most 600 in the worst case exercised. Under `-icount shift=0` the
+//! counts are exact, so the test also checks that two runs agree to the instruction.
+//!
+//! Needs `qemu-system-arm` (`scripts/setup.sh` installs it; CI runs setup first).
+
+use drive_tests::qemu;
+
+/// FOC step budget, instructions.
+const FOC_STEP_BUDGET: u64 = 200;
+/// Fast-tick budget, instructions.
+const FAST_TICK_BUDGET: u64 = 600;
+
+#[test]
+fn qemu_image_meets_the_current_loop_budgets() {
+    assert!(qemu::qemu_available(), "{}", qemu::Error::QemuMissing);
+    let elf = qemu::build_image(&[]).unwrap_or_else(|e| panic!("{e}"));
+    let first = qemu::run_image(&elf).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(first.status, Some(0), "the image failed:\nstdout:\n{}\nstderr:\n{}", first.stdout, first.stderr);
+
+    let foc = first.insn("foc_step").expect("the image reports insn.foc_step");
+    let fast = first.insn("fast_tick_max").expect("the image reports insn.fast_tick_max");
+    assert!(foc <= FOC_STEP_BUDGET, "foc_step takes {foc} instructions, budget {FOC_STEP_BUDGET}");
+    assert!(fast <= FAST_TICK_BUDGET, "fast_tick takes up to {fast} instructions, budget {FAST_TICK_BUDGET}");
+    assert!(foc > 0 && fast > 0, "a count of 0 means the measurement is broken");
+
+    let second = qemu::run_image(&elf).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(first.insns(), second.insns(), "instruction counts differ between two runs of the same image");
+}
+
+#[test]
+fn vector_table_is_read_from_the_elf() {
+    // The runner's ELF reader on a tiny hand-made ELF32: one named section after the string table.
+    let mut elf = vec![0u8; 0x34];
+    elf[..6].copy_from_slice(b"\x7fELF\x01\x01");
+    let strtab = b"\0.shstrtab\0.vector_table\0";
+    let data = [0x00, 0x00, 0x02, 0x20, 0x89, 0x01, 0x02, 0x08];
+    let strtab_off = elf.len();
+    elf.extend_from_slice(strtab);
+    let data_off = elf.len();
+    elf.extend_from_slice(&data);
+    let shoff = elf.len();
+    elf[0x20..0x24].copy_from_slice(&(shoff as u32).to_le_bytes());
+    elf[0x2E..0x30].copy_from_slice(&40u16.to_le_bytes());
+    elf[0x30..0x32].copy_from_slice(&3u16.to_le_bytes());
+    elf[0x32..0x34].copy_from_slice(&1u16.to_le_bytes());
+    let header = |name: u32, addr: u32, off: usize, size: usize| {
+        let mut h = [0u8; 40];
+        h[0..4].copy_from_slice(&name.to_le_bytes());
+        h[12..16].copy_from_slice(&addr.to_le_bytes());
+        h[16..20].copy_from_slice(&(off as u32).to_le_bytes());
+        h[20..24].copy_from_slice(&(size as u32).to_le_bytes());
+        h
+    };
+    elf.extend_from_slice(&[0u8; 40]);
+    elf.extend_from_slice(&header(1, 0, strtab_off, strtab.len()));
+    elf.extend_from_slice(&header(11, 0x0802_0000, data_off, data.len()));
+    assert_eq!(qemu::elf_section(&elf, ".vector_table"), Some((0x0802_0000, data.to_vec())));
+    assert_eq!(qemu::elf_section(&elf, ".text"), None);
+}
