@@ -16,7 +16,13 @@
     )
 )]
 
+#[cfg(target_os = "none")]
+pub mod board;
+pub mod cia402;
 pub mod control;
 pub mod drive;
+pub mod flash_map;
 pub mod hal;
 pub mod od;
+#[cfg(target_os = "none")]
+pub mod rt;

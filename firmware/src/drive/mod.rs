@@ -1,1 +1,544 @@
-//! The drive: ties control, modes, supervision and the dictionary together; `fast_tick` and `slow_tick`.
+//! The drive: ties the current loop, offset calibration, commutation, protection and the object dictionary together;
+//! the tier-1 entry point [`Drive::fast_tick`] and the tier-2 hook [`Drive::slow_tick`].
+//!
+//! # Tiers (`shared/design/ARCHITECTURE.md`, "Data flow and timing tiers")
+//! - [`Drive::fast_tick`], 25 kHz: measurements in, PWM command out. Protection step, ADC scaling, commutation
+//!   angle, the d/q current loop ([`crate::control::current_loop`]) with the reference read from the dictionary by
+//!   typed handle, and the slow-tick divider: it returns [`FastTick::slow_tick_due`] every
+//!   [`SLOW_TICK_DIVIDER`]-th tick. On the target the runtime pends tier 2 when it is set; on the host the caller
+//!   (the simulation) calls [`Drive::slow_tick`] directly. No searches, no divisions, no loops, no panics.
+//! - [`Drive::slow_tick`], 2.5 kHz: publishes the actual values (0x30D1, 0x6077, 0x6078, 0x30D0, 0x6074, averaged
+//!   values, DC link voltage, Hall pattern, index position) and re-reads the parameters tier 1 uses (current gains
+//!   0x30A0, motor data 0x3001, limits 0x6072/0x6073) when they change. The motion issue adds the velocity and
+//!   position loops here, with their output as the current demand ([`DemandSource::Internal`]).
+//!
+//! # Power-stage path (CiA 402 transitions 3 and 4, `shared/spec/cia402-device-control.md`)
+//! [`Drive::switch_on`] (transition 3) reads the power-disabled parameters (encoder, pole pairs, Halls,
+//! commutation method) and starts the current-offset calibration with the outputs at 50 % duty; the drive is
+//! [`PowerState::SwitchedOn`] when it finishes. [`Drive::enable_operation`] (transition 4) starts the commutation
+//! (Hall sector, or forced alignment) and the current loop. [`Drive::disable_operation`] (transition 5) and
+//! [`Drive::shutdown`] (6/8) switch the outputs off. The CiA 402 state machine of the next issue calls these; a
+//! fault latches [`PowerState::Fault`] with a typed [`DriveError`] until [`Drive::fault_reset`].
+//! The outputs are `PwmCommand::OFF` in every state except calibration and operation enabled.
+//!
+//! # Ownership
+//! The drive owns the [`Dictionary`] (table + value storage). The control tiers read and write it through the
+//! generated typed handles (no search); SDO and PDO code reach it through [`Drive::dictionary`] and
+//! [`Drive::dictionary_mut`]. One owner keeps the single-writer rule of each value visible: the drive writes the
+//! actual values and derived objects (0x6075, 0x6076), everyone else the set-points and parameters.
+
+pub mod calibration;
+pub mod commutation;
+pub mod demand;
+pub mod protection;
+pub mod scaling;
+
+use crate::control::angle::ElectricalAngle;
+use crate::control::current_loop::{foc_step, CurrentController, CurrentLoopConfig, FocInput};
+use crate::control::frames::{Abc, Amps, Dq, Volts};
+use crate::control::pi::PiGains;
+use crate::hal::power::{FeedbackSample, Measurements, PwmCommand, SLOW_TICK_DIVIDER};
+use crate::od::access::Dictionary;
+use crate::od::generated::handles as h;
+
+use calibration::{Calibration, CalibrationConfig, CalibrationError, CalibrationStatus, CALIBRATION_COMMAND};
+use commutation::{
+    hall_offset_from_od, AlignmentConfig, Commutation, CommutationError, CommutationMethod, CommutationStage,
+    EncoderConfig,
+};
+use demand::{rated_torque_micro_nm, DemandScale};
+use protection::Trip;
+use scaling::ShuntOffsets;
+
+/// Why the drive is in [`PowerState::Fault`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DriveError {
+    /// The current-offset calibration failed.
+    Calibration(CalibrationError),
+    /// The electrical angle could not be determined (invalid Hall state).
+    Commutation(CommutationError),
+    /// A tier-1 protection tripped.
+    Protection(Trip),
+}
+
+/// Why a power-stage request was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RequestError {
+    /// The request is not allowed in the present state (e.g. enable before the calibration has finished).
+    WrongState(PowerState),
+}
+
+/// The power-stage state (the part of CiA 402 this issue needs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PowerState {
+    /// Outputs off, not calibrated for this switch-on (CiA 402 switch on disabled / ready to switch on).
+    Off,
+    /// Transition 3 in progress: outputs at 50 % duty, offsets being measured.
+    Calibrating,
+    /// Calibrated, outputs off (CiA 402 switched on).
+    SwitchedOn,
+    /// Current loop running (CiA 402 operation enabled), including forced alignment.
+    OperationEnabled,
+    /// Outputs off after a fault, until [`Drive::fault_reset`].
+    Fault(DriveError),
+}
+
+/// Where the q-current reference comes from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DemandSource {
+    /// Target torque 0x6071 + torque offset 0x60B2 (CST), read every fast tick.
+    TargetTorque,
+    /// A current set by tier 2 through [`Drive::set_current_demand`] (the velocity and position loops).
+    Internal,
+}
+
+/// Construction-time configuration that has no dictionary object (yet).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DriveConfig {
+    /// Node-ID for the dictionary's node-relative defaults.
+    pub node_id: u8,
+    /// Offset calibration parameters.
+    pub calibration: CalibrationConfig,
+    /// Forced-alignment parameters, used when 0x3000:01 configures no Hall sensor.
+    pub alignment: AlignmentConfig,
+    /// The electrical angle at the encoder index, if known (there is no dictionary object for it yet; without it
+    /// the drive learns it at the first index pulse after a Hall edge or an alignment).
+    pub index_offset: Option<ElectricalAngle>,
+}
+
+impl DriveConfig {
+    /// Defaults for the reference drive at node 1.
+    pub const DEFAULT: Self = Self {
+        node_id: 1,
+        calibration: CalibrationConfig::DEFAULT,
+        alignment: AlignmentConfig::REFERENCE,
+        index_offset: None,
+    };
+}
+
+impl Default for DriveConfig {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
+
+/// The result of one fast tick.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FastTick {
+    /// The command for the next PWM period.
+    pub pwm: PwmCommand,
+    /// A slow tick is due now: the runtime pends tier 2 (target), or the caller runs [`Drive::slow_tick`] (host).
+    pub slow_tick_due: bool,
+}
+
+/// What the last fast tick measured and commanded (for the slow tick, the simulation's traces and diagnostics).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct FastSignals {
+    /// Calibrated phase currents.
+    pub i_abc: Abc<Amps>,
+    /// Measured d/q currents (zero while the current loop is not running).
+    pub i_dq: Dq<Amps>,
+    /// The d/q current reference.
+    pub i_ref: Dq<Amps>,
+    /// The applied d/q voltage (after the limit).
+    pub v_dq: Dq<Volts>,
+    /// DC-bus voltage.
+    pub v_bus: Volts,
+    /// Electrical angle used.
+    pub angle: ElectricalAngle,
+    /// The voltage limit was active.
+    pub saturated: bool,
+    /// Torque demand in per mille (0x6074).
+    pub torque_demand_permille: i16,
+    /// Hall state after inversion (0x301A:02).
+    pub hall: u8,
+}
+
+/// Raw 0x30A0 values last converted into gains.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct GainSource {
+    p: u32,
+    i: u32,
+}
+
+/// The drive. See the module documentation.
+#[derive(Clone, Debug)]
+pub struct Drive {
+    dictionary: Dictionary,
+    config: DriveConfig,
+    state: PowerState,
+    calibration: Calibration,
+    offsets: ShuntOffsets,
+    commutation: Commutation,
+    hall_mask: u8,
+    controller: CurrentController,
+    gain_source: GainSource,
+    scale: DemandScale,
+    source: DemandSource,
+    internal_demand: Amps,
+    signals: FastSignals,
+    divider: u32,
+    /// 50 Hz low-pass states (`I16F16` bits) of the q current and the bus voltage.
+    i_q_average: i32,
+    v_bus_average: i32,
+}
+
+/// Reads an unsigned value of up to 4 bytes by index and sub-index (a table search: only outside tier 1, for
+/// objects without a typed handle).
+fn read_unsigned(dictionary: &Dictionary, index: u16, sub: u8) -> Option<u32> {
+    let entry = dictionary.find(index, sub).ok()?;
+    let v = crate::od::values::unsigned(dictionary.values().bytes(), entry)?;
+    u32::try_from(v).ok()
+}
+
+impl Drive {
+    /// A drive with the generated dictionary's defaults, outputs off.
+    #[must_use]
+    pub fn new(config: DriveConfig) -> Self {
+        let dictionary = Dictionary::new(config.node_id);
+        let gain_source = GainSource {
+            p: dictionary.get(h::CURRENT_CONTROLLER_P_GAIN),
+            i: dictionary.get(h::CURRENT_CONTROLLER_I_GAIN),
+        };
+        let mut drive = Self {
+            config,
+            state: PowerState::Off,
+            calibration: Calibration::new(config.calibration),
+            offsets: ShuntOffsets::NOMINAL,
+            commutation: Commutation::new(
+                CommutationMethod::Hall,
+                EncoderConfig::REFERENCE,
+                ElectricalAngle::ZERO,
+                config.index_offset,
+            ),
+            hall_mask: 0,
+            controller: CurrentController::new(CurrentLoopConfig::from_idx_0x30a0(gain_source.p, gain_source.i)),
+            gain_source,
+            scale: DemandScale::reference(),
+            source: DemandSource::TargetTorque,
+            internal_demand: Amps::ZERO,
+            signals: FastSignals::default(),
+            divider: 0,
+            i_q_average: 0,
+            v_bus_average: 0,
+            dictionary,
+        };
+        drive.configure_commutation();
+        drive.refresh_parameters();
+        drive
+    }
+
+    // ---------------------------------------------------------------------------------------------------------
+    // Tier 1
+    // ---------------------------------------------------------------------------------------------------------
+
+    /// One 25 kHz tick: protection, scaling, angle, current loop; the command for the next PWM period and whether a
+    /// slow tick is due. Never panics; `PwmCommand::OFF` whenever the drive is not calibrating or enabled.
+    #[inline]
+    pub fn fast_tick(&mut self, m: &Measurements) -> FastTick {
+        self.divider = self.divider.wrapping_add(1);
+        let slow_tick_due = self.divider >= SLOW_TICK_DIVIDER;
+        if slow_tick_due {
+            self.divider = 0;
+        }
+        FastTick { pwm: self.fast_step(m), slow_tick_due }
+    }
+
+    #[inline(always)]
+    fn fast_step(&mut self, m: &Measurements) -> PwmCommand {
+        // 1. Protection: acts before anything else, in every state.
+        if let Some(trip) = protection::check(m) {
+            return self.trip(DriveError::Protection(trip));
+        }
+        // 2. Scaling and the position sensors (the encoder is tracked in every state).
+        let v_bus = scaling::bus_voltage(m.adc.bus_voltage);
+        let feedback = FeedbackSample { hall: m.feedback.hall ^ self.hall_mask, ..m.feedback };
+        self.signals.v_bus = v_bus;
+        self.signals.hall = feedback.hall;
+        let angle = match self.commutation.update(&feedback) {
+            Ok(a) => a,
+            Err(e) => return self.trip(DriveError::Commutation(e)),
+        };
+        match self.state {
+            PowerState::OperationEnabled => self.run_current_loop(m, &feedback, angle, v_bus),
+            PowerState::Calibrating => match self.calibration.step(&m.adc) {
+                CalibrationStatus::Running => CALIBRATION_COMMAND,
+                CalibrationStatus::Done(offsets) => {
+                    self.offsets = offsets;
+                    self.state = PowerState::SwitchedOn;
+                    PwmCommand::OFF
+                }
+                CalibrationStatus::Failed(e) => self.trip(DriveError::Calibration(e)),
+            },
+            PowerState::Off | PowerState::SwitchedOn | PowerState::Fault(_) => PwmCommand::OFF,
+        }
+    }
+
+    /// Operation enabled: commutation start or alignment, reference, FOC step.
+    #[inline(always)]
+    fn run_current_loop(
+        &mut self,
+        m: &Measurements,
+        feedback: &FeedbackSample,
+        mut angle: ElectricalAngle,
+        v_bus: Volts,
+    ) -> PwmCommand {
+        if self.commutation.stage() == CommutationStage::Unknown {
+            if let Err(e) = self.commutation.start(feedback) {
+                return self.trip(DriveError::Commutation(e));
+            }
+            angle = self.commutation.angle();
+        }
+        let i_ref = if let Some(align) = self.commutation.alignment_demand() {
+            angle = align.angle;
+            self.signals.torque_demand_permille = 0;
+            Dq::new(align.i_d, align.i_q)
+        } else if self.commutation.stage().is_valid() {
+            let i_q = match self.source {
+                DemandSource::TargetTorque => {
+                    let (permille, i_q) = self.scale.torque_to_current(
+                        self.dictionary.get(h::TARGET_TORQUE),
+                        self.dictionary.get(h::TORQUE_OFFSET),
+                    );
+                    self.signals.torque_demand_permille = permille;
+                    i_q
+                }
+                DemandSource::Internal => self.internal_demand,
+            };
+            Dq::new(Amps::ZERO, i_q)
+        } else {
+            // The alignment just finished this tick: the angle is valid from the next one; hold zero current.
+            Dq::new(Amps::ZERO, Amps::ZERO)
+        };
+        let i_abc = scaling::phase_currents(&m.adc, &self.offsets);
+        let out = foc_step(&mut self.controller, &FocInput { i_abc, angle, i_ref, v_bus });
+        self.signals.i_abc = i_abc;
+        self.signals.i_dq = out.i_dq;
+        self.signals.i_ref = i_ref;
+        self.signals.v_dq = out.v_dq;
+        self.signals.angle = angle;
+        self.signals.saturated = out.saturated;
+        out.pwm_command()
+    }
+
+    /// Latches a fault and switches the outputs off.
+    #[cold]
+    fn trip(&mut self, error: DriveError) -> PwmCommand {
+        self.state = PowerState::Fault(error);
+        self.commutation.stop();
+        self.controller.reset();
+        self.signals.i_ref = Dq::default();
+        PwmCommand::OFF
+    }
+
+    // ---------------------------------------------------------------------------------------------------------
+    // Tier 2
+    // ---------------------------------------------------------------------------------------------------------
+
+    /// The 2.5 kHz hook: publishes actual values to the dictionary and re-reads the parameters of tier 1 when they
+    /// changed. Called after every [`SLOW_TICK_DIVIDER`]-th fast tick (see [`FastTick::slow_tick_due`]).
+    pub fn slow_tick(&mut self) {
+        self.refresh_parameters();
+        self.publish_actual_values();
+    }
+
+    /// Converts 0x30A0 into gains when it changed, and the motor data into the demand scale.
+    fn refresh_parameters(&mut self) {
+        let d = &mut self.dictionary;
+        let gains = GainSource { p: d.get(h::CURRENT_CONTROLLER_P_GAIN), i: d.get(h::CURRENT_CONTROLLER_I_GAIN) };
+        if gains != self.gain_source {
+            self.gain_source = gains;
+            let g = PiGains::from_idx_0x30a0(gains.p, gains.i);
+            self.controller.set_gains(g, g);
+        }
+        let nominal = d.get(h::MOTOR_NOMINAL_CURRENT);
+        let scale = DemandScale::from_od(
+            nominal,
+            d.get(h::MOTOR_OUTPUT_CURRENT_LIMIT),
+            d.get(h::MAX_CURRENT),
+            d.get(h::MAX_TORQUE),
+        );
+        self.scale = scale;
+        // 0x6075 and 0x6076 are read-only copies derived from 0x3001 (single writer: the drive).
+        d.set(h::MOTOR_RATED_CURRENT, nominal);
+        d.set(h::MOTOR_RATED_TORQUE, rated_torque_micro_nm(nominal, d.get(h::MOTOR_TORQUE_CONSTANT)));
+    }
+
+    /// Writes the actual values of the last fast tick and their 50 Hz averages.
+    fn publish_actual_values(&mut self) {
+        let s = self.signals;
+        let i_q = s.i_dq.q;
+        // First-order low-pass y += (x - y) / 8 at 2.5 kHz: cut-off 1/8 * 2500 / (2 pi) = 49.7 Hz, the 50 Hz of
+        // IDX 0x30D1:01 / 0x30D2:01 (spec §1.3). |x|, |y| < 2^30: no wrap.
+        self.i_q_average = self.i_q_average.wrapping_add(i_q.to_bits().wrapping_sub(self.i_q_average) >> 3);
+        self.v_bus_average = self.v_bus_average.wrapping_add(s.v_bus.to_bits().wrapping_sub(self.v_bus_average) >> 3);
+        let avg = Amps::from_bits(self.i_q_average);
+        let d = &mut self.dictionary;
+        d.set(h::CURRENT_ACTUAL_VALUE, i_q.to_milliamps());
+        d.set(h::CURRENT_ACTUAL_VALUE_AVERAGED, avg.to_milliamps());
+        d.set(h::CURRENT_DEMAND_VALUE, s.i_ref.q.to_milliamps());
+        d.set(h::TORQUE_DEMAND_VALUE, s.torque_demand_permille);
+        let permille = self.scale.current_to_permille(i_q);
+        d.set(h::CURRENT_ACTUAL_VALUE_PER_MILLE, permille);
+        d.set(h::TORQUE_ACTUAL_VALUE, permille);
+        d.set(h::TORQUE_ACTUAL_VALUE_AVERAGED, self.scale.current_to_permille(avg));
+        let mv = Volts::from_bits(self.v_bus_average).to_millivolts().max(0);
+        d.set(h::DC_LINK_CIRCUIT_VOLTAGE, mv.unsigned_abs());
+        d.set(h::POWER_SUPPLY_VOLTAGE, u16::try_from(mv / 100).unwrap_or(u16::MAX));
+        d.set(h::HALL_PATTERN, s.hall);
+        if let Some(latch) = self.commutation.last_index_latch() {
+            d.set(h::ENCODER_INDEX_POSITION, u32::from(latch));
+        }
+    }
+
+    // ---------------------------------------------------------------------------------------------------------
+    // Power-stage requests (called by the CiA 402 state machine)
+    // ---------------------------------------------------------------------------------------------------------
+
+    /// CiA 402 transition 3 "switch on": reads the power-disabled parameters and starts the current-offset
+    /// calibration (outputs at 50 % duty); the state becomes [`PowerState::SwitchedOn`] when it succeeds (within
+    /// `CalibrationConfig::timeout_ticks`), or [`PowerState::Fault`] when it fails.
+    pub fn switch_on(&mut self) -> Result<(), RequestError> {
+        match self.state {
+            PowerState::Off | PowerState::SwitchedOn => {
+                self.configure_commutation();
+                self.refresh_parameters();
+                self.calibration = Calibration::new(self.config.calibration);
+                self.state = PowerState::Calibrating;
+                Ok(())
+            }
+            other => Err(RequestError::WrongState(other)),
+        }
+    }
+
+    /// CiA 402 transition 4 "enable operation": starts the commutation (from the next fast tick's sensors) and the
+    /// current loop with empty integrators.
+    pub fn enable_operation(&mut self) -> Result<(), RequestError> {
+        match self.state {
+            PowerState::SwitchedOn => {
+                self.controller.reset();
+                self.commutation.stop();
+                self.state = PowerState::OperationEnabled;
+                Ok(())
+            }
+            PowerState::OperationEnabled => Ok(()),
+            other => Err(RequestError::WrongState(other)),
+        }
+    }
+
+    /// CiA 402 transition 5 "disable operation": outputs off, stays calibrated.
+    pub fn disable_operation(&mut self) {
+        if self.state == PowerState::OperationEnabled {
+            self.state = PowerState::SwitchedOn;
+        }
+        self.commutation.stop();
+        self.controller.reset();
+    }
+
+    /// CiA 402 transitions 6/8/9 "shutdown"/"disable voltage": outputs off, calibration to be redone at the next
+    /// switch-on. A latched fault stays latched.
+    pub fn shutdown(&mut self) {
+        if !matches!(self.state, PowerState::Fault(_)) {
+            self.state = PowerState::Off;
+        }
+        self.commutation.stop();
+        self.controller.reset();
+    }
+
+    /// CiA 402 transition 15 "fault reset": back to [`PowerState::Off`].
+    pub fn fault_reset(&mut self) {
+        if matches!(self.state, PowerState::Fault(_)) {
+            self.state = PowerState::Off;
+        }
+    }
+
+    /// Selects where the q-current reference comes from.
+    pub fn set_demand_source(&mut self, source: DemandSource) {
+        self.source = source;
+    }
+
+    /// The q-current demand for [`DemandSource::Internal`] (tier 2's velocity/position loops), clamped to the
+    /// current limit.
+    pub fn set_current_demand(&mut self, i_q: Amps) {
+        let limit = self.scale.current_limit().to_bits();
+        self.internal_demand = Amps::from_bits(i_q.to_bits().clamp(limit.wrapping_neg(), limit));
+    }
+
+    /// Reads encoder, pole pairs and Hall objects (writable only with the power disabled) into the commutation.
+    /// Keeps the encoder's position when nothing changed.
+    fn configure_commutation(&mut self) {
+        let d = &self.dictionary;
+        let encoder =
+            EncoderConfig::from_od(d.get(h::ENCODER_PULSES), d.get(h::ENCODER_TYPE), d.get(h::MOTOR_POLE_PAIRS));
+        // 0x3000:01 bits 23..16: sensor 3 type, 4 = digital Hall sensor (device.toml). No handle: searched here,
+        // outside tier 1.
+        let sensors = read_unsigned(d, 0x3000, 1).unwrap_or(0x0004_0001);
+        let method = if (sensors >> 16) & 0xFF == 4 {
+            CommutationMethod::Hall
+        } else {
+            CommutationMethod::ForcedAlignment(self.config.alignment)
+        };
+        // 0x301A:01 bit 0: invert all Hall signals.
+        self.hall_mask = if read_unsigned(d, 0x301A, 1).unwrap_or(0) & 1 != 0 { 0b111 } else { 0 };
+        let hall_offset = hall_offset_from_od(d.get(h::HALL_COMMUTATION_OFFSET));
+        let same = self.commutation.encoder().config() == &encoder
+            && self.commutation.method() == method
+            && self.commutation.hall_offset() == hall_offset;
+        if !same {
+            let index_offset = self.commutation.index_offset().or(self.config.index_offset);
+            self.commutation = Commutation::new(method, encoder, hall_offset, index_offset);
+        }
+    }
+
+    // ---------------------------------------------------------------------------------------------------------
+    // Observation
+    // ---------------------------------------------------------------------------------------------------------
+
+    /// The power-stage state.
+    #[must_use]
+    pub const fn state(&self) -> PowerState {
+        self.state
+    }
+
+    /// The shunt offsets in use (nominal until the first successful calibration).
+    #[must_use]
+    pub const fn offsets(&self) -> &ShuntOffsets {
+        &self.offsets
+    }
+
+    /// The commutation state.
+    #[must_use]
+    pub const fn commutation(&self) -> &Commutation {
+        &self.commutation
+    }
+
+    /// The current controller.
+    #[must_use]
+    pub const fn controller(&self) -> &CurrentController {
+        &self.controller
+    }
+
+    /// What the last fast tick measured and commanded.
+    #[must_use]
+    pub const fn signals(&self) -> &FastSignals {
+        &self.signals
+    }
+
+    /// The demand scale and limits in force.
+    #[must_use]
+    pub const fn demand_scale(&self) -> &DemandScale {
+        &self.scale
+    }
+
+    /// The dictionary.
+    #[must_use]
+    pub const fn dictionary(&self) -> &Dictionary {
+        &self.dictionary
+    }
+
+    /// The dictionary, mutable (SDO/PDO writes, test set-points). Parameters tier 1 uses take effect at the next
+    /// slow tick (gains, limits) or the next switch-on (power-disabled objects).
+    pub fn dictionary_mut(&mut self) -> &mut Dictionary {
+        &mut self.dictionary
+    }
+}

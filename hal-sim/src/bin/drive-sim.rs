@@ -1,4 +1,244 @@
-//! `drive-sim`: runs the firmware against the simulated drive.
-fn main() {
-    println!("drive-sim");
+//! `drive-sim`: runs the firmware's drive against the simulated reference plant and reports what it measured.
+//!
+//! ```text
+//! drive-sim current-step [--seed N] [--default-gains | --gains P,I] [--out DIR]   step, sweep, calibration
+//! drive-sim spinning     [--seed N] [--default-gains | --gains P,I] [--out DIR]   3,000 rpm, load step
+//! drive-sim bench        [--seconds S]                              host speed (build with --release)
+//! ```
+//!
+//! Each scenario prints a human-readable report, the paths of the CSV traces and SVG plots it wrote (under
+//! `out/<scenario>/` of the current directory unless `--out` says otherwise), and as its last lines one
+//! `key=value` per figure (the stable measurement interface).
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use hal_sim::sim::plot::{Plot, Series};
+use hal_sim::sim::scenarios::{self, Setup, SpinConfig, SpinStepFigures, SWEEP_FREQUENCIES_HZ};
+use hal_sim::sim::trace::Trace;
+
+const USAGE: &str = "usage: drive-sim <current-step | spinning | bench> [--seed N] [--default-gains | --gains P,I] \
+                     [--out DIR] [--seconds S]";
+
+struct Args {
+    scenario: String,
+    seed: u64,
+    default_gains: bool,
+    gains: Option<(u32, u32)>,
+    out: Option<PathBuf>,
+    seconds: f64,
+}
+
+fn parse_args() -> Result<Args, String> {
+    let mut it = std::env::args().skip(1);
+    let scenario = it.next().ok_or_else(|| USAGE.to_owned())?;
+    let mut args = Args { scenario, seed: 1, default_gains: false, gains: None, out: None, seconds: 2.0 };
+    while let Some(a) = it.next() {
+        let mut value = |name: &str| it.next().ok_or_else(|| format!("{name} needs a value\n{USAGE}"));
+        match a.as_str() {
+            "--seed" => args.seed = value("--seed")?.parse().map_err(|e| format!("--seed: {e}"))?,
+            "--default-gains" => args.default_gains = true,
+            "--gains" => {
+                let v = value("--gains")?;
+                let (p, i) = v.split_once(',').ok_or_else(|| format!("--gains P,I (uV/A,uV/(A ms)), got {v}"))?;
+                let p = p.trim().parse().map_err(|e| format!("--gains P: {e}"))?;
+                let i = i.trim().parse().map_err(|e| format!("--gains I: {e}"))?;
+                args.gains = Some((p, i));
+            }
+            "--out" => args.out = Some(PathBuf::from(value("--out")?)),
+            "--seconds" => args.seconds = value("--seconds")?.parse().map_err(|e| format!("--seconds: {e}"))?,
+            other => return Err(format!("unknown argument {other}\n{USAGE}")),
+        }
+    }
+    Ok(args)
+}
+
+fn setup(args: &Args) -> Setup {
+    Setup { seed: args.seed, gains: if args.default_gains { None } else { args.gains }, ..Setup::default() }
+}
+
+fn gains_text(s: &Setup) -> String {
+    match s.gains {
+        Some((p, i)) => format!("0x30A0 set at run time: P {p} uV/A, I {i} uV/(A ms)"),
+        None => "0x30A0 dictionary defaults: P 1555000 uV/A, I 2450000 uV/(A ms)".to_owned(),
+    }
+}
+
+fn write(trace: &Trace, plot: &Plot, dir: &Path, name: &str) -> Result<(), String> {
+    let csv = dir.join(format!("{name}.csv"));
+    let svg = dir.join(format!("{name}.svg"));
+    trace.write_csv(&csv).map_err(|e| format!("{}: {e}", csv.display()))?;
+    plot.write_svg(&svg).map_err(|e| format!("{}: {e}", svg.display()))?;
+    println!("  wrote {} and {}", csv.display(), svg.display());
+    Ok(())
+}
+
+fn time_plot(trace: &Trace, title: &str, signals: &[(&str, &str)], y_label: &str) -> Plot {
+    let t_ms: Vec<f64> = trace.column("t_us").unwrap_or_default().iter().map(|t| t / 1000.0).collect();
+    let mut plot = Plot::new(title, "time [ms]", y_label);
+    for (col, name) in signals {
+        plot.series.push(Series::new(name, &t_ms, &trace.column(col).unwrap_or_default()));
+    }
+    plot
+}
+
+fn current_step(args: &Args, dir: &Path) -> Result<(), String> {
+    let s = setup(args);
+    println!(
+        "current-step: reference plant (seed {}), shunt offsets {:?} LSB, {}",
+        s.seed,
+        s.offsets_lsb,
+        gains_text(&s)
+    );
+    let step = scenarios::current_step(&s, 2.0).map_err(|e| e.to_string())?;
+    let p = step.prepared;
+    println!(
+        "\nOffset calibration (CiA 402 transition 3, {} ticks = {:.1} ms):",
+        p.calibration_ticks,
+        p.calibration_ticks as f64 * 0.04
+    );
+    for ch in 0..3 {
+        println!(
+            "  phase {}: true {:+.1} LSB, estimated {:+.3} LSB",
+            ["A", "B", "C"][ch],
+            s.offsets_lsb[ch],
+            p.offsets_estimated_lsb[ch]
+        );
+    }
+    println!("  largest residual {:.3} LSB (bound 2 LSB)", p.offset_residual_lsb);
+    println!(
+        "Commutation after commissioning (Hall start, Hall edge, index): angle error {:+.3} deg electrical",
+        p.angle_error_deg
+    );
+    let f = step.figures;
+    println!("\nq-current step 0 -> {:.1} A, rotor locked (plant's true currents at the sample instants):", f.step_a);
+    println!("  rise time 10-90 %   {:7.1} us   (bound <= 200 us)", f.rise_us);
+    println!("  overshoot           {:7.2} %    (bound <= 10 %)", f.overshoot_pct);
+    println!("  steady-state error  {:7.3} %    (bound < 1 % of the step)", f.steady_error_pct);
+    println!("  d-axis excursion    {:7.2} %    (bound <= 3 % of the step)", f.d_excursion_pct);
+    println!("  settling to +-2 %   {:7.1} us", f.settle_us);
+    let plot = time_plot(
+        &step.trace,
+        "q-current step 0 -> 2 A, locked rotor",
+        &[
+            ("iq_ref_a", "i_q reference"),
+            ("iq_a", "i_q (plant)"),
+            ("id_a", "i_d (plant)"),
+            ("iq_measured_a", "i_q (drive)"),
+        ],
+        "current [A]",
+    );
+    write(&step.trace, &plot, dir, "step")?;
+
+    let sweep = scenarios::bandwidth(&s, 2.0, 1.0, &SWEEP_FREQUENCIES_HZ).map_err(|e| e.to_string())?;
+    println!("\nClosed-loop frequency response, q reference 2 A + 1 A sine (no zero crossing), rotor locked:");
+    println!("  {:>8}  {:>8}  {:>9}", "f [Hz]", "gain[dB]", "phase[deg]");
+    for pt in &sweep.points {
+        println!("  {:8.0}  {:8.2}  {:9.1}", pt.freq_hz, pt.gain_db(), pt.phase_deg);
+    }
+    println!("  -3 dB bandwidth {:.0} Hz (bound >= 2000 Hz), peak {:+.2} dB", sweep.bandwidth_hz, sweep.peak_db);
+    let st = scenarios::sweep_trace(&sweep);
+    let mut bode = Plot::new("Closed-loop current response (locked rotor)", "frequency [Hz]", "gain [dB]");
+    bode.log_x = true;
+    bode.series.push(
+        Series::new(
+            "|I_q / I_ref|",
+            &st.column("freq_hz").unwrap_or_default(),
+            &st.column("gain_db").unwrap_or_default(),
+        )
+        .with_markers(),
+    );
+    bode.h_lines.push((-3.0103, "-3 dB".into()));
+    write(&st, &bode, dir, "sweep")?;
+
+    println!();
+    println!("rise_us={:.1}", f.rise_us);
+    println!("overshoot_pct={:.2}", f.overshoot_pct);
+    println!("steady_error_pct={:.3}", f.steady_error_pct);
+    println!("bandwidth_hz={:.0}", sweep.bandwidth_hz);
+    println!("offset_residual_lsb={:.3}", p.offset_residual_lsb);
+    Ok(())
+}
+
+fn print_spin(name: &str, f: &SpinStepFigures) {
+    println!("  {name}: {:+.1} A at {:.0} rpm", f.step_a, f.speed_rpm);
+    println!("    voltage limit active  {:7.0} us", f.saturated_us);
+    println!("    recovery after limit  {:7.0} us   (bound <= 1000 us)", f.recovery_us);
+    println!("    settling into +-5 %   {:7.0} us", f.settle_us);
+    println!("    overshoot             {:7.2} %", f.overshoot_pct);
+    println!("    tracking error after  {:7.2} %", f.tracking_error_pct);
+    println!("    |i_d| peak            {:7.3} A", f.d_peak_a);
+}
+
+fn spinning(args: &Args, dir: &Path) -> Result<(), String> {
+    let s = setup(args);
+    let cfg = SpinConfig::default();
+    println!(
+        "spinning: reference plant (seed {}), free shaft at {:.0} rpm, q current {:.1} A -> {:.1} A with a {:.2} N m load step, back after {:.0} ms; {}",
+        s.seed, cfg.speed_rpm, cfg.base_a, cfg.high_a, cfg.load_nm, cfg.phase_ms, gains_text(&s)
+    );
+    let r = scenarios::spinning(&s, &cfg).map_err(|e| e.to_string())?;
+    print_spin("step up with load", &r.up);
+    print_spin("step down, load removed", &r.down);
+    let plot = time_plot(
+        &r.trace,
+        "3000 rpm: q-current step with load step",
+        &[
+            ("iq_ref_a", "i_q reference"),
+            ("iq_a", "i_q (plant)"),
+            ("id_a", "i_d (plant)"),
+            ("vq_v", "v_q [V]"),
+            ("vd_v", "v_d [V]"),
+        ],
+        "current [A] / voltage [V]",
+    );
+    write(&r.trace, &plot, dir, "spinning")?;
+    println!();
+    println!("spin_speed_rpm={:.0}", r.up.speed_rpm);
+    println!("spin_saturated_us={:.0}", r.up.saturated_us);
+    println!("spin_recovery_us={:.0}", r.up.recovery_us.max(r.down.recovery_us));
+    println!("spin_settle_us={:.0}", r.up.settle_us.max(r.down.settle_us));
+    println!("spin_overshoot_pct={:.2}", r.up.overshoot_pct.max(r.down.overshoot_pct));
+    println!("spin_tracking_error_pct={:.2}", r.up.tracking_error_pct.max(r.down.tracking_error_pct));
+    Ok(())
+}
+
+fn bench(args: &Args) -> Result<(), String> {
+    if cfg!(debug_assertions) {
+        println!("note: a debug build; the figure is for `cargo run --release`");
+    }
+    let b = scenarios::bench(args.seconds).map_err(|e| e.to_string())?;
+    println!(
+        "bench: {:.2} s of drive time ({} fast ticks with the plant, slow tick every 10th) in {:.3} s wall-clock",
+        b.simulated_s,
+        (b.simulated_s * 25_000.0).round(),
+        b.wall_s
+    );
+    println!();
+    println!("sim_speed_ratio={:.2}", b.sim_speed_ratio);
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    let args = match parse_args() {
+        Ok(a) => a,
+        Err(e) => {
+            eprintln!("{e}");
+            return ExitCode::from(2);
+        }
+    };
+    let dir = args.out.clone().unwrap_or_else(|| PathBuf::from("out").join(&args.scenario));
+    let result = match args.scenario.as_str() {
+        "current-step" => current_step(&args, &dir),
+        "spinning" => spinning(&args, &dir),
+        "bench" => bench(&args),
+        other => Err(format!("unknown scenario {other}\n{USAGE}")),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("drive-sim: {e}");
+            ExitCode::FAILURE
+        }
+    }
 }

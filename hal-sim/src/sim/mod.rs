@@ -1,0 +1,186 @@
+//! The firmware's drive running against the simulated plant: the runner, the scenarios and their figures, and the
+//! trace (CSV) and plot (SVG) writers used by `drive-sim` and by the scenario tests of `drive-tests`.
+//!
+//! The loop is the hardware's (`firmware::hal::power`, `crate::plant` timeline): `plant.step(previous command)`
+//! simulates one PWM period and returns its centre sample; `drive.fast_tick(sample)` computes the command for the
+//! next period; when it reports a slow tick due, `drive.slow_tick()` runs before the next period (on the target tier
+//! 2 runs after tier 1 returns, well inside the same period).
+
+pub mod plot;
+pub mod scenarios;
+pub mod trace;
+
+use firmware::drive::commutation::CommutationStage;
+use firmware::drive::{Drive, DriveConfig, DriveError, PowerState};
+use firmware::hal::power::{Measurements, PwmCommand};
+use firmware::od::generated::handles as h;
+
+use crate::plant::{Plant, PlantParams, PERIOD_S};
+
+/// Why a simulation step sequence did not reach its goal.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SimError {
+    /// The drive latched a fault.
+    Drive(DriveError),
+    /// A power-stage request was refused in this state.
+    Refused(PowerState),
+    /// A goal was not reached within its time budget.
+    Timeout(&'static str),
+}
+
+impl core::fmt::Display for SimError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Drive(e) => write!(f, "drive fault: {e:?}"),
+            Self::Refused(s) => write!(f, "request refused in state {s:?}"),
+            Self::Timeout(what) => write!(f, "timed out waiting for {what}"),
+        }
+    }
+}
+
+impl std::error::Error for SimError {}
+
+/// The plant and the drive, stepped together.
+#[derive(Debug)]
+pub struct Simulation {
+    /// The simulated motor, inverter and sensors.
+    pub plant: Plant,
+    /// The firmware's drive.
+    pub drive: Drive,
+    cmd: PwmCommand,
+    measurements: Measurements,
+    ticks: u64,
+}
+
+impl Simulation {
+    /// A simulation of `params` (noise seeded with `seed`) and a drive with `config`.
+    pub fn new(params: PlantParams, seed: u64, config: DriveConfig) -> Self {
+        Self {
+            plant: Plant::new(params, seed),
+            drive: Drive::new(config),
+            cmd: PwmCommand::OFF,
+            measurements: Measurements::default(),
+            ticks: 0,
+        }
+    }
+
+    /// The reference plant and the default drive.
+    pub fn reference(seed: u64) -> Self {
+        Self::new(PlantParams::reference(), seed, DriveConfig::DEFAULT)
+    }
+
+    /// One PWM period: plant, fast tick, and the slow tick when due.
+    #[inline]
+    pub fn step(&mut self) {
+        let m = self.plant.step(&self.cmd);
+        let tick = self.drive.fast_tick(&m);
+        if tick.slow_tick_due {
+            self.drive.slow_tick();
+        }
+        self.cmd = tick.pwm;
+        self.measurements = m;
+        self.ticks = self.ticks.wrapping_add(1);
+    }
+
+    /// `n` periods.
+    pub fn run(&mut self, n: u64) {
+        for _ in 0..n {
+            self.step();
+        }
+    }
+
+    /// Steps until `done` holds (checked after each period) or `max_ticks` have passed; the ticks taken.
+    pub fn run_until(&mut self, max_ticks: u64, mut done: impl FnMut(&Self) -> bool) -> Option<u64> {
+        for k in 1..=max_ticks {
+            self.step();
+            if done(self) {
+                return Some(k);
+            }
+        }
+        None
+    }
+
+    /// Periods simulated so far.
+    pub fn ticks(&self) -> u64 {
+        self.ticks
+    }
+
+    /// Simulated time, in s.
+    pub fn time_s(&self) -> f64 {
+        self.ticks as f64 * PERIOD_S
+    }
+
+    /// The last period's measurements (what the drive saw).
+    pub fn measurements(&self) -> &Measurements {
+        &self.measurements
+    }
+
+    /// The command the drive wrote for the next period.
+    pub fn command(&self) -> &PwmCommand {
+        &self.cmd
+    }
+
+    /// Writes target torque 0x6071 (per mille of rated torque) into the dictionary, as an RxPDO would.
+    pub fn set_target_torque(&mut self, permille: i16) {
+        self.drive.dictionary_mut().set(h::TARGET_TORQUE, permille);
+    }
+
+    /// Sets a q-current reference in amperes through 0x6071, rounded to one per mille of the nominal current
+    /// 0x3001:01 (3.2 mA for the reference motor).
+    pub fn set_q_reference(&mut self, amps: f64) {
+        let nominal_a = f64::from(self.drive.dictionary().get(h::MOTOR_NOMINAL_CURRENT).max(1)) / 1000.0;
+        let permille = (amps / nominal_a * 1000.0).round().clamp(f64::from(i16::MIN), f64::from(i16::MAX));
+        self.set_target_torque(permille as i16);
+    }
+
+    /// Writes the current controller gains 0x30A0:01 (uV/A) and :02 (uV/(A ms)); they take effect at the next
+    /// slow tick.
+    pub fn set_current_gains(&mut self, p_uv_per_a: u32, i_uv_per_a_ms: u32) {
+        let d = self.drive.dictionary_mut();
+        d.set(h::CURRENT_CONTROLLER_P_GAIN, p_uv_per_a);
+        d.set(h::CURRENT_CONTROLLER_I_GAIN, i_uv_per_a_ms);
+    }
+
+    fn fault(&self) -> Option<DriveError> {
+        match self.drive.state() {
+            PowerState::Fault(e) => Some(e),
+            _ => None,
+        }
+    }
+
+    /// Transition 3: switch on and run the offset calibration to its end; the ticks it took.
+    pub fn switch_on(&mut self) -> Result<u64, SimError> {
+        self.drive.switch_on().map_err(|firmware::drive::RequestError::WrongState(s)| SimError::Refused(s))?;
+        let ticks = self
+            .run_until(2_000, |s| s.drive.state() != PowerState::Calibrating)
+            .ok_or(SimError::Timeout("the offset calibration"))?;
+        match self.drive.state() {
+            PowerState::SwitchedOn => Ok(ticks),
+            PowerState::Fault(e) => Err(SimError::Drive(e)),
+            other => Err(SimError::Refused(other)),
+        }
+    }
+
+    /// Transition 4: enable operation (the commutation starts at the next period).
+    pub fn enable(&mut self) -> Result<(), SimError> {
+        self.drive.enable_operation().map_err(|firmware::drive::RequestError::WrongState(s)| SimError::Refused(s))
+    }
+
+    /// Commissioning on a free shaft: switch on (calibration), enable, drive `amps` of q current until the
+    /// commutation is indexed (Hall start, first Hall edge, first index pulse: within one revolution), then zero
+    /// current. The rotor keeps whatever speed it reached; scenarios lock or set it afterwards. Returns the ticks
+    /// the offset calibration took.
+    pub fn commission(&mut self, amps: f64) -> Result<u64, SimError> {
+        let calibration_ticks = self.switch_on()?;
+        self.enable()?;
+        self.set_q_reference(amps);
+        let indexed = self
+            .run_until(25_000, |s| s.fault().is_some() || s.drive.commutation().stage() == CommutationStage::Indexed);
+        if let Some(e) = self.fault() {
+            return Err(SimError::Drive(e));
+        }
+        indexed.ok_or(SimError::Timeout("the encoder index"))?;
+        self.set_q_reference(0.0);
+        Ok(calibration_ticks)
+    }
+}
