@@ -16,4 +16,4 @@ if [ ${#need_apt[@]} -gt 0 ]; then
 fi
 
 # Python packages for the real-master and EDS tests.
-python3 -m pip install -q --disable-pip-version-check -r tests/python/requirements.txt
+python3 -m pip install -q --disable-pip-version-check --root-user-action=ignore -r tests/python/requirements.txt
