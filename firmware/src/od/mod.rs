@@ -3,8 +3,8 @@
 pub mod abort;
 pub mod access;
 pub mod entry;
-pub mod store;
 pub mod pdo_map;
+pub mod store;
 pub mod values;
 
 /// Everything od-gen generated from `firmware/device.toml` (tables, default values, typed handles).
