@@ -22,6 +22,7 @@ pub mod adc;
 pub mod clock;
 pub mod counter;
 pub mod feedback;
+pub mod flash;
 pub mod pwm;
 pub mod reg;
 pub mod vectors;

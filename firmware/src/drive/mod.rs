@@ -30,6 +30,7 @@
 pub mod calibration;
 pub mod commutation;
 pub mod demand;
+pub mod objects;
 pub mod protection;
 pub mod scaling;
 
@@ -101,8 +102,8 @@ pub struct DriveConfig {
     pub calibration: CalibrationConfig,
     /// Forced-alignment parameters, used when 0x3000:01 configures no Hall sensor.
     pub alignment: AlignmentConfig,
-    /// The electrical angle at the encoder index, if known (there is no dictionary object for it yet; without it
-    /// the drive learns it at the first index pulse after a Hall edge or an alignment).
+    /// The electrical angle at the encoder index, if known, for when 0x3010:05 does not give it (-1); without
+    /// either the drive learns it at the first index pulse after a Hall edge or an alignment.
     pub index_offset: Option<ElectricalAngle>,
 }
 
@@ -183,19 +184,17 @@ pub struct Drive {
     v_bus_average: i32,
 }
 
-/// Reads an unsigned value of up to 4 bytes by index and sub-index (a table search: only outside tier 1, for
-/// objects without a typed handle).
-fn read_unsigned(dictionary: &Dictionary, index: u16, sub: u8) -> Option<u32> {
-    let entry = dictionary.find(index, sub).ok()?;
-    let v = crate::od::values::unsigned(dictionary.values().bytes(), entry)?;
-    u32::try_from(v).ok()
-}
-
 impl Drive {
-    /// A drive with the generated dictionary's defaults, outputs off.
+    /// A drive with the generated dictionary's defaults, outputs off. [`Drive::boot`] starts from the stored
+    /// parameters instead.
     #[must_use]
     pub fn new(config: DriveConfig) -> Self {
-        let dictionary = Dictionary::new(config.node_id);
+        Self::with_dictionary(config, Dictionary::new(config.node_id))
+    }
+
+    /// A drive over `dictionary` (the defaults with the stored parameters applied, see [`objects`]), outputs off.
+    #[must_use]
+    pub fn with_dictionary(config: DriveConfig, dictionary: Dictionary) -> Self {
         let gain_source = GainSource {
             p: dictionary.get(h::CURRENT_CONTROLLER_P_GAIN),
             i: dictionary.get(h::CURRENT_CONTROLLER_I_GAIN),
@@ -470,22 +469,26 @@ impl Drive {
         let d = &self.dictionary;
         let encoder =
             EncoderConfig::from_od(d.get(h::ENCODER_PULSES), d.get(h::ENCODER_TYPE), d.get(h::MOTOR_POLE_PAIRS));
-        // 0x3000:01 bits 23..16: sensor 3 type, 4 = digital Hall sensor (device.toml). No handle: searched here,
-        // outside tier 1.
-        let sensors = read_unsigned(d, 0x3000, 1).unwrap_or(0x0004_0001);
+        // 0x3000:01 bits 23..16: sensor 3 type, 4 = digital Hall sensor (device.toml).
+        let sensors = d.get(h::SENSORS_CONFIGURATION);
         let method = if (sensors >> 16) & 0xFF == 4 {
             CommutationMethod::Hall
         } else {
             CommutationMethod::ForcedAlignment(self.config.alignment)
         };
         // 0x301A:01 bit 0: invert all Hall signals.
-        self.hall_mask = if read_unsigned(d, 0x301A, 1).unwrap_or(0) & 1 != 0 { 0b111 } else { 0 };
+        self.hall_mask = if d.get(h::HALL_CONFIGURATION) & 1 != 0 { 0b111 } else { 0 };
         let hall_offset = hall_offset_from_od(d.get(h::HALL_COMMUTATION_OFFSET));
         let same = self.commutation.encoder().config() == &encoder
             && self.commutation.method() == method
             && self.commutation.hall_offset() == hall_offset;
-        if !same {
-            let index_offset = self.commutation.index_offset().or(self.config.index_offset);
+        // 0x3010:05, the electrical angle at the index (1/65536 turn as 0x301A:03; -1 = not known): a configured
+        // one wins over a learned one and over `DriveConfig::index_offset`.
+        let configured = u16::try_from(d.get(h::INDEX_COMMUTATION_OFFSET)).ok().map(hall_offset_from_od);
+        let index_offset = configured.or(self.commutation.index_offset()).or(self.config.index_offset);
+        if same {
+            self.commutation.set_index_offset(index_offset);
+        } else {
             self.commutation = Commutation::new(method, encoder, hall_offset, index_offset);
         }
     }

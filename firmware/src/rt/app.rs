@@ -1,18 +1,70 @@
-//! The glue between the runtime and the pure library: what tier 1 and tier 2 call, and their state.
+//! The glue between the runtime and the pure library: what tier 1 and tier 2 call, and their state; the boot path
+//! that loads the stored parameters before the drive exists; tier 3's SDO access to the drive.
 //!
 //! Tier 1 runs [`Drive::fast_tick`] (protection, scaling, commutation angle, `control::current_loop::foc_step`);
 //! tier 2 runs [`Drive::slow_tick`]. Both take the one [`Drive`]: tier 1 owns it, and tier 2 and 3 reach it only
 //! through `tier1::with_drive`, which holds tier 1 off for the duration (see `rt` module docs).
+//!
+//! # Parameters
+//! [`boot`] runs at start-up, before tier 1 gets the drive: it reads the parameter sectors (PARAMS_A/PARAMS_B,
+//! [`ParamFlash`]) and builds the drive from the defaults with the stored record applied ([`Drive::boot`], the same
+//! path the host tests and `drive-sim` use). Boot only reads the flash. The store then belongs to tier 3, which
+//! erases and programs only through [`sdo_write`] (0x1010 "save", 0x1011 "load"): inside `tier1::with_drive`, with
+//! the power stage disabled (see `board::flash` for why).
 
+use crate::board::flash::ParamFlash;
+use crate::drive::objects::BootReport;
 use crate::drive::{Drive, DriveConfig, FastTick};
 use crate::hal::power::Measurements;
+use crate::od::abort::SdoAbort;
+use crate::od::access::AccessContext;
+use crate::od::store::ParamStore;
 
 /// Everything tier 1 keeps between periods.
 pub type FastState = Drive;
 
-/// The drive as it starts: outputs off, not calibrated.
-pub fn new_drive() -> Drive {
-    Drive::new(DriveConfig::default())
+/// The parameter store on the board's flash (owned by tier 3 after boot).
+pub type Params = ParamStore<ParamFlash>;
+
+/// What start-up hands to the tiers.
+#[derive(Debug)]
+pub struct Boot {
+    /// The drive, outputs off: to tier 1.
+    pub drive: Drive,
+    /// The parameter store: to tier 3 (`None` in the QEMU image, or if the flash driver was already taken).
+    pub params: Option<Params>,
+    /// What the parameter load found (`None` when nothing was loaded).
+    pub report: Option<BootReport>,
+}
+
+/// The drive as it starts: defaults, then the parameters stored in flash, then the drive built from those values
+/// (outputs off, not calibrated).
+pub fn boot() -> Boot {
+    let config = DriveConfig::default();
+    // QEMU's netduinoplus2 does not emulate the flash interface (FLASH_KEYR/SR/CR, target-qemu.md), so the QEMU
+    // image neither loads nor saves parameters: it boots with the defaults, which also keeps its instruction
+    // counts independent of any flash contents.
+    #[cfg(feature = "qemu")]
+    let params: Option<Params> = None;
+    #[cfg(not(feature = "qemu"))]
+    let params = ParamFlash::take().map(ParamStore::new);
+    match params {
+        Some(mut params) => {
+            let (drive, report) = Drive::boot(config, &mut params);
+            Boot { drive, params: Some(params), report: Some(report) }
+        }
+        None => Boot { drive: Drive::new(config), params: None, report: None },
+    }
+}
+
+/// An SDO download of a whole value from tier 3, through the drive's application objects: 0x1010 "save" and
+/// 0x1011 "load" erase and program the parameter flash here. Runs inside `tier1::with_drive`: tiers 1 and 2 are
+/// held off while the flash stalls the bus (they could not run anyway), and the drive's power-stage state is
+/// checked in the same critical section (0x0800_0022 while it is switched on). 0x0800_0022 as well before tier 1
+/// has the drive.
+pub fn sdo_write(params: &mut Params, index: u16, sub: u8, data: &[u8], ctx: AccessContext) -> Result<(), SdoAbort> {
+    super::tier1::with_drive(|drive| drive.sdo_write(index, sub, data, ctx, params))
+        .unwrap_or(Err(SdoAbort::DeviceState))
 }
 
 /// One current-loop period. Not inlined: tier 1 measures exactly this call.

@@ -20,9 +20,11 @@
 //! | `tier2::SLOW_MISSED`        | `AtomicU32`                  | tier 2            | tier 3, QEMU bench      |
 //! | `tier3::TICK`               | [`signal::TickSignal`]       | tier 2 (raise)    | tier-3 supervisor       |
 //! | TIM1 registers (duties, MOE)| peripheral                   | tier 1; the panic/fault handlers force MOE off | - |
+//! | parameter flash (FLASH_CR, PARAMS_A/B) | `board::flash::ParamFlash` in `app::Params`, owned | start-up reads it (`app::boot`); then tier 3 only, erasing and programming inside `tier1::with_drive` with the power stage off | start-up, tier 3 |
 //!
-//! Start-up order: board init (outputs off) -> tier 2 started (its interrupt unmasked, slow loop spawned) ->
-//! tier 1 started (ADC interrupt unmasked) -> tier 3 runs forever. Logging (defmt, feature `defmt`) happens in
+//! Start-up order: board init (outputs off) -> parameters loaded from flash and the drive built from them
+//! (`app::boot`; defaults in the QEMU image) -> tier 2 started (its interrupt unmasked, slow loop spawned) ->
+//! tier 1 started (ADC interrupt unmasked) -> tier 3 runs forever (owning the parameter store). Logging (defmt, feature `defmt`) happens in
 //! start-up, tier 2 and tier 3, never in tier 1 ([`log`]).
 
 pub mod app;
@@ -64,10 +66,14 @@ pub fn run() -> ! {
         peripherals.NVIC.set_priority(Interrupt::Adc, TIER1_PRIORITY);
         peripherals.NVIC.set_priority(Interrupt::Tier2, TIER2_PRIORITY);
     }
+    let boot = app::boot();
+    if let Some(_report) = boot.report {
+        crate::rt_info!("parameters: {}", defmt::Debug2Format(&_report));
+    }
     let _ = tier2::start();
-    tier1::start(board.power, app::new_drive());
+    tier1::start(board.power, boot.drive);
     crate::rt_info!("tiers 1 and 2 running");
-    tier3::run()
+    tier3::run(boot.params)
 }
 
 /// Stops for good with the power stage off: after an unrecoverable start-up error.

@@ -3,25 +3,35 @@
 //! On the board its supervisor task reports health once a second over defmt (when enabled); the
 //! mailbox/SDO, NMT, heartbeat, EMCY and parameter tasks join it as they are written. In the QEMU image the
 //! bench task runs here instead.
+//!
+//! Tier 3 owns the parameter store ([`app::Params`]) after boot: the only place the parameter flash is erased or
+//! programmed, through [`app::sdo_write`] (inside `tier1::with_drive`, power stage disabled; see `board::flash`).
+//! Until the mailbox/SDO task exists to take it over, the supervisor holds it, so nothing else reaches the flash.
 
 use embassy_executor::{Executor, Spawner};
 
+use super::app;
 use super::signal::TickSignal;
 
 /// Raised by tier 2 after every slow tick. Writer: tier 2; waiter: the tier-3 supervisor.
 pub static TICK: TickSignal = TickSignal::new();
 
-/// Runs the thread executor forever with the tier-3 tasks.
-pub(crate) fn run() -> ! {
+/// Runs the thread executor forever with the tier-3 tasks; `params` is the parameter store from boot.
+pub(crate) fn run(params: Option<app::Params>) -> ! {
     let Some(executor) = cortex_m::singleton!(: Executor = Executor::new()) else {
         super::halt("tier 3: executor already running");
     };
-    executor.run(spawn_tasks)
+    let Some(params) = cortex_m::singleton!(: Option<app::Params> = params) else {
+        super::halt("tier 3: parameter store already placed");
+    };
+    executor.run(|spawner| spawn_tasks(spawner, params))
 }
 
-fn spawn_tasks(spawner: Spawner) {
+fn spawn_tasks(spawner: Spawner, params: &'static mut Option<app::Params>) {
+    #[cfg(feature = "qemu")]
+    let _ = params;
     #[cfg(not(feature = "qemu"))]
-    match supervisor() {
+    match supervisor(params) {
         Ok(token) => spawner.spawn(token),
         Err(_) => super::halt("tier 3: supervisor already spawned"),
     }
@@ -32,10 +42,11 @@ fn spawn_tasks(spawner: Spawner) {
     }
 }
 
-/// Watches the other tiers: logs their health once a second (2,500 slow ticks).
+/// Watches the other tiers: logs their health once a second (2,500 slow ticks). Holds the parameter store until
+/// the mailbox/SDO task takes it over.
 #[cfg(not(feature = "qemu"))]
 #[embassy_executor::task]
-async fn supervisor() {
+async fn supervisor(_params: &'static mut Option<app::Params>) {
     const REPORT_EVERY: u32 = 2_500;
     let mut seen = 0;
     let mut since_report = 0u32;
