@@ -1,0 +1,186 @@
+//! Velocity estimate from a low-pass filtered position difference (EPOS4's "low pass filter" estimation, S1
+//! L564-575; control structure 0x3000:02 bits 7..4 = 1, S2 L3813-3850), and the first-order low-pass filter it
+//! and the position controller's D part share.
+//!
+//! The estimate is count-based: the increments counted in one slow tick (S1 L650-652, "counting the number of
+//! sensor edges per control cycle") pass a first-order low-pass `C(s) = 2 pi f / (s + 2 pi f)` (S1 L570-575) with
+//! the cut-off f from 0x30A2:05 (Hz; all S1 examples use 395 Hz, L1222-1560). The filter is discretised with the
+//! matched pole `a = exp(-2 pi f Ts)` (the step response equals the continuous one at the sample instants, for
+//! every f up to the 1250 Hz Nyquist limit; the bilinear map would turn negative above 796 Hz):
+//! `y <- y + (1 - a) (x - y)`. The coefficient is computed once ([`LowPass::from_cutoff_hz`]) with an
+//! integer exponential, never per tick.
+//!
+//! Counter wrap: positions are wrapping `i32` increments (the difference of two samples is exact while the axis
+//! moves less than 2^31 increments per tick) and the raw encoder timer is a wrapping `u16` (exact below 2^15
+//! increments per tick: 32768 x 2500 / 4096 x 60 = 1.2 M rpm on the reference encoder); [`CounterExtender`]
+//! turns the timer into the `i32` position.
+
+use super::position::Increments;
+use super::velocity::{sat_i32, IncPerTick, SLOW_TICK_HZ, TWO_PI_Q32};
+
+/// Input clamp of the filters, `I16F16` bits: +-16384 inc/tick (2^30). The output stays within it (a convex
+/// combination), so `x - y` fits 31 bits and `(x - y) * c` 62 bits.
+const INPUT_LIMIT: i32 = 1 << 30;
+
+/// `exp(-x)` in Q31 for `x` in Q32 (x clamped to [0, 16)). Range reduction by 2^8, a 7-term Taylor series in
+/// Q62 and eight squarings; error below 2^-30 for x <= 4 (the filters need x <= pi). For conversions only.
+#[must_use]
+pub fn exp_neg_q31(x_q32: u64) -> u32 {
+    const ONE: u128 = 1 << 62;
+    // y = x / 256 in Q62: x_q32 * 2^30 / 2^8. x < 2^36 so y < 2^62 / 16.
+    let y = u128::from(x_q32.min((1 << 36) - 1)) << 22;
+    let mut term = ONE;
+    let mut sum_pos = ONE;
+    let mut sum_neg = 0u128;
+    for k in 1..=7u128 {
+        // term_k = term_{k-1} * y / k: term < 2^62, y < 2^58: the product < 2^120.
+        term = (term.wrapping_mul(y) >> 62).checked_div(k).unwrap_or(0);
+        if k & 1 == 1 {
+            sum_neg = sum_neg.wrapping_add(term);
+        } else {
+            sum_pos = sum_pos.wrapping_add(term);
+        }
+    }
+    // e^-y in (0.93, 1]: positive. Squaring keeps it in (0, 1]; products < 2^124.
+    let mut r = sum_pos.saturating_sub(sum_neg);
+    for _ in 0..8 {
+        r = r.wrapping_mul(r).wrapping_add(1 << 61) >> 62;
+    }
+    u32::try_from((r.wrapping_add(1 << 30)) >> 31).unwrap_or(u32::MAX)
+}
+
+/// A first-order low-pass filter `y <- y + c (x - y)`, `c = 1 - exp(-w Ts)` in `I1F31`, on `I16F16` samples, with
+/// the rounding remainder carried to the next sample (first-order error feedback): the mean output equals the
+/// mean input exactly, without the dead band a plain rounded update has at small c.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub struct LowPass {
+    /// 1 - a in `I1F31` bits, 0..=2^31 - 1.
+    c: i32,
+    /// Output, `I16F16` bits, within +-2^30.
+    y: i32,
+    /// Carried remainder, 0..2^31 (units of 2^-47).
+    rem: i64,
+}
+
+impl LowPass {
+    /// A filter with cut-off `w` = `millirad_per_s` / 1000 rad/s at the slow tick (2500 Hz), output 0.
+    #[must_use]
+    pub fn from_cutoff_millirad_per_s(millirad_per_s: u32) -> Self {
+        // x = w Ts in Q32 = mrad/s * 2^32 / (1000 * 2500); < 2^32 * 2^32 / 2.5e6 < 2^43 before the clamp.
+        let x = (u64::from(millirad_per_s) << 32).checked_div(1000 * u64::from(SLOW_TICK_HZ)).unwrap_or(0);
+        Self::from_exponent(x)
+    }
+
+    /// A filter with cut-off `hz` (0x30A2:05) at the slow tick, output 0.
+    #[must_use]
+    pub fn from_cutoff_hz(hz: u32) -> Self {
+        // x = 2 pi f / f_s in Q32; f < 2^32, 2pi < 2^35: the product < 2^67 in u128.
+        let x = (u128::from(hz).wrapping_mul(TWO_PI_Q32)).checked_div(u128::from(SLOW_TICK_HZ)).unwrap_or(0);
+        Self::from_exponent(u64::try_from(x).unwrap_or(u64::MAX))
+    }
+
+    fn from_exponent(x_q32: u64) -> Self {
+        let a = exp_neg_q31(x_q32);
+        let c = (1u32 << 31).saturating_sub(a);
+        Self { c: i32::try_from(c).unwrap_or(i32::MAX), y: 0, rem: 0 }
+    }
+
+    /// The coefficient c = 1 - exp(-w Ts) in `I1F31` bits.
+    #[must_use]
+    pub const fn coefficient(&self) -> i32 {
+        self.c
+    }
+
+    /// The output, `I16F16` bits.
+    #[must_use]
+    pub const fn output(&self) -> i32 {
+        self.y
+    }
+
+    /// Sets the output (and clears the remainder), clamped to the input range.
+    pub fn preset(&mut self, y: i32) {
+        self.y = y.clamp(-INPUT_LIMIT, INPUT_LIMIT);
+        self.rem = 0;
+    }
+
+    /// One sample: input `x` (`I16F16` bits, clamped to +-2^30), returns the new output.
+    #[inline(always)]
+    pub fn step(&mut self, x: i32) -> i32 {
+        let x = x.clamp(-INPUT_LIMIT, INPUT_LIMIT);
+        // |x - y| <= 2^31, c < 2^31: |acc| < 2^62 + 2^31.
+        let acc = i64::from(x).wrapping_sub(i64::from(self.y)).wrapping_mul(i64::from(self.c)).wrapping_add(self.rem);
+        let dy = acc >> 31;
+        self.rem = acc.wrapping_sub(dy << 31);
+        // y + c (x - y) lies between y and x: within +-2^30.
+        self.y = sat_i32(i64::from(self.y).wrapping_add(dy));
+        self.y
+    }
+}
+
+/// Extends a wrapping 16-bit encoder timer to a wrapping `i32` position (the timer of [`crate::hal::power`]'s
+/// `FeedbackSample::encoder_count`). Exact while the timer moves less than 2^15 counts between two calls.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub struct CounterExtender {
+    last: u16,
+    position: i32,
+}
+
+impl CounterExtender {
+    /// Starts at `count` with the position `position`.
+    #[must_use]
+    pub const fn new(count: u16, position: Increments) -> Self {
+        Self { last: count, position: position.0 }
+    }
+
+    /// Adds the signed difference since the last call (wrapping, on purpose: the `i32` position wraps like the
+    /// CiA 402 position actual value 0x6064, INTEGER32).
+    pub fn update(&mut self, count: u16) -> Increments {
+        let delta = count.wrapping_sub(self.last) as i16;
+        self.last = count;
+        self.position = self.position.wrapping_add(i32::from(delta));
+        Increments(self.position)
+    }
+}
+
+/// Velocity from the low-pass filtered difference of the position per slow tick (S1 L564-575). `update` compiles
+/// to 53 Thumb-2 instructions for thumbv7em (release, no calls, no division).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub struct LowPassVelocityEstimator {
+    filter: LowPass,
+    last: Option<i32>,
+}
+
+impl LowPassVelocityEstimator {
+    /// An estimator with the cut-off `hz` of 0x30A2:05 (1..=1250 Hz in `firmware/device.toml`; 0 gives a filter
+    /// that never moves, values beyond Nyquist behave as 1250 Hz and above, down to c = 1 - exp(-2pi f/f_s)).
+    #[must_use]
+    pub fn new(cutoff_hz: u32) -> Self {
+        Self { filter: LowPass::from_cutoff_hz(cutoff_hz), last: None }
+    }
+
+    /// Forgets the last position: the next sample sets the reference and gives the current estimate unchanged.
+    pub fn reset(&mut self) {
+        self.last = None;
+        self.filter.preset(0);
+    }
+
+    /// The filter (coefficient and output).
+    #[must_use]
+    pub const fn filter(&self) -> &LowPass {
+        &self.filter
+    }
+
+    /// One slow tick with the wrapping `i32` position; returns the filtered velocity. The first call after
+    /// [`Self::new`] or [`Self::reset`] counts as no motion.
+    pub fn update(&mut self, position: Increments) -> IncPerTick {
+        let delta = match self.last {
+            // Wrapping difference: exact while |true difference| < 2^31 increments per tick.
+            Some(last) => position.0.wrapping_sub(last),
+            None => 0,
+        };
+        self.last = Some(position.0);
+        // Clamp to +-16384 inc/tick before the shift to I16F16 (2^14 << 16 = 2^30).
+        let x = delta.clamp(-(1 << 14), 1 << 14) << 16;
+        IncPerTick::from_bits(self.filter.step(x))
+    }
+}
