@@ -19,6 +19,7 @@
 #[cfg(target_os = "none")]
 pub mod board;
 pub mod cia402;
+pub mod comm;
 pub mod control;
 pub mod drive;
 pub mod flash_map;
