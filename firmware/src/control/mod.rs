@@ -17,7 +17,13 @@
 pub mod angle;
 pub mod current_loop;
 pub mod frames;
+pub mod interpolator;
+pub mod observer;
 pub mod pi;
+pub mod position;
 pub mod svpwm;
+pub mod trajectory;
 pub mod transforms;
 pub mod trig;
+pub mod velocity;
+pub mod velocity_estimate;
