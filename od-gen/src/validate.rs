@@ -412,6 +412,9 @@ fn expand(
         match entry(&sub_at(label, sub, &name), &s.attrs, default, &name, s.description.as_deref(), node_id, r) {
             Some(mut e) => {
                 e.sub = sub;
+                if s.repeat.is_some() {
+                    e.handle = e.handle.map(|h| h.replace("{n}", &(n + 1).to_string()));
+                }
                 out.push(e);
             }
             None => ok = false,
@@ -680,7 +683,8 @@ fn entry(
 
     // Typed handle.
     if let Some(h) = &a.handle {
-        if !is_snake_case(h) {
+        // A repeated sub-object names its handles with `{n}` (1-based), like its name.
+        if !is_snake_case(&h.replace("{n}", "1")) {
             r.push(at, format_args!("handle '{h}' is not a snake_case identifier"));
         }
         if storage != StorageKind::Ram {

@@ -497,3 +497,12 @@ fn every_error_fixture_has_a_test() {
         assert!(source.contains(&format!("\"{name}\"")), "fixture {name}.toml has no test");
     }
 }
+
+#[test]
+fn repeat_handle_without_n() {
+    expect(
+        "repeat_handle_without_n",
+        "object 0x202B:02 'Input 2'",
+        "handle 'input' is also used by object 0x202B:01 'Input 1'",
+    );
+}
