@@ -25,6 +25,8 @@ pub mod drive;
 pub mod fault;
 pub mod flash_map;
 pub mod hal;
+pub mod io;
+pub mod motion;
 pub mod od;
 #[cfg(target_os = "none")]
 pub mod rt;

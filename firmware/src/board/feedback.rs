@@ -2,7 +2,7 @@
 //! on plain inputs (RM0090 section 18.3.16 "Encoder interface mode").
 //!
 //! Pins: encoder A/B on PB6/PB7 (TIM4_CH1/CH2, AF2), index on PB8 (TIM4_CH3, AF2); Halls H1/H2/H3 on
-//! PC6/PC7/PC8 (inputs with pull-ups).
+//! PC6/PC7/PC8 (inputs with pull-ups); digital inputs 1..4 on PC0..PC3 (inputs, levels as wired).
 //!
 //! TIM4 counts in encoder mode 3 (both edges of both channels: 4 counts per line) over the full 16 bits.
 //! Channel 3 is an input capture on the index's rising edge: the counter value at the index is latched in CCR3
@@ -17,6 +17,10 @@ pub const TIM4: Tim = Tim(base::TIM4);
 const HALL_PORT: Gpio = Gpio(base::GPIOC);
 /// Bit of H1 in the port's IDR (H2, H3 follow).
 const HALL_SHIFT: u32 = 6;
+/// Port of the digital inputs 1..4.
+const INPUT_PORT: Gpio = Gpio(base::GPIOC);
+/// Bit of digital input 1 in the port's IDR (inputs 2..4 follow).
+const INPUT_SHIFT: u32 = 0;
 /// CC3IF in SR.
 const SR_CC3IF: u32 = 1 << 3;
 
@@ -48,5 +52,6 @@ pub fn read() -> FeedbackSample {
         encoder_count: t.cnt().read() as u16,
         index_latch,
         hall: ((HALL_PORT.idr().read() >> HALL_SHIFT) & 0b111) as u8,
+        digital_inputs: ((INPUT_PORT.idr().read() >> INPUT_SHIFT) & 0b1111) as u8,
     }
 }

@@ -94,6 +94,7 @@ impl Plant {
                 encoder_count: self.count,
                 index_latch: self.index.take(),
                 hall: HALL_PATTERN.get(usize::from(sector)).copied().unwrap_or(0),
+                digital_inputs: 0,
             },
             break_input: false,
         }

@@ -348,6 +348,12 @@ impl StateMachine {
         self.config
     }
 
+    /// Replaces the configuration (the brake delays and the standstill timeout follow their objects); a stop or
+    /// brake phase in progress keeps the times it started with only as far as they are measured from its start.
+    pub fn set_config(&mut self, config: Config) {
+        self.config = config;
+    }
+
     /// The power-stage request of the present state.
     pub const fn power(&self) -> PowerStage {
         match self.state {

@@ -252,6 +252,12 @@ impl Encoder {
         self.position
     }
 
+    /// The multi-turn position at an earlier counter value (an index latch), going back from the last update.
+    #[must_use]
+    pub fn position_at(&self, counter: u16) -> i32 {
+        self.position.wrapping_sub(self.counts_between(counter, self.last_counter))
+    }
+
     /// Counts moved in the last update.
     #[must_use]
     pub const fn last_delta(&self) -> i32 {
@@ -377,6 +383,9 @@ pub struct Commutation {
     last_index_latch: Option<u16>,
     last_index_correction: AngleDelta,
     index_pulses: u32,
+    /// The angle was indexed since this commutation was built: the encoder has kept counting since, so a restart
+    /// (re-enable) keeps the indexed angle instead of falling back to the Hall sector.
+    indexed: bool,
     align_ticks: u32,
     align_current: i32,
     align_step: i32,
@@ -406,6 +415,7 @@ impl Commutation {
             last_index_latch: None,
             last_index_correction: AngleDelta::ZERO,
             index_pulses: 0,
+            indexed: false,
             align_ticks: 0,
             align_current: 0,
             align_step: 0,
@@ -418,6 +428,15 @@ impl Commutation {
     /// same sample: the angle comes from the Hall sector at the encoder's count now (or forced alignment begins).
     /// The encoder keeps counting across starts; a known index offset is kept.
     pub fn start(&mut self, feedback: &FeedbackSample) -> Result<(), CommutationError> {
+        if self.indexed {
+            // The offset set at the last index still holds: the electrical count was tracked while stopped.
+            if let CommutationMethod::Hall = self.method {
+                self.last_sector = Some(HallSector::from_state(feedback.hall)?);
+            }
+            self.stage = CommutationStage::Indexed;
+            self.angle = self.current_angle();
+            return Ok(());
+        }
         match self.method {
             CommutationMethod::Hall => {
                 let sector = HallSector::from_state(feedback.hall)?;
@@ -511,11 +530,13 @@ impl Commutation {
                 self.last_index_correction = stored.difference(estimate);
                 self.set_angle_at(count, stored);
                 self.stage = CommutationStage::Indexed;
+                self.indexed = true;
             }
             None if matches!(self.stage, CommutationStage::HallEdge | CommutationStage::Aligned) => {
                 self.index_offset = Some(estimate);
                 self.last_index_correction = AngleDelta::ZERO;
                 self.stage = CommutationStage::Indexed;
+                self.indexed = true;
             }
             _ => {}
         }
@@ -595,6 +616,10 @@ impl Commutation {
 
     /// Sets (or forgets) the stored index offset.
     pub fn set_index_offset(&mut self, offset: Option<ElectricalAngle>) {
+        if offset != self.index_offset {
+            // A different angle at the index: the indexed offset no longer holds until the next index pulse.
+            self.indexed = false;
+        }
         self.index_offset = offset;
     }
 
@@ -634,7 +659,7 @@ mod tests {
     }
 
     fn fb(count: u16, hall: u8, index: Option<u16>) -> FeedbackSample {
-        FeedbackSample { encoder_count: count, index_latch: index, hall }
+        FeedbackSample { encoder_count: count, index_latch: index, hall, digital_inputs: 0 }
     }
 
     /// The drive's order: update with the sample, then start from it.

@@ -30,6 +30,7 @@
 pub mod calibration;
 pub mod commutation;
 pub mod demand;
+pub mod latch;
 pub mod objects;
 pub mod protection;
 pub mod scaling;
@@ -39,6 +40,7 @@ use crate::control::current_loop::{foc_step, CurrentController, CurrentLoopConfi
 use crate::control::frames::{Abc, Amps, Dq, Volts};
 use crate::control::pi::PiGains;
 use crate::hal::power::{FeedbackSample, Measurements, PwmCommand, SLOW_TICK_DIVIDER};
+use crate::motion::axis::{Axis, AxisInputs, AxisOutputs, CurrentDemand};
 use crate::od::access::Dictionary;
 use crate::od::generated::handles as h;
 
@@ -48,6 +50,7 @@ use commutation::{
     EncoderConfig,
 };
 use demand::{rated_torque_micro_nm, DemandScale};
+use latch::PinLatches;
 use protection::Trip;
 use scaling::ShuntOffsets;
 
@@ -182,6 +185,14 @@ pub struct Drive {
     /// 50 Hz low-pass states (`I16F16` bits) of the q current and the bus voltage.
     i_q_average: i32,
     v_bus_average: i32,
+    /// Encoder positions at the input edges and the index (written by tier 1, read by tier 2).
+    latches: PinLatches,
+    /// Tier 2: the CiA 402 machine, the modes, the loops and the supervision.
+    axis: Axis,
+    /// The machine's last power-stage request, to act on its changes.
+    last_power_request: crate::cia402::PowerStage,
+    /// Output pin levels from tier 2.
+    output_pins: u8,
 }
 
 impl Drive {
@@ -220,6 +231,10 @@ impl Drive {
             divider: 0,
             i_q_average: 0,
             v_bus_average: 0,
+            latches: PinLatches::default(),
+            axis: Axis::new(&dictionary),
+            last_power_request: crate::cia402::PowerStage::OFF,
+            output_pins: 0,
             dictionary,
         };
         drive.configure_commutation();
@@ -258,6 +273,12 @@ impl Drive {
             Ok(a) => a,
             Err(e) => return self.trip(DriveError::Commutation(e)),
         };
+        let encoder = self.commutation.encoder();
+        self.latches.sample_inputs(feedback.digital_inputs, encoder.position());
+        if let Some(latch) = feedback.index_latch {
+            let at = encoder.position_at(latch);
+            self.latches.latch_index(at);
+        }
         match self.state {
             PowerState::OperationEnabled => self.run_current_loop(m, &feedback, angle, v_bus),
             PowerState::Calibrating => match self.calibration.step(&m.adc) {
@@ -339,6 +360,69 @@ impl Drive {
     pub fn slow_tick(&mut self) {
         self.refresh_parameters();
         self.publish_actual_values();
+        let s = self.signals;
+        let input = AxisInputs {
+            encoder_position: self.commutation.encoder().position(),
+            current: s.i_dq.q,
+            current_average_ma: Amps::from_bits(self.i_q_average).to_milliamps(),
+            phase_currents_ma: [s.i_abc.a.to_milliamps(), s.i_abc.b.to_milliamps(), s.i_abc.c.to_milliamps()],
+            bus_voltage_mv: s.v_bus.to_millivolts(),
+            pins: &self.latches,
+            power: self.state,
+            scale: &self.scale,
+        };
+        let out = self.axis.step(&input, &mut self.dictionary);
+        self.apply(&out);
+    }
+
+    /// Carries out the axis's requests on the power stage. Requests are acted on when they change; outside
+    /// «Switch on disabled» (and «Not ready to switch on») the power-stage state is also held to the request
+    /// every step, so a power stage driven directly through [`Self::switch_on`] and friends (commissioning
+    /// without a fieldbus master, the current-loop tests) keeps working until the controlword takes over.
+    fn apply(&mut self, out: &AxisOutputs) {
+        use crate::cia402::State;
+        if out.fault_reset {
+            self.fault_reset();
+        }
+        let changed = out.power != self.last_power_request || out.start_calibration;
+        let enforce = !matches!(out.state, State::SwitchOnDisabled | State::NotReadyToSwitchOn);
+        self.last_power_request = out.power;
+        if changed || enforce {
+            if !out.power.enabled {
+                if !matches!(self.state, PowerState::Off | PowerState::Fault(_)) {
+                    self.shutdown();
+                }
+            } else if out.start_calibration {
+                // Refused only in a fault or while calibrating: the machine then waits (and the fault is reported).
+                let _ = self.switch_on();
+            } else if out.power.controllers_enabled {
+                if self.state == PowerState::SwitchedOn {
+                    let _ = self.enable_operation();
+                }
+            } else if self.state == PowerState::OperationEnabled {
+                self.disable_operation();
+            }
+        }
+        match out.demand {
+            CurrentDemand::Off => {}
+            CurrentDemand::Internal(i) => {
+                self.source = DemandSource::Internal;
+                self.set_current_demand(i);
+            }
+            CurrentDemand::TargetTorque => self.source = DemandSource::TargetTorque,
+        }
+        self.output_pins = out.output_pins;
+    }
+
+    /// A master set-point arrived (CANopen SYNC with its RPDOs, EtherCAT SM2 event or SYNC0): the cyclic modes
+    /// latch 0x607A, 0x60FF, 0x6071 and the offsets now.
+    pub fn setpoint_received(&mut self) {
+        self.axis.setpoint_received(&self.dictionary);
+    }
+
+    /// Statusword bit 9 "remote" (the fieldbus layer: NMT operational, EtherCAT SafeOp/Op).
+    pub fn set_remote(&mut self, remote: bool) {
+        self.axis.set_remote(remote);
     }
 
     /// Converts 0x30A0 into gains when it changed, and the motor data into the demand scale.
@@ -531,6 +615,29 @@ impl Drive {
     #[must_use]
     pub const fn demand_scale(&self) -> &DemandScale {
         &self.scale
+    }
+
+    /// Tier 2: the CiA 402 machine, the modes, loops, supervision and faults.
+    #[must_use]
+    pub const fn axis(&self) -> &Axis {
+        &self.axis
+    }
+
+    /// Tier 2, mutable (fault supervision inputs of the fieldbuses).
+    pub fn axis_mut(&mut self) -> &mut Axis {
+        &mut self.axis
+    }
+
+    /// The input edges and index latched by tier 1.
+    #[must_use]
+    pub const fn latches(&self) -> &PinLatches {
+        &self.latches
+    }
+
+    /// Output pin levels (bit n = output n+1), set by tier 2.
+    #[must_use]
+    pub const fn output_pins(&self) -> u8 {
+        self.output_pins
     }
 
     /// The dictionary.

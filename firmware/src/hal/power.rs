@@ -36,6 +36,9 @@ pub struct FeedbackSample {
     pub index_latch: Option<u16>,
     /// Hall sensor state: bit 0 = H1, bit 1 = H2, bit 2 = H3.
     pub hall: u8,
+    /// Levels of the digital inputs as wired (before the polarity of 0x3141:02): bit n = input n+1. Sampled every
+    /// PWM period so that tier 1 can latch the position at an edge (homing, touch probe).
+    pub digital_inputs: u8,
 }
 
 /// Everything tier 1 reads at the start of its interrupt.

@@ -3,6 +3,8 @@
 //! ```text
 //! drive-sim current-step [--seed N] [--default-gains | --gains P,I] [--out DIR]   step, sweep, calibration
 //! drive-sim spinning     [--seed N] [--default-gains | --gains P,I] [--out DIR]   3,000 rpm, load step
+//! drive-sim csp          [--seed N] [--out DIR]                     CSP 10 rev jerk-limited move at 1 ms
+//! drive-sim csv-sweep    [--seed N] [--out DIR]                     CSV 100 rpm step, velocity-loop bandwidth
 //! drive-sim bench        [--seconds S]                              host speed (build with --release)
 //! ```
 //!
@@ -13,11 +15,13 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
+use hal_sim::sim::motion::{self, CspConfig};
 use hal_sim::sim::plot::{Plot, Series};
 use hal_sim::sim::scenarios::{self, Setup, SpinConfig, SpinStepFigures, SWEEP_FREQUENCIES_HZ};
 use hal_sim::sim::trace::Trace;
 
-const USAGE: &str = "usage: drive-sim <current-step | spinning | bench> [--seed N] [--default-gains | --gains P,I] \
+const USAGE: &str =
+    "usage: drive-sim <current-step | spinning | csp | csv-sweep | bench> [--seed N] [--default-gains | --gains P,I] \
                      [--out DIR] [--seconds S]";
 
 struct Args {
@@ -27,12 +31,14 @@ struct Args {
     gains: Option<(u32, u32)>,
     out: Option<PathBuf>,
     seconds: f64,
+    position_gains: Option<[u32; 5]>,
 }
 
 fn parse_args() -> Result<Args, String> {
     let mut it = std::env::args().skip(1);
     let scenario = it.next().ok_or_else(|| USAGE.to_owned())?;
-    let mut args = Args { scenario, seed: 1, default_gains: false, gains: None, out: None, seconds: 2.0 };
+    let mut args =
+        Args { scenario, seed: 1, default_gains: false, gains: None, out: None, seconds: 2.0, position_gains: None };
     while let Some(a) = it.next() {
         let mut value = |name: &str| it.next().ok_or_else(|| format!("{name} needs a value\n{USAGE}"));
         match a.as_str() {
@@ -44,6 +50,13 @@ fn parse_args() -> Result<Args, String> {
                 let p = p.trim().parse().map_err(|e| format!("--gains P: {e}"))?;
                 let i = i.trim().parse().map_err(|e| format!("--gains I: {e}"))?;
                 args.gains = Some((p, i));
+            }
+            "--position-gains" => {
+                let v = value("--position-gains")?;
+                let parsed: Result<Vec<u32>, _> = v.split(',').map(|x| x.trim().parse::<u32>()).collect();
+                let g = parsed.map_err(|e| format!("--position-gains P,I,D,FFV,FFA (0x30A1 units): {e}"))?;
+                let g: [u32; 5] = g.try_into().map_err(|_| "--position-gains needs 5 values (0x30A1:01..05)")?;
+                args.position_gains = Some(g);
             }
             "--out" => args.out = Some(PathBuf::from(value("--out")?)),
             "--seconds" => args.seconds = value("--seconds")?.parse().map_err(|e| format!("--seconds: {e}"))?,
@@ -203,6 +216,100 @@ fn spinning(args: &Args, dir: &Path) -> Result<(), String> {
     Ok(())
 }
 
+/// A plot of `signals` over the trace's `t_s` column, in ms.
+fn seconds_plot(trace: &Trace, title: &str, signals: &[(&str, &str)], y_label: &str) -> Plot {
+    let t_ms: Vec<f64> = trace.column("t_s").unwrap_or_default().iter().map(|t| t * 1000.0).collect();
+    let mut plot = Plot::new(title, "time [ms]", y_label);
+    for (col, name) in signals {
+        plot.series.push(Series::new(name, &t_ms, &trace.column(col).unwrap_or_default()));
+    }
+    plot
+}
+
+fn csp(args: &Args, dir: &Path) -> Result<(), String> {
+    let cfg = CspConfig { seed: args.seed, position_gains: args.position_gains, ..CspConfig::default() };
+    println!(
+        "csp: reference plant (seed {}), CiA 402 CSP, set-points every {:.1} ms (0x60C2 the same), {} revolutions, \
+         jerk-limited (sin² ramps) up to {:.0} rpm and {:.0} rpm/s",
+        cfg.seed,
+        cfg.cycle_periods as f64 * 0.04,
+        cfg.revolutions,
+        cfg.max_rpm,
+        cfg.peak_rpm_per_s
+    );
+    let (f, trace) = motion::csp(&cfg).map_err(|e| e.to_string())?;
+    println!("  move: {:.3} s, peak {:.0} rpm", f.move_s, f.peak_rpm);
+    println!("  following error 0x60F4 peak {:6.1} inc   (bound <= 30)", f.following_error_peak_inc);
+    println!("  following error 0x60F4 rms  {:6.2} inc   (bound <= 8)", f.following_error_rms_inc);
+    println!("  |position - target| 20 ms after the last set-point {:.0} inc (bound <= 1)", f.settle_error_inc);
+    println!("  |position - target| from then to the end            {:.0} inc", f.settle_error_max_inc);
+    println!("  statusword bit 13 (following error) seen: {}", f.following_error_bit_seen);
+    let plot = seconds_plot(
+        &trace,
+        "CSP: 10 revolutions, jerk-limited, 1 ms set-points",
+        &[("following_error_inc", "following error [inc]"), ("rpm", "velocity [rpm / 100]")],
+        "increments",
+    );
+    let mut plot = plot;
+    if let Some(s) = plot.series.get_mut(1) {
+        for p in &mut s.points {
+            p.1 /= 100.0;
+        }
+    }
+    write(&trace, &plot, dir, "csp")?;
+    println!();
+    println!("following_error_peak_inc={:.1}", f.following_error_peak_inc);
+    println!("following_error_rms_inc={:.2}", f.following_error_rms_inc);
+    println!("settle_error_inc={:.0}", f.settle_error_inc);
+    Ok(())
+}
+
+fn csv_sweep(args: &Args, dir: &Path) -> Result<(), String> {
+    println!("csv-sweep: reference plant (seed {}), CiA 402 CSV", args.seed);
+    let (step, trace) = motion::csv_step(args.seed, 100.0).map_err(|e| e.to_string())?;
+    println!("  velocity step 0 -> {:.0} rpm (plant's true speed):", step.step_rpm);
+    println!("    overshoot          {:6.2} %   (bound <= 10 %)", step.overshoot_pct);
+    println!("    settling to +-2 %  {:6.1} ms", step.settle_ms);
+    println!("    steady error       {:6.2} %   (bound <= 2 %)", step.steady_error_pct);
+    let plot = seconds_plot(
+        &trace,
+        "CSV: velocity step 0 -> 100 rpm",
+        &[("target_rpm", "target"), ("speed_rpm", "speed")],
+        "rpm",
+    );
+    write(&trace, &plot, dir, "csv_step")?;
+    let (points, bw) = motion::csv_sweep(args.seed).map_err(|e| e.to_string())?;
+    println!(
+        "  velocity-loop response, {:.0} rpm +- {:.0} rpm sine (speed / velocity demand):",
+        motion::CSV_SWEEP_OFFSET_RPM,
+        motion::CSV_SWEEP_AMPLITUDE_RPM
+    );
+    println!("  {:>8}  {:>8}  {:>9}", "f [Hz]", "gain[dB]", "phase[deg]");
+    let mut t = Trace::new(&["freq_hz", "gain_db", "phase_deg"]);
+    for p in &points {
+        println!("  {:8.0}  {:8.2}  {:9.1}", p.hz, p.gain_db, p.phase_deg);
+        t.push(&[p.hz, p.gain_db, p.phase_deg]);
+    }
+    println!("  -3 dB bandwidth {bw:.0} Hz (bound >= 100 Hz)");
+    let mut bode = Plot::new("Velocity loop response (CSV)", "frequency [Hz]", "gain [dB]");
+    bode.log_x = true;
+    bode.series.push(
+        Series::new(
+            "|speed / demand|",
+            &t.column("freq_hz").unwrap_or_default(),
+            &t.column("gain_db").unwrap_or_default(),
+        )
+        .with_markers(),
+    );
+    bode.h_lines.push((-3.0103, "-3 dB".into()));
+    write(&t, &bode, dir, "csv_sweep")?;
+    println!();
+    println!("csv_step_overshoot_pct={:.2}", step.overshoot_pct);
+    println!("csv_step_steady_error_pct={:.2}", step.steady_error_pct);
+    println!("velocity_bandwidth_hz={bw:.0}");
+    Ok(())
+}
+
 fn bench(args: &Args) -> Result<(), String> {
     if cfg!(debug_assertions) {
         println!("note: a debug build; the figure is for `cargo run --release`");
@@ -231,6 +338,8 @@ fn main() -> ExitCode {
     let result = match args.scenario.as_str() {
         "current-step" => current_step(&args, &dir),
         "spinning" => spinning(&args, &dir),
+        "csp" => csp(&args, &dir),
+        "csv-sweep" => csv_sweep(&args, &dir),
         "bench" => bench(&args),
         other => Err(format!("unknown scenario {other}\n{USAGE}")),
     };

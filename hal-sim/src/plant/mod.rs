@@ -86,10 +86,12 @@
 //! simulated second costs about 0.05 s of CPU in release builds.
 
 pub mod inverter;
+pub mod io;
 mod params;
 pub mod rng;
 pub mod sensors;
 
+pub use io::{BrakeParams, InputSource, InputWiring, IoParams};
 pub use params::PlantParams;
 
 use core::f64::consts::PI;
@@ -257,7 +259,8 @@ enum SegMech {
     Frozen,
     /// Constant speed.
     Driven(f64),
-    /// Free, with the friction sign to use while the speed is exactly zero.
+    /// Free, with the friction sign for the segment (the sign of the speed at its start, or of the breakaway torque
+    /// at rest).
     Free { zero_speed_friction_sign: f64 },
 }
 
@@ -303,7 +306,10 @@ impl Coeffs {
             SegMech::Frozen => (0.0, 0.0),
             SegMech::Driven(w) => (0.0, w),
             SegMech::Free { zero_speed_friction_sign } => {
-                let s = if omega == 0.0 { zero_speed_friction_sign } else { sign(omega) };
+                // One friction sign for the whole segment (the speed's at its start): re-evaluating it at the RK4
+                // stages lets the stages straddling zero cancel, so a speed below `T_c h / J` would creep on
+                // instead of stopping (0.14 rad/s with an engaged brake); a sign change is clamped afterwards.
+                let s = zero_speed_friction_sign;
                 ((torque - load - self.b_visc * omega - self.t_coulomb * s) / self.j, omega)
             }
         }
@@ -335,6 +341,8 @@ pub struct Plant {
     at_sample: PlantState,
     averages: PeriodAverages,
     last_measurements: Measurements,
+    /// Digital I/O state: forced inputs, output pins, holding brake ([`io`]).
+    io: io::PlantIo,
 }
 
 impl core::fmt::Debug for Plant {
@@ -374,6 +382,7 @@ impl Plant {
             at_sample: PlantState::default(),
             averages: PeriodAverages::default(),
             last_measurements: Measurements::default(),
+            io: io::PlantIo::default(),
             params,
         };
         plant.last_count = plant.count_now();
@@ -507,6 +516,7 @@ impl Plant {
         self.update_thermal(acc.copper_loss_w, switch_loss_w, period_s);
         self.averages = acc;
         self.levels = if self.break_latched { [None; 3] } else { end_levels };
+        self.io.advance(&self.params.io, period_s);
         self.period += 1;
         self.last_measurements = measurements;
         measurements
@@ -524,7 +534,7 @@ impl Plant {
             v_diode: p.diode_drop_v,
             j: p.total_inertia_kg_m2(),
             b_visc: p.viscous_friction_nm_s_rad,
-            t_coulomb: p.coulomb_friction_nm,
+            t_coulomb: p.coulomb_friction_nm + self.io.brake_friction_nm(&p.io),
             v_source: p.source_voltage_v,
             r_source: p.source_resistance_ohm,
             source_sinks: p.source_sinks_current,
@@ -927,6 +937,7 @@ impl Plant {
             encoder_count: sensors::counter_register(self.last_count),
             index_latch: self.pending_index.take(),
             hall,
+            digital_inputs: self.io.input_levels(&p.io, self.last_count),
         };
         let mut state = self.state_at(t);
         state.shunt_currents_a = shunt;

@@ -7,6 +7,8 @@
 
 use core::f64::consts::PI;
 
+use super::io::IoParams;
+
 /// Everything that defines a plant: supply, inverter, motor, mechanics, thermal model, sensors and integration.
 ///
 /// Conventions: phase currents are positive when flowing from the inverter into the motor; the dq frame is the
@@ -125,6 +127,10 @@ pub struct PlantParams {
     /// Sub-steps per PWM period: the integrator's maximum step is `T / substeps_per_period`. The switching
     /// instants and the sample instant are always segment boundaries. 8 by default (5 us steps).
     pub substeps_per_period: u32,
+
+    // ---- Digital I/O ----
+    /// Limit and home switches on the inputs, and the holding brake (see [`super::io`]).
+    pub io: IoParams,
 }
 
 impl PlantParams {
@@ -155,6 +161,7 @@ impl PlantParams {
     /// | Bus ADC | 12 bit, 60 V full scale: 4095 / 60 = 68.25 LSB/V, 1 LSB rms noise | ARCHITECTURE; noise: assumption |
     /// | Temperature sensor | linear 0.5 V + 10 mV/K (MCP9700/TMP235 class) on a 3.3 V ADC, 1 LSB rms | assumption |
     /// | Sub-steps | at most 5 us per step (8 per period) | this module's integrator choice |
+    /// | Digital I/O | inputs 1..3 negative limit, positive limit, home switch, no positions; no brake | [`IoParams::reference`] |
     pub fn reference() -> Self {
         let kt_nm_per_a = 0.0335;
         let pole_pairs = 7;
@@ -204,6 +211,7 @@ impl PlantParams {
             temp_sensor_v_per_k: 0.010,
             temp_noise_lsb_rms: 1.0,
             substeps_per_period: 8,
+            io: IoParams::reference(),
         }
     }
 

@@ -6,10 +6,12 @@
 //! next period; when it reports a slow tick due, `drive.slow_tick()` runs before the next period (on the target tier
 //! 2 runs after tier 1 returns, well inside the same period).
 
+pub mod motion;
 pub mod plot;
 pub mod scenarios;
 pub mod trace;
 
+use firmware::cia402::State;
 use firmware::drive::commutation::CommutationStage;
 use firmware::drive::{Drive, DriveConfig, DriveError, PowerState};
 use firmware::hal::power::{Measurements, PwmCommand};
@@ -76,6 +78,7 @@ impl Simulation {
         let tick = self.drive.fast_tick(&m);
         if tick.slow_tick_due {
             self.drive.slow_tick();
+            self.plant.set_digital_outputs(self.drive.output_pins());
         }
         self.cmd = tick.pwm;
         self.measurements = m;
@@ -164,6 +167,64 @@ impl Simulation {
     /// Transition 4: enable operation (the commutation starts at the next period).
     pub fn enable(&mut self) -> Result<(), SimError> {
         self.drive.enable_operation().map_err(|firmware::drive::RequestError::WrongState(s)| SimError::Refused(s))
+    }
+
+    // -----------------------------------------------------------------------------------------------------------
+    // CiA 402 through the dictionary, as a fieldbus master drives it
+    // -----------------------------------------------------------------------------------------------------------
+
+    /// Writes the controlword 0x6040.
+    pub fn set_controlword(&mut self, controlword: u16) {
+        self.drive.dictionary_mut().set(h::CONTROLWORD, controlword);
+    }
+
+    /// The statusword 0x6041 of the last slow tick.
+    pub fn statusword(&self) -> u16 {
+        self.drive.dictionary().get(h::STATUSWORD)
+    }
+
+    /// The CiA 402 state.
+    pub fn cia402_state(&self) -> State {
+        self.drive.axis().state()
+    }
+
+    /// Writes modes of operation 0x6060.
+    pub fn set_mode(&mut self, mode: i8) {
+        self.drive.dictionary_mut().set(h::MODES_OF_OPERATION, mode);
+    }
+
+    /// Runs `n` slow ticks (10 PWM periods each).
+    pub fn run_slow_ticks(&mut self, n: u64) {
+        self.run(n.saturating_mul(10));
+    }
+
+    /// The fieldbus delivered a set-point (SYNC / SM2 event): the cyclic modes latch the targets now.
+    pub fn setpoint_received(&mut self) {
+        self.drive.setpoint_received();
+    }
+
+    /// Runs until the CiA 402 state is `state` (checked after each period) or `max_ticks` passed.
+    fn run_until_state(&mut self, state: State, max_ticks: u64, what: &'static str) -> Result<u64, SimError> {
+        let reached = self.run_until(max_ticks, |s| s.fault().is_some() || s.cia402_state() == state);
+        if let Some(e) = self.fault() {
+            return Err(SimError::Drive(e));
+        }
+        reached.ok_or(SimError::Timeout(what))
+    }
+
+    /// «Shutdown», «Switch on» (offset calibration), «Enable operation» in `mode`, as a master does; returns the
+    /// PWM periods it took.
+    pub fn enable_through_controlword(&mut self, mode: i8) -> Result<u64, SimError> {
+        self.set_mode(mode);
+        self.set_controlword(0x0006);
+        let a = self.run_until_state(State::ReadyToSwitchOn, 100, "ready to switch on")?;
+        self.set_controlword(0x0007);
+        let b = self.run_until_state(State::SwitchedOn, 3_000, "switched on (offset calibration)")?;
+        self.set_controlword(0x000F);
+        let c = self.run_until_state(State::OperationEnabled, 100, "operation enabled")?;
+        // The slow tick that reached the state switched the power stage on: the next period drives the motor.
+        self.step();
+        Ok(a.saturating_add(b).saturating_add(c).saturating_add(1))
     }
 
     /// Commissioning on a free shaft: switch on (calibration), enable, drive `amps` of q current until the

@@ -1,0 +1,107 @@
+//! Position latches of tier 1: the encoder position at each edge of the digital inputs and at the encoder index,
+//! for homing (switch and index edges) and the touch probe (0x60B8..0x60BD).
+//!
+//! The inputs are sampled once per PWM period with the encoder count, so an input edge is placed within 40 us:
+//! at the homing zero-search speed (0x6099:02, default 10 rpm = 0.03 inc per period at 4096 inc/rev) that is
+//! exact to the increment. The index is captured by the encoder timer in hardware (TIM4 CCR3), so its position
+//! is exact at any speed. The positions are raw encoder positions ([`super::commutation::Encoder::position`]);
+//! tier 2 moves them into the coordinates of 0x6064.
+//!
+//! Cost in tier 1: one compare when nothing changed; the latching itself is a cold path.
+
+use crate::motion::EdgeLatch;
+
+/// Number of digital inputs (0x3141, 0x3142: inputs 1..4).
+pub const DIGITAL_INPUTS: usize = 4;
+
+/// Edges of the wired input levels and of the index, with the raw encoder position at each.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub struct PinLatches {
+    /// Levels as wired at the last sample: bit n = input n+1.
+    pub levels: u8,
+    /// The latest low-to-high edge of each input (as wired).
+    pub rising: [EdgeLatch; DIGITAL_INPUTS],
+    /// The latest high-to-low edge of each input (as wired).
+    pub falling: [EdgeLatch; DIGITAL_INPUTS],
+    /// The latest index pulse.
+    pub index: EdgeLatch,
+    /// Whether `levels` holds a sample yet (the first sample sets the levels without edges).
+    primed: bool,
+}
+
+impl PinLatches {
+    /// Takes one sample: `levels` of the inputs and the `position` of the encoder at the same instant.
+    #[inline(always)]
+    pub fn sample_inputs(&mut self, levels: u8, position: i32) {
+        let levels = levels & 0b1111;
+        if levels != self.levels || !self.primed {
+            self.latch_inputs(levels, position);
+        }
+    }
+
+    #[cold]
+    #[inline(never)]
+    fn latch_inputs(&mut self, levels: u8, position: i32) {
+        if !self.primed {
+            self.primed = true;
+            self.levels = levels;
+            return;
+        }
+        let changed = levels ^ self.levels;
+        for (bit, (rise, fall)) in self.rising.iter_mut().zip(self.falling.iter_mut()).enumerate() {
+            let mask = 1u8 << bit;
+            if changed & mask == 0 {
+                continue;
+            }
+            let latch = if levels & mask != 0 { rise } else { fall };
+            latch.count = latch.count.wrapping_add(1);
+            latch.position = position;
+        }
+        self.levels = levels;
+    }
+
+    /// Records an index pulse at encoder `position`.
+    #[cold]
+    pub fn latch_index(&mut self, position: i32) {
+        self.index.count = self.index.count.wrapping_add(1);
+        self.index.position = position;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn first_sample_sets_levels_without_edges() {
+        let mut l = PinLatches::default();
+        l.sample_inputs(0b0101, 7);
+        assert_eq!(l.levels, 0b0101);
+        assert!(l.rising.iter().chain(l.falling.iter()).all(|e| e.count == 0));
+    }
+
+    #[test]
+    fn edges_latch_position_per_input_and_direction() {
+        let mut l = PinLatches::default();
+        l.sample_inputs(0, 0);
+        l.sample_inputs(0b0010, 100);
+        l.sample_inputs(0b0010, 105);
+        l.sample_inputs(0b1000, 120);
+        assert_eq!(l.rising[1], EdgeLatch { count: 1, position: 100 });
+        assert_eq!(l.falling[1], EdgeLatch { count: 1, position: 120 });
+        assert_eq!(l.rising[3], EdgeLatch { count: 1, position: 120 });
+        assert_eq!(l.rising[0].count, 0);
+        l.latch_index(-5);
+        l.latch_index(4091);
+        assert_eq!(l.index, EdgeLatch { count: 2, position: 4091 });
+    }
+
+    #[test]
+    fn levels_above_four_inputs_are_ignored() {
+        let mut l = PinLatches::default();
+        l.sample_inputs(0, 0);
+        l.sample_inputs(0b1111_0000, 1);
+        assert_eq!(l.levels, 0);
+        assert!(l.rising.iter().all(|e| e.count == 0));
+    }
+}

@@ -1,0 +1,705 @@
+//! The axis: one tier-2 step (2.5 kHz) of the complete CiA 402 drive on top of the current loop.
+//!
+//! Order within a step (every input is the latest, every output goes out in the same step):
+//! 1. parameters (compared raw, converted on change): [`MotionParams`], [`Loops`], [`Monitor`];
+//! 2. feedback: position actual = encoder position + home offset; velocity estimate ([`Loops::estimate`]);
+//! 3. I/O: input functions with their latched edges, brake and outputs ([`Io`]);
+//! 4. supervision into the fault manager: faults of the power stage (latched by tier 1), following error,
+//!    software position limits, limit switches;
+//! 5. the CiA 402 machine ([`StateMachine`]) with the controlword (the quick-stop input acts as «Quick stop», the
+//!    drive-enable input withdraws «Enable operation»), the fault inputs and the standstill of a running stop;
+//! 6. the motion its outputs ask for: nothing (drive function off), hold, a stop ramp (the option codes' ramps on
+//!    the shared trajectory generator, or the current limit on the velocity loop), or the active mode;
+//! 7. limits (software position limits, speed) on the demand, then the loops: the q-current demand;
+//! 8. the statusword with the mode's bits, and the actual and demand values into the dictionary.
+//!
+//! Power-stage requests go back to [`crate::drive::Drive`] as [`AxisOutputs`]; the drive carries them out on its
+//! power stage (calibration, enable, disable) before the next fast tick.
+//!
+//! Cyclic torque (CST) runs in tier 1: the drive reads 0x6071 + 0x60B2 every current-loop period
+//! ([`CurrentDemand::TargetTorque`]), so torque follows its target within the current-loop figures (40 us)
+//! instead of one slow tick plus an interpolation period; 0x60C2 does not apply to CST (EPOS4 application notes
+//! L4770-4771 advise 0 for CST anyway).
+
+use super::cyclic::{cyclic_mode, Cyclic};
+use super::homing::{Homing, HomingInput};
+use super::loops::{velocity_of, Loops};
+use super::monitor::{ticks_from_ms, Monitor};
+use super::params::MotionParams;
+use super::profile_position::{PpmInput, ProfilePosition};
+use super::profile_velocity::{ProfileVelocity, PvmInput};
+use super::{AxisFeedback, EdgeLatch, LoopDemand, ModeStatus, ModeStep};
+use crate::cia402::machine::{Brake, Config, Inputs, Motion, PowerStage, StateMachine, StatusInputs, Stop, StopThen};
+use crate::cia402::{Controlword, Mode, State, StatusFlags, Statusword, StopRamp, Ticks, Transition};
+use crate::control::frames::Amps;
+use crate::control::interpolator::CyclicSetpoint;
+use crate::control::trajectory::{Acceleration, ProfileGenerator, Setpoint, Velocity};
+use crate::drive::demand::DemandScale;
+use crate::drive::latch::PinLatches;
+use crate::drive::{DriveError, PowerState};
+use crate::fault::snapshot::DiagnosisSnapshot;
+use crate::fault::table::FaultId;
+use crate::fault::FaultManager;
+use crate::io::{InputState, Io};
+use crate::od::access::Dictionary;
+use crate::od::generated::handles as h;
+
+/// What the drive hands the axis every slow tick.
+#[derive(Clone, Copy, Debug)]
+pub struct AxisInputs<'a> {
+    /// Multi-turn encoder position (wrapping increments, tier 1's count).
+    pub encoder_position: i32,
+    /// The measured q current of the last fast tick.
+    pub current: Amps,
+    /// The averaged q current, mA (0x30D1:01).
+    pub current_average_ma: i32,
+    /// Phase currents of the last fast tick, mA (fault snapshots).
+    pub phase_currents_ma: [i32; 3],
+    /// DC-bus voltage, mV (fault snapshots).
+    pub bus_voltage_mv: i32,
+    /// Input levels and the positions latched at their edges and at the index.
+    pub pins: &'a PinLatches,
+    /// The power stage's state.
+    pub power: PowerState,
+    /// Torque/current scaling and limits (0x3001, 0x6072, 0x6073).
+    pub scale: &'a DemandScale,
+}
+
+/// Where the q-current reference comes from after this step.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CurrentDemand {
+    /// The drive function is off.
+    Off,
+    /// The loops' demand.
+    Internal(Amps),
+    /// CST: 0x6071 + 0x60B2, read by tier 1 every period.
+    TargetTorque,
+}
+
+/// What the drive must do after this step.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct AxisOutputs {
+    /// The machine's power-stage request.
+    pub power: PowerStage,
+    /// Start the current-offset calibration (transition 3).
+    pub start_calibration: bool,
+    /// Transition 15 completed: clear the power stage's fault latch.
+    pub fault_reset: bool,
+    /// The current demand.
+    pub demand: CurrentDemand,
+    /// Output pin levels (bit n = output n+1).
+    pub output_pins: u8,
+    /// The machine's state.
+    pub state: State,
+}
+
+/// What the axis is doing with the motion.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Activity {
+    /// Drive function off.
+    Idle,
+    /// Holding position.
+    Holding,
+    /// Following the set-points of this mode.
+    Following(Mode),
+    /// Carrying out a stop of the machine.
+    Stopping { stop: Stop, on_current_limit: bool },
+}
+
+/// The axis. See the module documentation.
+#[derive(Clone, Debug)]
+pub struct Axis {
+    machine: StateMachine,
+    faults: FaultManager,
+    params: MotionParams,
+    loops: Loops,
+    monitor: Monitor,
+    io: Io,
+    generator: ProfileGenerator,
+    ppm: ProfilePosition,
+    pvm: ProfileVelocity,
+    homing: Homing,
+    cyclic: Cyclic,
+    now: Ticks,
+    /// Position actual value minus encoder position (set by homing).
+    offset: i32,
+    activity: Activity,
+    brake: Brake,
+    /// The demand of the last step (for continuity across mode changes and stops).
+    last_setpoint: Setpoint,
+    mode_status: ModeStatus,
+    following_error_exceeded: bool,
+    internal_limit: bool,
+    referenced: bool,
+    standstill: bool,
+    remote: bool,
+    drive_fault_seen: bool,
+    previous_controlword: Controlword,
+    last_position: i32,
+}
+
+impl Axis {
+    /// An axis over the parameters of `d`, in «Not ready to switch on».
+    #[must_use]
+    pub fn new(d: &Dictionary) -> Self {
+        Self {
+            machine: StateMachine::new(Config::DEFAULT),
+            faults: FaultManager::new(),
+            params: MotionParams::new(d),
+            loops: Loops::new(d),
+            monitor: Monitor::new(d),
+            io: Io::new(),
+            generator: ProfileGenerator::new(0),
+            ppm: ProfilePosition::new(),
+            pvm: ProfileVelocity::new(),
+            homing: Homing::new(),
+            cyclic: Cyclic::new(),
+            now: Ticks(0),
+            offset: 0,
+            activity: Activity::Idle,
+            brake: Brake::Engaged,
+            last_setpoint: Setpoint::default(),
+            mode_status: ModeStatus::default(),
+            following_error_exceeded: false,
+            internal_limit: false,
+            referenced: false,
+            standstill: false,
+            remote: false,
+            drive_fault_seen: false,
+            previous_controlword: Controlword(0),
+            last_position: 0,
+        }
+    }
+
+    /// Statusword bit 9: the fieldbus controls the drive (NMT operational, EtherCAT SafeOp/Op).
+    pub fn set_remote(&mut self, remote: bool) {
+        self.remote = remote;
+    }
+
+    /// A master set-point arrived (SYNC, SM2 event): latches 0x607A, 0x60FF, 0x6071 and the offsets for the
+    /// cyclic modes' interpolation.
+    pub fn setpoint_received(&mut self, d: &Dictionary) {
+        let scale = &self.params.scale;
+        self.cyclic.push(CyclicSetpoint {
+            target_position: d.get(h::TARGET_POSITION),
+            target_velocity: scale.velocity_from_rpm(i64::from(d.get(h::TARGET_VELOCITY))),
+            target_torque: d.get(h::TARGET_TORQUE),
+            position_offset: d.get(h::POSITION_OFFSET),
+            velocity_offset: scale.velocity_from_rpm(i64::from(d.get(h::VELOCITY_OFFSET))),
+            torque_offset: d.get(h::TORQUE_OFFSET),
+        });
+    }
+
+    /// The CiA 402 state.
+    #[must_use]
+    pub const fn state(&self) -> State {
+        self.machine.state()
+    }
+
+    /// The fault manager (0x603F, 0x1001, 0x1003, EMCY).
+    #[must_use]
+    pub const fn faults(&self) -> &FaultManager {
+        &self.faults
+    }
+
+    /// The fault manager, mutable (communication supervision, EMCY transmission).
+    pub fn faults_mut(&mut self) -> &mut FaultManager {
+        &mut self.faults
+    }
+
+    /// The velocity estimate of the last step.
+    #[must_use]
+    pub fn velocity(&self) -> Velocity {
+        velocity_of(self.loops.velocity_estimate())
+    }
+
+    /// The demand of the last step.
+    #[must_use]
+    pub const fn setpoint(&self) -> &Setpoint {
+        &self.last_setpoint
+    }
+
+    /// Position actual value minus the encoder position.
+    #[must_use]
+    pub const fn position_offset(&self) -> i32 {
+        self.offset
+    }
+
+    /// Slow ticks since start-up.
+    #[must_use]
+    pub const fn now(&self) -> Ticks {
+        self.now
+    }
+
+    /// One slow tick. See the module documentation.
+    pub fn step(&mut self, input: &AxisInputs<'_>, d: &mut Dictionary) -> AxisOutputs {
+        self.now = Ticks(self.now.0.wrapping_add(1));
+        let now = self.now;
+        self.params.refresh(d);
+        self.loops.refresh(d);
+        self.monitor.refresh(d);
+        self.refresh_machine_config(d);
+
+        // 2. Feedback.
+        let position = input.encoder_position.wrapping_add(self.offset);
+        let velocity = velocity_of(self.loops.estimate(position, input.current));
+
+        // 3. I/O (the brake request of the previous step: one slow tick of latency, far below any brake time).
+        let ready = !self.faults.any_fault();
+        let io = self.io.step(input.pins, self.offset, self.brake, ready, d);
+
+        // 4. Supervision.
+        self.supervise(input, &io.inputs, position, velocity);
+
+        // 5. The machine.
+        let raw_cw = Controlword(d.get(h::CONTROLWORD));
+        if raw_cw.fault_reset_edge(self.previous_controlword) {
+            // Refused (a cause persists) leaves the faults latched; the machine then refuses transition 15.
+            let _ = self.faults.reset_request();
+        }
+        self.previous_controlword = raw_cw;
+        let mut cw = raw_cw;
+        if io.inputs.quick_stop {
+            cw.0 &= !Controlword::QUICK_STOP;
+        }
+        if !io.inputs.drive_enable {
+            cw.0 &= !Controlword::ENABLE_OPERATION;
+        }
+        let machine_in = Inputs {
+            controlword: cw,
+            modes_of_operation: d.get(h::MODES_OF_OPERATION),
+            options: self.params.options,
+            fault: self.faults.take_machine_input(),
+            connection_lost: self.faults.connection_lost(),
+            initialized: true,
+            calibration_done: matches!(input.power, PowerState::SwitchedOn | PowerState::OperationEnabled),
+            standstill: self.standstill,
+            remote: self.remote,
+            status: StatusInputs::default(),
+        };
+        let out = self.machine.step(&machine_in, now);
+        self.brake = out.brake;
+
+        // 6. Motion.
+        let feedback = AxisFeedback {
+            now,
+            position,
+            velocity,
+            current_average_ma: input.current_average_ma,
+            negative_limit: io.inputs.negative_limit,
+            positive_limit: io.inputs.positive_limit,
+            home_switch: io.inputs.home_switch,
+            index: EdgeLatch {
+                count: input.pins.index.count,
+                position: input.pins.index.position.wrapping_add(self.offset),
+            },
+        };
+        let (step, position) = self.motion(out.motion, out.mode.active, cw, &feedback, d);
+
+        // 7. Limits and loops.
+        let demand = match step {
+            None => CurrentDemand::Off,
+            Some(_) if self.activity == Activity::Following(Mode::CyclicSyncTorque) => {
+                self.internal_limit = false;
+                CurrentDemand::TargetTorque
+            }
+            Some(step) => CurrentDemand::Internal(self.run_loops(step, position, input.scale)),
+        };
+        if step.is_none() {
+            self.loops.reset();
+            self.internal_limit = false;
+        }
+
+        // 8. Status and actual values.
+        self.mode_status = match (self.activity, step) {
+            (Activity::Following(_), Some(s)) => s.status,
+            (Activity::Stopping { stop: Stop { then: StopThen::StayEnabled, .. }, .. }, Some(s)) => s.status,
+            _ => ModeStatus::default(),
+        };
+        // Bit 15 "position referenced": set by a successful homing (HMM bit 12), cleared while a new homing runs,
+        // kept after leaving HMM (IDX L838-857).
+        if self.activity == Activity::Following(Mode::Homing) {
+            self.referenced = self.mode_status.bit12;
+        }
+        self.publish(&out, position, velocity, d);
+        AxisOutputs {
+            power: out.power,
+            start_calibration: out.start_current_calibration,
+            fault_reset: out.transition == Some(Transition::T15),
+            demand,
+            output_pins: io.output_pins,
+            state: out.state,
+        }
+    }
+
+    /// Standstill timeout 0x30E0:03 and the brake delays 0x3158 (only with a brake output configured).
+    fn refresh_machine_config(&mut self, d: &Dictionary) {
+        let timeout = d.get(h::STANDSTILL_WINDOW_TIMEOUT);
+        let brake = self.io.brake_present();
+        let config = Config {
+            standstill_timeout: (timeout != u16::MAX).then(|| ticks_from_ms(u32::from(timeout))),
+            brake_engage_delay: if brake { ticks_from_ms(u32::from(d.get(h::BRAKE_RISE_TIME))) } else { Ticks(0) },
+            brake_release_delay: if brake { ticks_from_ms(u32::from(d.get(h::BRAKE_FALL_TIME))) } else { Ticks(0) },
+            initial_mode: Config::DEFAULT.initial_mode,
+        };
+        if config != self.machine.config() {
+            self.machine.set_config(config);
+        }
+    }
+
+    /// Raises and clears the faults the axis detects.
+    fn supervise(&mut self, input: &AxisInputs<'_>, inputs: &InputState, position: i32, velocity: Velocity) {
+        let snapshot = DiagnosisSnapshot {
+            phase_currents_ma: input.phase_currents_ma,
+            bus_voltage_mv: input.bus_voltage_mv,
+            position_inc: position,
+            velocity_rpm: i32::try_from(self.params.scale.velocity_to_rpm(velocity)).unwrap_or(i32::MAX),
+            state: self.machine.state(),
+            tick: self.now,
+            ..DiagnosisSnapshot::EMPTY
+        };
+        // The power stage latched a fault in tier 1 (the outputs are already off).
+        match input.power {
+            PowerState::Fault(e) if !self.drive_fault_seen => {
+                self.drive_fault_seen = true;
+                let id = match e {
+                    DriveError::Calibration(_) => FaultId::CurrentOffsetCalibration,
+                    DriveError::Commutation(_) => FaultId::HallInvalidState,
+                    DriveError::Protection(_) => FaultId::PowerStageProtection,
+                };
+                self.faults.raise(id, snapshot, self.now);
+                // The power stage holds its own latch until the fault reset; the condition itself (a break-input
+                // pulse, a failed calibration, a bad Hall sample) was an event. A condition that persists trips the
+                // power stage again at once after the reset.
+                self.faults.clear_cause(id);
+            }
+            PowerState::Fault(_) => {}
+            _ => self.drive_fault_seen = false,
+        }
+        let driving = self.machine.power().torque_allowed();
+        let homing = self.activity == Activity::Following(Mode::Homing);
+        if self.following_error_exceeded && driving {
+            self.faults.raise(FaultId::FollowingError, DiagnosisSnapshot { detail: self.fe(), ..snapshot }, self.now);
+        }
+        let outside = self.monitor.outside_limits(position);
+        if outside && driving && !homing {
+            self.faults.raise(FaultId::SoftwarePositionLimit, snapshot, self.now);
+        } else if !outside {
+            self.faults.clear_cause(FaultId::SoftwarePositionLimit);
+        }
+        // Functions 24/25 (limit switches without error) stop nothing here; the homing methods use them.
+        for (switch, id) in [
+            (inputs.negative_limit_error, FaultId::NegativeLimitSwitch),
+            (inputs.positive_limit_error, FaultId::PositiveLimitSwitch),
+        ] {
+            if switch && driving && !homing {
+                self.faults.raise(id, snapshot, self.now);
+            } else if !switch {
+                self.faults.clear_cause(id);
+            }
+        }
+    }
+
+    fn fe(&self) -> i32 {
+        self.last_setpoint.position_i32().wrapping_sub(self.last_position)
+    }
+
+    /// Step 6: the motion for the machine's request; `None` when the drive function is off. Returns the position
+    /// actual value in the coordinates after the step (homing may move them).
+    fn motion(
+        &mut self,
+        motion: Motion,
+        mode: Mode,
+        cw: Controlword,
+        fb: &AxisFeedback,
+        d: &Dictionary,
+    ) -> (Option<ModeStep>, i32) {
+        let hold_or_continue = |gen: &mut ProfileGenerator, activity: Activity, last: &Setpoint| {
+            if activity == Activity::Idle {
+                gen.reset(i64::from(fb.position));
+            } else if !uses_generator(activity) {
+                gen.reset_moving(last.position, last.velocity);
+            }
+        };
+        match motion {
+            Motion::Disabled => {
+                self.activity = Activity::Idle;
+                self.generator.reset(i64::from(fb.position));
+                self.last_setpoint = Setpoint { position: i64::from(fb.position), ..Setpoint::default() };
+                self.standstill = true;
+                (None, fb.position)
+            }
+            Motion::Hold => {
+                if self.activity != Activity::Holding {
+                    hold_or_continue(&mut self.generator, self.activity, &self.last_setpoint);
+                    if self.activity != Activity::Idle {
+                        let hold = self.generator.setpoint().position;
+                        self.generator.reset(hold);
+                    }
+                    self.activity = Activity::Holding;
+                }
+                let sp = self.generator.step();
+                (Some(position_step(sp)), fb.position)
+            }
+            Motion::Stop(stop) if stop.then == StopThen::StayEnabled && mode.halt_applies() => {
+                // Halt in PPM/PVM/HMM: the mode stops by itself (controlword bit 8) and keeps its status bits.
+                self.follow(mode, cw, fb, d)
+            }
+            Motion::Stop(stop) => {
+                let started = matches!(self.activity, Activity::Stopping { stop: s, .. } if s == stop);
+                if !started {
+                    let on_current_limit = self.begin_stop(stop, fb);
+                    self.activity = Activity::Stopping { stop, on_current_limit };
+                }
+                let on_current_limit = matches!(self.activity, Activity::Stopping { on_current_limit: true, .. });
+                let standstill = self.monitor.standstill(fb.velocity, fb.now);
+                if on_current_limit {
+                    self.standstill = standstill;
+                    // Hold where the motor stopped once it has.
+                    if standstill {
+                        self.generator.reset(i64::from(fb.position));
+                        self.activity = Activity::Stopping { stop, on_current_limit: false };
+                    }
+                    let step = ModeStep {
+                        demand: LoopDemand::Velocity { velocity: Velocity::ZERO, acceleration: Acceleration::ZERO },
+                        status: ModeStatus::default(),
+                    };
+                    return (Some(step), fb.position);
+                }
+                let sp = self.generator.step();
+                self.standstill = self.generator.is_done() && standstill;
+                (Some(position_step(sp)), fb.position)
+            }
+            Motion::Follow => self.follow(mode, cw, fb, d),
+        }
+    }
+
+    /// Starts a stop ramp from the present demand; `true` when it runs on the current limit instead.
+    fn begin_stop(&mut self, stop: Stop, fb: &AxisFeedback) -> bool {
+        if self.activity == Activity::Idle {
+            self.generator.reset(i64::from(fb.position));
+        } else if !uses_generator(self.activity) {
+            self.generator.reset_moving(self.last_setpoint.position, self.last_setpoint.velocity);
+        }
+        let shaped = stop.then == StopThen::StayEnabled;
+        let deceleration = match stop.ramp {
+            StopRamp::SlowDown => match self.activity {
+                Activity::Following(Mode::Homing) => self.params.homing_acceleration,
+                _ => self.params.profile.deceleration,
+            },
+            StopRamp::QuickStop => self.params.quick_stop_deceleration,
+            StopRamp::CurrentLimit | StopRamp::VoltageLimit => return true,
+        };
+        if shaped {
+            self.generator.halt(deceleration);
+        } else {
+            self.generator.quick_stop(deceleration);
+        }
+        false
+    }
+
+    /// Follows the active mode, entering it first when it changed.
+    fn follow(&mut self, mode: Mode, cw: Controlword, fb: &AxisFeedback, d: &Dictionary) -> (Option<ModeStep>, i32) {
+        // A new interpolation period (0x60C2 written while following) restarts the interpolation from the demand.
+        let period_changed = mode.is_cyclic() && self.cyclic.period() != self.params.period;
+        if self.activity != Activity::Following(mode) || period_changed {
+            if period_changed {
+                self.activity = Activity::Holding;
+                self.generator.reset_moving(self.last_setpoint.position, self.last_setpoint.velocity);
+            }
+            self.enter(mode, cw, fb);
+        }
+        let p = &self.params;
+        let halt_deceleration = match p.options.halt().ramp() {
+            StopRamp::QuickStop => p.quick_stop_deceleration,
+            StopRamp::SlowDown if mode == Mode::Homing => p.homing_acceleration,
+            StopRamp::SlowDown => p.profile.deceleration,
+            StopRamp::CurrentLimit | StopRamp::VoltageLimit => Acceleration::MAX,
+        };
+        let step = match mode {
+            Mode::ProfilePosition => {
+                let (target, clamped) = self.monitor.clamp_position(d.get(h::TARGET_POSITION));
+                self.internal_limit = clamped;
+                let input = PpmInput {
+                    controlword: cw,
+                    target_position: target,
+                    params: p.profile,
+                    halt_deceleration,
+                    windows: p.windows,
+                };
+                self.ppm.step(&input, &mut self.generator, fb)
+            }
+            Mode::ProfileVelocity => {
+                let input = PvmInput {
+                    controlword: cw,
+                    target_velocity: p.scale.velocity_from_rpm(i64::from(d.get(h::TARGET_VELOCITY))),
+                    params: p.profile,
+                    halt_deceleration,
+                    windows: p.windows,
+                };
+                self.pvm.step(&input, &mut self.generator, fb)
+            }
+            Mode::Homing => {
+                let limit = d.get(h::HOMING_SEARCH_DISTANCE_LIMIT);
+                let input = HomingInput {
+                    controlword: cw,
+                    method: d.get(h::HOMING_METHOD),
+                    switch_search_speed: p.homing_switch_speed,
+                    zero_search_speed: p.homing_zero_speed,
+                    acceleration: p.homing_acceleration,
+                    offset_move_distance: d.get(h::HOME_OFFSET_MOVE_DISTANCE),
+                    home_position: d.get(h::HOME_POSITION).wrapping_add(d.get(h::HOME_OFFSET)),
+                    current_threshold_ma: u32::from(d.get(h::HOMING_CURRENT_THRESHOLD)),
+                    search_distance_limit: (limit != 0).then_some(limit),
+                    halt_deceleration,
+                };
+                let step = self.homing.step(&input, &mut self.generator, fb);
+                if let Some(r) = step.rereference {
+                    let delta = r.to.wrapping_sub(r.from);
+                    self.offset = self.offset.wrapping_add(delta);
+                    let demand = self.generator.setpoint().position.wrapping_add(i64::from(delta));
+                    self.generator.reset(demand);
+                    let position = fb.position.wrapping_add(delta);
+                    self.loops.rereference(position);
+                    let mut mode_step = step.mode;
+                    if let LoopDemand::Position(sp) = &mut mode_step.demand {
+                        sp.position = demand;
+                        sp.position_fine = demand.wrapping_mul(1 << 16);
+                    }
+                    return (Some(mode_step), position);
+                }
+                step.mode
+            }
+            Mode::CyclicSyncPosition | Mode::CyclicSyncVelocity => self.cyclic.step(),
+            Mode::CyclicSyncTorque => ModeStep {
+                demand: LoopDemand::Torque { permille: 0 },
+                status: ModeStatus { target_reached: false, bit12: true, bit13: false },
+            },
+        };
+        (Some(step), fb.position)
+    }
+
+    /// Enters `mode` from the present activity: the generator (and the interpolator) continue from the last
+    /// demand, or start at the actual position when the drive function was off.
+    fn enter(&mut self, mode: Mode, cw: Controlword, fb: &AxisFeedback) {
+        let from_rest = matches!(self.activity, Activity::Idle);
+        if from_rest {
+            self.generator.reset(i64::from(fb.position));
+        } else if !uses_generator(self.activity) {
+            self.generator.reset_moving(self.last_setpoint.position, self.last_setpoint.velocity);
+        }
+        let start = self.generator.setpoint();
+        match mode {
+            Mode::ProfilePosition => self.ppm.enter(cw, &mut self.generator, fb),
+            Mode::ProfileVelocity => self.pvm.enter(cw, &mut self.generator, fb),
+            Mode::Homing => self.homing.enter(cw, &mut self.generator, fb),
+            Mode::CyclicSyncPosition | Mode::CyclicSyncVelocity | Mode::CyclicSyncTorque => {
+                if let Some(m) = cyclic_mode(mode) {
+                    let velocity = if from_rest { Velocity::ZERO } else { start.velocity };
+                    self.cyclic.enter(m, self.params.period, start.position_i32(), velocity);
+                }
+            }
+        }
+        self.activity = Activity::Following(mode);
+    }
+
+    /// Step 7: limits on the demand, then the loops.
+    fn run_loops(&mut self, step: ModeStep, position: i32, scale: &DemandScale) -> Amps {
+        let homing = self.activity == Activity::Following(Mode::Homing);
+        let mut demand = step.demand;
+        let mut clamped = false;
+        match &mut demand {
+            LoopDemand::Position(sp) if !homing => {
+                let (p, c) = self.monitor.clamp_position(sp.position_i32());
+                if c {
+                    sp.position = i64::from(p);
+                    sp.velocity = Velocity::ZERO;
+                    sp.acceleration = Acceleration::ZERO;
+                }
+                clamped = c;
+            }
+            LoopDemand::Velocity { velocity, .. } => {
+                let (v, c) = self.monitor.clamp_velocity(*velocity);
+                *velocity = v;
+                clamped = c;
+            }
+            _ => {}
+        }
+        let out = self.loops.step(&demand, position, scale.current_limit(), scale);
+        if let LoopDemand::Position(sp) = demand {
+            self.last_setpoint = sp;
+        } else if let LoopDemand::Velocity { velocity, acceleration } = demand {
+            // The position demand follows the actual position under velocity control.
+            self.last_setpoint = Setpoint { position: i64::from(position), position_fine: 0, velocity, acceleration };
+        }
+        self.last_position = position;
+        let supervised = matches!(demand, LoopDemand::Position(_)) && !homing;
+        self.following_error_exceeded =
+            self.monitor.following_error(out.following_error, supervised, self.now).exceeded;
+        self.internal_limit |= clamped || out.saturated;
+        out.current
+    }
+
+    /// Step 8: statusword, modes display, actual and demand values.
+    fn publish(
+        &mut self,
+        out: &crate::cia402::machine::Outputs,
+        position: i32,
+        velocity: Velocity,
+        d: &mut Dictionary,
+    ) {
+        let mode = out.mode.active;
+        let s = self.mode_status;
+        let bit13 = match mode {
+            Mode::ProfilePosition | Mode::CyclicSyncPosition => self.following_error_exceeded,
+            _ => s.bit13,
+        };
+        let target_reached = if out.state == State::QuickStopActive {
+            out.statusword.0 & Statusword::TARGET_REACHED != 0
+        } else {
+            s.target_reached
+        };
+        let flags = StatusFlags {
+            voltage_enabled: out.power.enabled,
+            warning: self.faults.warning_active(),
+            remote: self.remote,
+            target_reached,
+            internal_limit_active: self.internal_limit,
+            operation_mode_specific_12: s.bit12,
+            operation_mode_specific_13: bit13,
+            position_referenced: self.referenced,
+        };
+        d.set(h::STATUSWORD, Statusword::encode(out.state, flags).0);
+        d.set(h::MODES_OF_OPERATION_DISPLAY, out.mode.display);
+        let demand = self.last_setpoint.position_i32();
+        d.set(h::POSITION_DEMAND_VALUE, demand);
+        d.set(h::POSITION_DEMAND_INTERNAL_VALUE, demand);
+        d.set(h::POSITION_ACTUAL_INTERNAL_VALUE, position.wrapping_sub(self.offset));
+        d.set(h::POSITION_ACTUAL_VALUE, position);
+        d.set(h::FOLLOWING_ERROR_ACTUAL_VALUE, demand.wrapping_sub(position));
+        let scale = &self.params.scale;
+        let rpm =
+            |v: Velocity| i32::try_from(scale.velocity_to_rpm(v)).unwrap_or(if v.0 < 0 { i32::MIN } else { i32::MAX });
+        d.set(h::VELOCITY_DEMAND_VALUE, rpm(self.last_setpoint.velocity));
+        d.set(h::VELOCITY_ACTUAL_VALUE, rpm(velocity));
+        self.faults.publish(d);
+    }
+}
+
+/// Whether the activity's demand comes from the shared trajectory generator (so it is already continuous).
+const fn uses_generator(activity: Activity) -> bool {
+    matches!(
+        activity,
+        Activity::Holding
+            | Activity::Stopping { on_current_limit: false, .. }
+            | Activity::Following(Mode::ProfilePosition | Mode::ProfileVelocity | Mode::Homing)
+    )
+}
+
+/// A position demand with no mode bits.
+const fn position_step(sp: Setpoint) -> ModeStep {
+    ModeStep {
+        demand: LoopDemand::Position(sp),
+        status: ModeStatus { target_reached: false, bit12: false, bit13: false },
+    }
+}

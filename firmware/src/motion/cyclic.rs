@@ -1,0 +1,139 @@
+//! The cyclic synchronous modes CSP (8), CSV (9) and CST (10): the master's set-points, latched when the fieldbus
+//! reports one ([`Cyclic::push`], at SYNC / SM2 event), interpolated over 0x60C2 by
+//! [`crate::control::interpolator`] into the loops' demand (`shared/spec/cia402-device-control.md` §2.5-§2.8).
+//!
+//! - CSP follows 0x607A + 0x60B0 with the interpolator's velocity and acceleration feedforward (plus 0x60B1 as
+//!   velocity feedforward, E3/GT); CSV follows 0x60FF + 0x60B1 on the velocity loop; CST 0x6071 + 0x60B2.
+//!   The torque offset 0x60B2 as a torque feedforward in CSP/CSV is not applied (IDX ignores it in CSV,
+//!   L1016; the position PID has no torque input): a documented gap.
+//! - Statusword bit 12 "drive follows the command value" while set-points arrive (or one lost period is bridged);
+//!   0 before the first set-point and while holding after missing ones. Bits 10 and 13 are reserved here (bit 13
+//!   of CSP, the following error, is the monitor's).
+//! - Entering the mode, the interpolator restarts at the actual demand (E3 L8816: no following error at
+//!   re-enable) and waits for the first set-point, holding position (CSP), velocity (CSV) or zero torque (CST).
+
+use super::{LoopDemand, ModeStatus, ModeStep};
+use crate::cia402::Mode;
+use crate::control::interpolator::{
+    CyclicInterpolator, CyclicMode, CyclicSetpoint, InterpolationPeriod, SetpointStatus,
+};
+use crate::control::trajectory::{Setpoint, Velocity};
+
+/// The interpolation period of 0x60C2; an invalid one (shorter than a slow tick, out of range) falls back to no
+/// interpolation (each set-point applied at the next tick), which is what IDX does for value 0.
+#[must_use]
+pub fn period_of(value: u8, index: i8) -> InterpolationPeriod {
+    InterpolationPeriod::from_0x60c2(value, index).unwrap_or(InterpolationPeriod::DISABLED)
+}
+
+/// The interpolator mode of a cyclic CiA 402 mode.
+#[must_use]
+pub const fn cyclic_mode(mode: Mode) -> Option<CyclicMode> {
+    match mode {
+        Mode::CyclicSyncPosition => Some(CyclicMode::Position),
+        Mode::CyclicSyncVelocity => Some(CyclicMode::Velocity),
+        Mode::CyclicSyncTorque => Some(CyclicMode::Torque),
+        _ => None,
+    }
+}
+
+/// The cyclic modes.
+#[derive(Clone, Debug)]
+pub struct Cyclic {
+    interpolator: CyclicInterpolator,
+}
+
+impl Default for Cyclic {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Cyclic {
+    /// CSP without interpolation, at rest at 0.
+    #[must_use]
+    pub fn new() -> Self {
+        Self { interpolator: CyclicInterpolator::new(CyclicMode::Position, InterpolationPeriod::DISABLED) }
+    }
+
+    /// Starts following in `mode` with `period`, from `position` moving at `velocity`.
+    pub fn enter(&mut self, mode: CyclicMode, period: InterpolationPeriod, position: i32, velocity: Velocity) {
+        if self.interpolator.mode() != mode || self.interpolator.period() != period {
+            self.interpolator = CyclicInterpolator::new(mode, period);
+        }
+        self.interpolator.reset(i64::from(position), velocity);
+    }
+
+    /// A master set-point arrived (SYNC, SM2 event, or a process-data write in free run).
+    pub fn push(&mut self, setpoint: CyclicSetpoint) {
+        self.interpolator.push(setpoint);
+    }
+
+    /// The interpolation period in use.
+    #[must_use]
+    pub const fn period(&self) -> InterpolationPeriod {
+        self.interpolator.period()
+    }
+
+    /// Set-points that arrived twice within one period (the later one was used).
+    #[must_use]
+    pub const fn overruns(&self) -> u32 {
+        self.interpolator.overruns()
+    }
+
+    /// Whether the set-point stream has stopped beyond the bridged period (holding).
+    #[must_use]
+    pub const fn setpoint_missing(&self) -> bool {
+        self.interpolator.output().setpoint_missing()
+    }
+
+    /// One tick.
+    pub fn step(&mut self) -> ModeStep {
+        let out = self.interpolator.step();
+        let demand = match self.interpolator.mode() {
+            CyclicMode::Position => LoopDemand::Position(Setpoint {
+                position: out.position,
+                position_fine: out.position_fine,
+                velocity: out.velocity,
+                acceleration: out.acceleration,
+            }),
+            CyclicMode::Velocity => LoopDemand::Velocity { velocity: out.velocity, acceleration: out.acceleration },
+            CyclicMode::Torque => LoopDemand::Torque { permille: out.torque },
+        };
+        let follows = matches!(out.status, SetpointStatus::Following | SetpointStatus::Extrapolating { .. });
+        ModeStep { demand, status: ModeStatus { target_reached: false, bit12: follows, bit13: false } }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn csp_waits_then_follows_and_reports_bit_12() {
+        let mut c = Cyclic::new();
+        c.enter(CyclicMode::Position, period_of(0, -3), 500, Velocity::ZERO);
+        let s = c.step();
+        assert!(!s.status.bit12);
+        assert!(matches!(s.demand, LoopDemand::Position(sp) if sp.position == 500));
+        c.push(CyclicSetpoint { target_position: 510, ..CyclicSetpoint::default() });
+        let s = c.step();
+        assert!(s.status.bit12);
+        assert!(matches!(s.demand, LoopDemand::Position(sp) if sp.position == 510));
+    }
+
+    #[test]
+    fn cst_demands_target_plus_offset() {
+        let mut c = Cyclic::new();
+        c.enter(CyclicMode::Torque, period_of(0, -3), 0, Velocity::ZERO);
+        c.push(CyclicSetpoint { target_torque: 300, torque_offset: -50, ..CyclicSetpoint::default() });
+        let s = c.step();
+        assert_eq!(s.demand, LoopDemand::Torque { permille: 250 });
+    }
+
+    #[test]
+    fn invalid_period_means_no_interpolation() {
+        assert_eq!(period_of(1, -4), InterpolationPeriod::DISABLED);
+        assert!(period_of(1, -3).is_enabled());
+    }
+}

@@ -1,0 +1,307 @@
+//! The position and velocity loops of tier 2 with their gains taken from the dictionary (0x30A1, 0x30A2), and
+//! the velocity estimate they close on (0x3000:02 bits 7..4: low-pass filter 0x30A2:05 or the observer 0x30A3).
+//!
+//! EPOS4's structure (S1 Fig. 2-5, `shared/spec/control-and-protection.md` §1.4-§1.6): in the position modes the
+//! position PID with velocity and acceleration feedforward commands the current directly; in the velocity modes
+//! the velocity PI with feedforward does. The active [`LoopDemand`] chooses which; torque demands bypass both.
+//! When the demand changes kind (a mode change while enabled, a stop from CSP that runs on the velocity loop), the
+//! newly active controller's integrator is preset with the last current, so the output does not jump (bumpless
+//! transfer).
+//!
+//! Gains are converted when their dictionary values change ([`Loops::refresh`] compares the raw values, a few
+//! loads and compares per tick), never per tick.
+
+use super::LoopDemand;
+use crate::control::frames::Amps;
+use crate::control::observer::{ObserverGains, VelocityObserver};
+use crate::control::position::{Increments, PositionController, PositionGains};
+use crate::control::trajectory::Velocity;
+use crate::control::velocity::{IncPerTick, IncPerTick2, VelocityController, VelocityGains};
+use crate::control::velocity_estimate::LowPassVelocityEstimator;
+use crate::drive::demand::DemandScale;
+use crate::od::access::Dictionary;
+use crate::od::generated::handles as h;
+
+/// Where the velocity estimate comes from (0x3000:02 bits 7..4, S2 L3813-3850).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum VelocityEstimate {
+    /// 1: the position difference per tick through the first-order low-pass of 0x30A2:05.
+    #[default]
+    LowPass,
+    /// 2: EPOS4's observer (0x30A3).
+    Observer,
+}
+
+impl VelocityEstimate {
+    /// From 0x3000:02; anything but 2 in bits 7..4 is the low-pass estimate.
+    #[must_use]
+    pub const fn from_control_structure(raw: u32) -> Self {
+        if (raw >> 4) & 0xF == 2 {
+            Self::Observer
+        } else {
+            Self::LowPass
+        }
+    }
+}
+
+/// The raw dictionary values the loops are built from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+struct GainObjects {
+    position: [u32; 5],
+    velocity: [u32; 4],
+    cutoff_hz: u32,
+    observer: [u32; 5],
+    torque_constant: u32,
+    inc_per_rev: u32,
+    structure: u32,
+}
+
+impl GainObjects {
+    fn read(d: &Dictionary) -> Self {
+        Self {
+            position: [
+                d.get(h::POSITION_CONTROLLER_P_GAIN),
+                d.get(h::POSITION_CONTROLLER_I_GAIN),
+                d.get(h::POSITION_CONTROLLER_D_GAIN),
+                d.get(h::POSITION_CONTROLLER_FF_VELOCITY_GAIN),
+                d.get(h::POSITION_CONTROLLER_FF_ACCELERATION_GAIN),
+            ],
+            velocity: [
+                d.get(h::VELOCITY_CONTROLLER_P_GAIN),
+                d.get(h::VELOCITY_CONTROLLER_I_GAIN),
+                d.get(h::VELOCITY_CONTROLLER_FF_VELOCITY_GAIN),
+                d.get(h::VELOCITY_CONTROLLER_FF_ACCELERATION_GAIN),
+            ],
+            cutoff_hz: d.get(h::VELOCITY_FILTER_CUTOFF),
+            observer: [
+                d.get(h::OBSERVER_POSITION_CORRECTION_GAIN),
+                d.get(h::OBSERVER_VELOCITY_CORRECTION_GAIN),
+                d.get(h::OBSERVER_LOAD_CORRECTION_GAIN),
+                d.get(h::OBSERVER_FRICTION),
+                d.get(h::OBSERVER_INERTIA),
+            ],
+            torque_constant: d.get(h::MOTOR_TORQUE_CONSTANT),
+            inc_per_rev: d.get(h::MAIN_SENSOR_RESOLUTION),
+            structure: d.get(h::CONTROL_STRUCTURE),
+        }
+    }
+}
+
+/// Which controller produced the last current.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+enum Active {
+    #[default]
+    None,
+    Position,
+    Velocity,
+    Torque,
+}
+
+/// What the loops produced in one tick.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LoopOutput {
+    /// The q-current demand.
+    pub current: Amps,
+    /// The controller's output was limited (statusword bit 11, internal limit active).
+    pub saturated: bool,
+    /// Position demand minus actual position (position control only, else 0), increments.
+    pub following_error: i32,
+}
+
+/// The loops and the velocity estimate.
+#[derive(Clone, Debug)]
+pub struct Loops {
+    objects: GainObjects,
+    estimate: VelocityEstimate,
+    low_pass: LowPassVelocityEstimator,
+    observer: VelocityObserver,
+    position: PositionController,
+    velocity: VelocityController,
+    active: Active,
+    last_current: Amps,
+    velocity_estimate: IncPerTick,
+}
+
+impl Loops {
+    /// Loops with the gains of `d`.
+    #[must_use]
+    pub fn new(d: &Dictionary) -> Self {
+        let mut loops = Self {
+            objects: GainObjects::default(),
+            estimate: VelocityEstimate::LowPass,
+            low_pass: LowPassVelocityEstimator::new(0),
+            observer: VelocityObserver::new(ObserverGains::default()),
+            position: PositionController::new(PositionGains::default()),
+            velocity: VelocityController::new(VelocityGains::ZERO),
+            active: Active::None,
+            last_current: Amps::ZERO,
+            velocity_estimate: IncPerTick::ZERO,
+        };
+        loops.refresh(d);
+        loops
+    }
+
+    /// Re-reads 0x30A1, 0x30A2, 0x30A3, 0x3000:02/:05 and 0x3001:05 and converts them when they changed.
+    pub fn refresh(&mut self, d: &Dictionary) {
+        let o = GainObjects::read(d);
+        if o == self.objects {
+            return;
+        }
+        let n = o.inc_per_rev.max(1);
+        let [pp, pi, pd, pfv, pfa] = o.position;
+        self.position.set_gains(PositionGains::from_idx_0x30a1(pp, pi, pd, pfv, pfa, n));
+        let [vp, vi, vfv, vfa] = o.velocity;
+        self.velocity.set_gains(VelocityGains::from_idx_0x30a2(vp, vi, vfv, vfa, n));
+        if o.cutoff_hz != self.objects.cutoff_hz || self.objects == GainObjects::default() {
+            self.low_pass = LowPassVelocityEstimator::new(o.cutoff_hz);
+        }
+        let [lt, lw, ll, fr, j] = o.observer;
+        self.observer.set_gains(ObserverGains::from_idx_0x30a3(lt, lw, ll, fr, j, o.torque_constant, n));
+        self.estimate = VelocityEstimate::from_control_structure(o.structure);
+        self.objects = o;
+    }
+
+    /// Updates the velocity estimate with the position of this tick and the q current applied during the last one
+    /// (the observer's model input); returns it. Both estimators run, so switching between them is seamless.
+    pub fn estimate(&mut self, position: i32, current: Amps) -> IncPerTick {
+        let low_pass = self.low_pass.update(Increments(position));
+        let observed = self.observer.step(Increments(position), current);
+        self.velocity_estimate = match self.estimate {
+            VelocityEstimate::LowPass => low_pass,
+            VelocityEstimate::Observer => observed,
+        };
+        self.velocity_estimate
+    }
+
+    /// Restarts the estimators at `position` (sensor change, re-enable).
+    pub fn reset_estimate(&mut self, position: i32) {
+        self.low_pass.reset();
+        self.observer.reset(Increments(position));
+        self.velocity_estimate = IncPerTick::ZERO;
+    }
+
+    /// The last velocity estimate.
+    #[must_use]
+    pub const fn velocity_estimate(&self) -> IncPerTick {
+        self.velocity_estimate
+    }
+
+    /// The estimate source in use.
+    #[must_use]
+    pub const fn estimate_source(&self) -> VelocityEstimate {
+        self.estimate
+    }
+
+    /// Clears the controllers (drive function disabled).
+    pub fn reset(&mut self) {
+        self.position.reset();
+        self.velocity.reset();
+        self.active = Active::None;
+        self.last_current = Amps::ZERO;
+    }
+
+    /// The position coordinates changed (homing, at standstill): the PID's state is the error, which does not
+    /// change; the estimators restart from `position`, the actual position in the new coordinates.
+    pub fn rereference(&mut self, position: i32) {
+        self.reset_estimate(position);
+    }
+
+    /// One tick: the current for `demand` at the actual `position`, limited to `limit`.
+    pub fn step(&mut self, demand: &LoopDemand, position: i32, limit: Amps, scale: &DemandScale) -> LoopOutput {
+        let (current, saturated, following_error, active) = match *demand {
+            LoopDemand::Position(sp) => {
+                if self.active != Active::Position {
+                    self.position.reset();
+                    self.position.set_integral(self.last_current);
+                }
+                let w = IncPerTick::from_bits(sp.velocity.to_inc_per_tick_q16());
+                let a = IncPerTick2::from_bits(sp.acceleration.to_inc_per_tick2_q16());
+                let i = self.position.step(Increments(sp.position_i32()), Increments(position), w, a, limit);
+                (i, self.position.saturated(), self.position.following_error(), Active::Position)
+            }
+            LoopDemand::Velocity { velocity, acceleration } => {
+                if self.active != Active::Velocity {
+                    self.velocity.reset();
+                    self.velocity.set_integral(self.last_current);
+                }
+                let w = IncPerTick::from_bits(velocity.to_inc_per_tick_q16());
+                let a = IncPerTick2::from_bits(acceleration.to_inc_per_tick2_q16());
+                let i = self.velocity.step(w, self.velocity_estimate, a, limit);
+                (i, self.velocity.saturated(), 0, Active::Velocity)
+            }
+            LoopDemand::Torque { permille } => {
+                let clamped = i16::try_from(permille).unwrap_or(if permille < 0 { i16::MIN } else { i16::MAX });
+                let (_, i) = scale.torque_to_current(clamped, 0);
+                let l = limit.to_bits().max(0);
+                let bits = i.to_bits().clamp(l.wrapping_neg(), l);
+                (Amps::from_bits(bits), bits != i.to_bits(), 0, Active::Torque)
+            }
+        };
+        self.active = active;
+        self.last_current = current;
+        LoopOutput { current, saturated, following_error }
+    }
+}
+
+/// A velocity of the loops' form ([`IncPerTick`]) in the trajectory generator's form.
+#[must_use]
+pub fn velocity_of(v: IncPerTick) -> Velocity {
+    Velocity::from_bits(i64::from(v.to_bits()) << 16)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::control::trajectory::{Acceleration, Setpoint};
+
+    fn dict() -> Dictionary {
+        Dictionary::new(1)
+    }
+
+    #[test]
+    fn control_structure_selects_the_estimate() {
+        assert_eq!(VelocityEstimate::from_control_structure(0x0001_0111), VelocityEstimate::LowPass);
+        assert_eq!(VelocityEstimate::from_control_structure(0x0001_0121), VelocityEstimate::Observer);
+    }
+
+    #[test]
+    fn position_error_gives_restoring_current_and_following_error() {
+        let d = dict();
+        let mut loops = Loops::new(&d);
+        let sp = Setpoint { position: 100, ..Setpoint::default() };
+        let out = loops.step(&LoopDemand::Position(sp), 0, Amps::from_milliamps(10_000), &DemandScale::reference());
+        assert_eq!(out.following_error, 100);
+        assert!(out.current > Amps::ZERO);
+        let out = loops.step(&LoopDemand::Position(sp), 200, Amps::from_milliamps(10_000), &DemandScale::reference());
+        assert_eq!(out.following_error, -100);
+        assert!(out.current < Amps::ZERO);
+    }
+
+    #[test]
+    fn switching_to_velocity_control_is_bumpless() {
+        let d = dict();
+        let mut loops = Loops::new(&d);
+        let sp = Setpoint { position: 40, ..Setpoint::default() };
+        let limit = Amps::from_milliamps(10_000);
+        let scale = DemandScale::reference();
+        let before = loops.step(&LoopDemand::Position(sp), 0, limit, &scale).current;
+        let v = LoopDemand::Velocity { velocity: Velocity::ZERO, acceleration: Acceleration::ZERO };
+        let after = loops.step(&v, 0, limit, &scale).current;
+        // Zero velocity error: the velocity PI outputs its preset integral (plus one I step of zero).
+        assert_eq!(after, before);
+    }
+
+    #[test]
+    fn torque_demand_is_limited() {
+        let d = dict();
+        let mut loops = Loops::new(&d);
+        let scale = DemandScale::reference();
+        let out = loops.step(&LoopDemand::Torque { permille: 1000 }, 0, Amps::from_milliamps(1_000), &scale);
+        assert_eq!(out.current, Amps::from_milliamps(1_000));
+        assert!(out.saturated);
+        let out = loops.step(&LoopDemand::Torque { permille: -100 }, 0, Amps::from_milliamps(1_000), &scale);
+        assert!(!out.saturated);
+        // 100 per mille of the 3.2 A rated current.
+        assert!((out.current.to_milliamps() + 320).abs() <= 1, "{:?}", out.current);
+    }
+}

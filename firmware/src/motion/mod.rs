@@ -1,0 +1,132 @@
+//! The motion layer of tier 2 (2.5 kHz): the operating modes of CiA 402 on top of the current loop.
+//!
+//! Each mode is a sans-IO state machine (ARCHITECTURE.md convention 1) stepped once per slow tick with the axis
+//! feedback of that tick ([`AxisFeedback`]) and its own inputs (controlword bits, targets, parameters already
+//! converted to internal units), and returns a [`ModeStep`]: what the loops must follow ([`LoopDemand`]) and the
+//! mode's statusword bits ([`ModeStatus`]). The profile modes share one
+//! [`ProfileGenerator`](crate::control::trajectory::ProfileGenerator), owned by the axis and lent to the active mode,
+//! so a change of mode or a stop continues from the demand the previous mode left.
+//!
+//! Units inside the layer: positions in increments (`i32`, wrapping like 0x6064), velocities and accelerations in
+//! the trajectory generator's fixed-point units ([`Velocity`], [`Acceleration`]: increments per slow tick in Q32,
+//! per tick² in Q40). Dictionary units (rpm, rpm/s, ms) are converted by the caller when a parameter changes.
+//!
+//! Files: [`profile_position`] (PPM, 0x6060 = 1), [`profile_velocity`] (PVM, 3), [`homing`] (HMM, 6) hold the
+//! modes; [`axis`] ties them, the cyclic modes (8, 9, 10), the stops of the CiA 402 machine, the position and
+//! velocity loops and the monitoring together for [`crate::drive::Drive::slow_tick`].
+
+pub mod axis;
+pub mod cyclic;
+pub mod homing;
+pub mod loops;
+pub mod monitor;
+pub mod params;
+pub mod profile_position;
+pub mod profile_velocity;
+
+use crate::cia402::Ticks;
+use crate::control::trajectory::{Acceleration, Setpoint, Velocity};
+
+/// One captured edge of a position-latching signal (a digital input or the encoder index).
+///
+/// The fast tick records the encoder position at the edge (an input is sampled every 40 us, the index is latched
+/// by the encoder timer in hardware). `count` increments with every edge (wrapping), so a mode sees a new edge as
+/// a changed count and never misses one between two slow ticks (only the latest position of a burst is kept).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub struct EdgeLatch {
+    /// Edges seen since start-up (wrapping).
+    pub count: u16,
+    /// Position actual value (increments, the coordinates of [`AxisFeedback::position`]) at the latest edge.
+    pub position: i32,
+}
+
+/// A switch function (limit or home switch) with its level and its latched edges, polarity already applied:
+/// "activated" is the edge into the active level, whatever the wiring.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub struct SwitchEdges {
+    /// The switch is active now.
+    pub active: bool,
+    /// The latest edge into the active level.
+    pub activated: EdgeLatch,
+    /// The latest edge out of the active level.
+    pub released: EdgeLatch,
+}
+
+/// What the modes know about the axis in one slow tick.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub struct AxisFeedback {
+    /// Slow ticks since start-up.
+    pub now: Ticks,
+    /// Position actual value 0x6064, increments (home offset applied).
+    pub position: i32,
+    /// Velocity actual value (the estimate the velocity loop uses), increments per slow tick in Q32.
+    pub velocity: Velocity,
+    /// Averaged q current, mA (0x30D1:01; homing methods -1..-4 compare it with 0x30B2).
+    pub current_average_ma: i32,
+    /// Negative limit switch (input function 0).
+    pub negative_limit: SwitchEdges,
+    /// Positive limit switch (input function 1).
+    pub positive_limit: SwitchEdges,
+    /// Home switch (input function 2).
+    pub home_switch: SwitchEdges,
+    /// Encoder index pulses (rising edges only; `activated` = the index).
+    pub index: EdgeLatch,
+}
+
+/// What the position and velocity loops follow in one slow tick.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LoopDemand {
+    /// Position control: the demand position with velocity and acceleration feedforward (PPM, HMM, CSP, holds).
+    Position(Setpoint),
+    /// Velocity control (PVM, CSV).
+    Velocity {
+        /// Velocity demand.
+        velocity: Velocity,
+        /// Acceleration demand (feedforward).
+        acceleration: Acceleration,
+    },
+    /// Torque control (CST): torque demand, per mille of the rated torque 0x6076.
+    Torque {
+        /// Per mille of rated torque (0x6071 units, wider to hold the sum with 0x60B2).
+        permille: i32,
+    },
+}
+
+/// The statusword bits a mode owns (CiA 402 / IDX Table 2-8: bit 10 target reached, bits 12 and 13 operation
+/// mode specific).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub struct ModeStatus {
+    /// Bit 10.
+    pub target_reached: bool,
+    /// Bit 12 (PPM set-point acknowledge, PVM speed is zero, HMM homing attained, CSx drive follows the command
+    /// value).
+    pub bit12: bool,
+    /// Bit 13 (PPM/CSP following error — set by the monitor, not by the mode; HMM homing error).
+    pub bit13: bool,
+}
+
+/// One step of a mode.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ModeStep {
+    /// What the loops follow.
+    pub demand: LoopDemand,
+    /// The mode's statusword bits.
+    pub status: ModeStatus,
+}
+
+/// The windows that decide "target reached" and "speed is zero" (0x6067/0x6068, 0x606D/0x606E, 0x606F), in
+/// internal units.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Windows {
+    /// 0x6067 position window, increments; `None` for 0xFFFFFFFF (target reached = end of the trajectory,
+    /// E3 L6922-6987).
+    pub position_window: Option<u32>,
+    /// 0x6068 position window time.
+    pub position_window_time: Ticks,
+    /// 0x606D velocity window (magnitude).
+    pub velocity_window: Velocity,
+    /// 0x606E velocity window time.
+    pub velocity_window_time: Ticks,
+    /// 0x606F velocity threshold (magnitude): PVM "speed is zero" below it.
+    pub velocity_threshold: Velocity,
+}

@@ -1,0 +1,160 @@
+//! The motion parameters of the dictionary in internal units: read every slow tick as raw values (a few loads),
+//! converted only when they changed (the conversions use 128-bit products: `control::trajectory::MotionScale`).
+//!
+//! Objects: 0x3000:05 increments per revolution; 0x6081, 0x6083..0x6086, 0x607F, 0x60C5, 0x60C6 (profile);
+//! 0x6067, 0x6068, 0x606D..0x606F (windows); 0x6099, 0x609A (homing); 0x60C2 (interpolation period); 0x605A..0x605E
+//! and 0x6007 (option codes, raw).
+
+use super::monitor::ticks_from_ms;
+use super::Windows;
+use crate::cia402::OptionCodes;
+use crate::control::interpolator::InterpolationPeriod;
+use crate::control::trajectory::{Acceleration, MotionScale, ProfileObjects, ProfileParams, ProfileType, Velocity};
+use crate::od::access::Dictionary;
+use crate::od::generated::handles as h;
+
+/// The raw values, compared each tick.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct RawParams {
+    inc_per_rev: u32,
+    profile: ProfileObjects,
+    position_window: u32,
+    position_window_time: u16,
+    velocity_window: u16,
+    velocity_window_time: u16,
+    velocity_threshold: u16,
+    homing_speeds: [u32; 2],
+    homing_acceleration: u32,
+    period: (u8, i8),
+}
+
+impl RawParams {
+    fn read(d: &Dictionary) -> Self {
+        Self {
+            inc_per_rev: d.get(h::MAIN_SENSOR_RESOLUTION),
+            profile: ProfileObjects {
+                profile_velocity: d.get(h::PROFILE_VELOCITY),
+                profile_acceleration: d.get(h::PROFILE_ACCELERATION),
+                profile_deceleration: d.get(h::PROFILE_DECELERATION),
+                quick_stop_deceleration: d.get(h::QUICK_STOP_DECELERATION),
+                max_profile_velocity: d.get(h::MAX_PROFILE_VELOCITY),
+                max_acceleration: d.get(h::MAX_ACCELERATION),
+                max_deceleration: d.get(h::MAX_DECELERATION),
+                motion_profile_type: d.get(h::MOTION_PROFILE_TYPE),
+            },
+            position_window: d.get(h::POSITION_WINDOW),
+            position_window_time: d.get(h::POSITION_WINDOW_TIME),
+            velocity_window: d.get(h::VELOCITY_WINDOW),
+            velocity_window_time: d.get(h::VELOCITY_WINDOW_TIME),
+            velocity_threshold: d.get(h::VELOCITY_THRESHOLD),
+            homing_speeds: [d.get(h::HOMING_SPEED_SWITCH_SEARCH), d.get(h::HOMING_SPEED_ZERO_SEARCH)],
+            homing_acceleration: d.get(h::HOMING_ACCELERATION),
+            period: (d.get(h::INTERPOLATION_TIME_PERIOD_VALUE), d.get(h::INTERPOLATION_TIME_INDEX)),
+        }
+    }
+}
+
+/// The motion parameters in internal units.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MotionParams {
+    /// Unit conversion of the main sensor.
+    pub scale: MotionScale,
+    /// Profile move parameters (PPM, PVM).
+    pub profile: ProfileParams,
+    /// 0x6085 bounded by 0x60C5/0x60C6.
+    pub quick_stop_deceleration: Acceleration,
+    /// Target-reached windows.
+    pub windows: Windows,
+    /// 0x6099:01.
+    pub homing_switch_speed: Velocity,
+    /// 0x6099:02.
+    pub homing_zero_speed: Velocity,
+    /// 0x609A (bounded by 0x60C5).
+    pub homing_acceleration: Acceleration,
+    /// Homing moves: 0x6099:01 as velocity, 0x609A as acceleration and deceleration, bounded by 0x607F.
+    pub homing_profile: ProfileParams,
+    /// 0x60C2.
+    pub period: InterpolationPeriod,
+    /// The option codes (read every tick, they are plain copies).
+    pub options: OptionCodes,
+    raw: Option<RawParams>,
+}
+
+impl MotionParams {
+    /// The parameters of `d`.
+    #[must_use]
+    pub fn new(d: &Dictionary) -> Self {
+        let scale = MotionScale::new(4096);
+        let profile = ProfileObjects::default().profile_params(&scale).unwrap_or(ProfileParams {
+            profile_type: ProfileType::Trapezoidal,
+            velocity: Velocity::ZERO,
+            max_velocity: Velocity::ZERO,
+            acceleration: Acceleration::ZERO,
+            deceleration: Acceleration::ZERO,
+        });
+        let mut p = Self {
+            scale,
+            profile,
+            quick_stop_deceleration: Acceleration::ZERO,
+            windows: Windows {
+                position_window: None,
+                position_window_time: crate::cia402::Ticks(0),
+                velocity_window: Velocity::ZERO,
+                velocity_window_time: crate::cia402::Ticks(0),
+                velocity_threshold: Velocity::ZERO,
+            },
+            homing_switch_speed: Velocity::ZERO,
+            homing_zero_speed: Velocity::ZERO,
+            homing_acceleration: Acceleration::ZERO,
+            homing_profile: profile,
+            period: InterpolationPeriod::DISABLED,
+            options: OptionCodes::DEFAULT,
+            raw: None,
+        };
+        p.refresh(d);
+        p
+    }
+
+    /// Re-reads the dictionary; converts what changed. An invalid profile type keeps the previous profile.
+    pub fn refresh(&mut self, d: &Dictionary) {
+        self.options = OptionCodes {
+            quick_stop: d.get(h::QUICK_STOP_OPTION_CODE),
+            shutdown: d.get(h::SHUTDOWN_OPTION_CODE),
+            disable_operation: d.get(h::DISABLE_OPERATION_OPTION_CODE),
+            halt: d.get(h::HALT_OPTION_CODE),
+            fault_reaction: d.get(h::FAULT_REACTION_OPTION_CODE),
+            abort_connection: d.get(h::ABORT_CONNECTION_OPTION_CODE),
+        };
+        let raw = RawParams::read(d);
+        if self.raw == Some(raw) {
+            return;
+        }
+        let scale = MotionScale::new(raw.inc_per_rev.max(1));
+        if let Ok(profile) = raw.profile.profile_params(&scale) {
+            self.profile = profile;
+        }
+        self.quick_stop_deceleration = raw.profile.quick_stop_deceleration(&scale);
+        self.windows = Windows {
+            position_window: (raw.position_window != u32::MAX).then_some(raw.position_window),
+            position_window_time: ticks_from_ms(u32::from(raw.position_window_time)),
+            velocity_window: scale.velocity_from_rpm(i64::from(raw.velocity_window)),
+            velocity_window_time: ticks_from_ms(u32::from(raw.velocity_window_time)),
+            velocity_threshold: scale.velocity_from_rpm(i64::from(raw.velocity_threshold)),
+        };
+        let max = raw.profile.max_profile_velocity;
+        self.homing_switch_speed = scale.velocity_from_rpm(i64::from(raw.homing_speeds[0].min(max)));
+        self.homing_zero_speed = scale.velocity_from_rpm(i64::from(raw.homing_speeds[1].min(max)));
+        self.homing_acceleration =
+            scale.acceleration_from_rpm_per_s(raw.homing_acceleration.min(raw.profile.max_acceleration));
+        self.homing_profile = ProfileParams {
+            profile_type: self.profile.profile_type,
+            velocity: self.homing_switch_speed,
+            max_velocity: self.profile.max_velocity,
+            acceleration: self.homing_acceleration,
+            deceleration: self.homing_acceleration,
+        };
+        self.period = super::cyclic::period_of(raw.period.0, raw.period.1);
+        self.scale = scale;
+        self.raw = Some(raw);
+    }
+}

@@ -1,0 +1,81 @@
+//! The cyclic synchronous modes on the reference plant, driven through CiA 402 as a master drives them: CSP
+//! following a jerk-limited move, CSV step and velocity-loop bandwidth, CST torque through the current loop.
+//!
+//! The figures come from `hal_sim::sim::motion`, the code `drive-sim csp` and `drive-sim csv-sweep` run. Gains are
+//! the dictionary defaults (0x30A1, 0x30A2), tuned for the reference plant. Bounds are the motion issue's.
+
+use firmware::cia402::State;
+use firmware::od::generated::handles as h;
+use hal_sim::sim::motion::{self, CspConfig};
+
+/// CSP at a 1 ms master cycle (0x60C2 = 1 ms), 10 revolutions, sin² ramps up to 3,000 rpm and 20,000 rpm/s.
+///
+/// Bounds (issue): peak following error <= 30 inc, RMS <= 8 inc (4,096 inc/rev), position within +-1 inc of
+/// the target 20 ms after the last set-point, statusword bit 13 never set. The following error is 0x60F4, the
+/// drive's own demand minus actual, sampled every slow tick of the move. Measured: peak 2 to 3 inc, RMS about
+/// 0.7 inc over seeds 1..8, so the bounds hold with a wide margin; the settling bound is the tight one (the
+/// Coulomb friction of 3 mNm needs the integral to act), so it is checked on three seeds.
+#[test]
+fn csp_follows_a_jerk_limited_move() {
+    for seed in [1, 3, 4] {
+        let (f, _) = motion::csp(&CspConfig { seed, ..CspConfig::default() }).expect("scenario runs");
+        assert!(f.following_error_peak_inc <= 30.0, "seed {seed}: {f:?}");
+        assert!(f.following_error_rms_inc <= 8.0, "seed {seed}: {f:?}");
+        assert!(f.settle_error_inc <= 1.0, "seed {seed}: {f:?}");
+        assert!(f.settle_error_max_inc <= 1.0, "seed {seed}: stays settled {f:?}");
+        assert!(!f.following_error_bit_seen, "seed {seed}: bit 13 {f:?}");
+        assert!((f.peak_rpm - 2449.0).abs() < 1.0, "the move is the one the issue asks for: {f:?}");
+    }
+}
+
+/// CSP at a 200 us master cycle without interpolation (the period is shorter than a slow tick, so each
+/// set-point is applied at the next slow tick): the same move stays within the same bounds.
+#[test]
+fn csp_at_a_fast_cycle() {
+    let cfg = CspConfig { cycle_periods: 5, ..CspConfig::default() };
+    let (f, _) = motion::csp(&cfg).expect("scenario runs");
+    assert!(f.following_error_peak_inc <= 30.0, "{f:?}");
+    assert!(f.following_error_rms_inc <= 8.0, "{f:?}");
+    assert!(f.settle_error_inc <= 1.0, "{f:?}");
+}
+
+/// CSV: a 100 rpm step settles within 2 % without more than 10 % overshoot (issue). Measured 5.3 to 5.7 %
+/// overshoot, 0.03 % steady error.
+#[test]
+fn csv_small_step() {
+    let (f, _) = motion::csv_step(1, 100.0).expect("scenario runs");
+    assert!(f.overshoot_pct <= 10.0, "{f:?}");
+    assert!(f.steady_error_pct <= 2.0, "{f:?}");
+    assert!(f.settle_ms.is_finite() && f.settle_ms < 200.0, "settles within 2 %: {f:?}");
+}
+
+/// CSV: velocity-loop small-signal bandwidth >= 100 Hz from a sine sweep (issue). Measured 165 Hz: the gain is
+/// -0.85 dB at 60 Hz and the -3 dB crossing lies between the 130 and 200 Hz points.
+#[test]
+fn csv_velocity_bandwidth() {
+    let (points, bw) = motion::csv_sweep(1).expect("scenario runs");
+    assert!(bw >= 100.0, "bandwidth {bw} Hz, points {points:?}");
+    assert!(points.iter().all(|p| p.gain_db < 3.0), "no resonance peak above 3 dB: {points:?}");
+}
+
+/// CST: the target torque goes to the current loop every 40 us, so the torque demand follows 0x6071 + 0x60B2 at
+/// once and the motor's current within the current-loop figures. Tolerance 2 % of the demand at 5 ms: the
+/// loop's steady-state error bound is 1 % of the step, plus the plant's current ripple.
+#[test]
+fn cst_torque_follows_the_target() {
+    let mut sim = motion::prepare_motion(1, 10).expect("enabled in CST");
+    sim.plant.lock_rotor(true);
+    sim.drive.dictionary_mut().set(h::TARGET_TORQUE, 300);
+    sim.drive.dictionary_mut().set(h::TORQUE_OFFSET, 50);
+    // 1 ms: the 350 per mille (1.12 A of the 3.2 A rated current) is reached and averaged.
+    // 5 ms: the current loop's step settles within 1 % of a 2 A step in a few hundred us, then the integral
+    // removes the dead-time error within about 3 ms at this low current (measured on the locked rotor).
+    sim.run(125);
+    let iq = sim.plant.state().i_dq_a[1];
+    let iref = f64::from(sim.drive.signals().i_ref.q.to_milliamps()) / 1000.0;
+    assert!((iref - 1.12).abs() < 0.002, "the reference is 350 per mille of 3.2 A at once: {iref} A");
+    assert!((iq - 1.12).abs() < 0.0224, "i_q {iq} A for 350 per mille");
+    sim.run_slow_ticks(10);
+    assert_eq!(sim.drive.dictionary().get(h::TORQUE_DEMAND_VALUE), 350);
+    assert_eq!(sim.cia402_state(), State::OperationEnabled);
+}
