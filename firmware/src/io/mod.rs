@@ -80,13 +80,28 @@ impl Io {
         ready: bool,
         d: &mut Dictionary,
     ) -> IoState {
+        let state = self.inputs(pins, position_offset, d);
+        let output_pins = self.outputs(brake, ready, d);
+        IoState { inputs: state, output_pins }
+    }
+
+    /// The input half of [`Io::step`]: input functions, their edges and the touch probes. The axis runs it
+    /// before the CiA 402 machine (the quick-stop and drive-enable inputs act in the same step).
+    pub fn inputs(&mut self, pins: &PinLatches, position_offset: i32, d: &mut Dictionary) -> InputState {
         let input_config = inputs::InputConfig::read(d);
         let state = inputs::evaluate(pins, &input_config, position_offset);
         inputs::publish(pins, &state, d);
         self.touch_probes.step(pins, &input_config, position_offset, d);
+        state
+    }
+
+    /// The output half of [`Io::step`]: the output pins for the brake request and `ready`. The axis runs it after
+    /// the machine, so the brake pin changes in the step the machine asks for it (the brake delays 0x3158 are
+    /// counted from there).
+    pub fn outputs(&mut self, brake: Brake, ready: bool, d: &mut Dictionary) -> u8 {
         let (output_config, output_pins) = outputs::step(brake, ready, d);
         self.brake_present = output_config.brake_present();
-        IoState { inputs: state, output_pins }
+        output_pins
     }
 
     /// Clears the touch-probe results (stored flags, positions, counters; the probes stay enabled) and publishes

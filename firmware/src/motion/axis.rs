@@ -3,7 +3,8 @@
 //! Order within a step (every input is the latest, every output goes out in the same step):
 //! 1. parameters (compared raw, converted on change): [`MotionParams`], [`Loops`], [`Monitor`];
 //! 2. feedback: position actual = encoder position + home offset; velocity estimate ([`Loops::estimate`]);
-//! 3. I/O: input functions with their latched edges, brake and outputs ([`Io`]);
+//! 3. inputs: input functions with their latched edges ([`Io::inputs`]); the outputs (brake, ready) follow the
+//!    machine in the same step ([`Io::outputs`]);
 //! 4. supervision into the fault manager: faults of the power stage (latched by tier 1), following error,
 //!    software position limits, limit switches;
 //! 5. the CiA 402 machine ([`StateMachine`]) with the controlword (the quick-stop input acts as «Quick stop», the
@@ -29,7 +30,7 @@ use super::params::MotionParams;
 use super::profile_position::{PpmInput, ProfilePosition};
 use super::profile_velocity::{ProfileVelocity, PvmInput};
 use super::{AxisFeedback, EdgeLatch, LoopDemand, ModeStatus, ModeStep};
-use crate::cia402::machine::{Brake, Config, Inputs, Motion, PowerStage, StateMachine, StatusInputs, Stop, StopThen};
+use crate::cia402::machine::{Config, Inputs, Motion, PowerStage, StateMachine, StatusInputs, Stop, StopThen};
 use crate::cia402::{Controlword, Mode, State, StatusFlags, Statusword, StopRamp, Ticks, Transition};
 use crate::control::frames::Amps;
 use crate::control::interpolator::CyclicSetpoint;
@@ -124,7 +125,6 @@ pub struct Axis {
     /// Position actual value minus encoder position (set by homing).
     offset: i32,
     activity: Activity,
-    brake: Brake,
     /// The demand of the last step (for continuity across mode changes and stops).
     last_setpoint: Setpoint,
     mode_status: ModeStatus,
@@ -136,6 +136,9 @@ pub struct Axis {
     drive_fault_seen: bool,
     previous_controlword: Controlword,
     last_position: i32,
+    /// The negative and positive limit switch were active while driving in the last step (so that only a new
+    /// contact, or motion further into the switch, is an error).
+    limit_seen: [bool; 2],
 }
 
 impl Axis {
@@ -157,7 +160,6 @@ impl Axis {
             now: Ticks(0),
             offset: 0,
             activity: Activity::Idle,
-            brake: Brake::Engaged,
             last_setpoint: Setpoint::default(),
             mode_status: ModeStatus::default(),
             following_error_exceeded: false,
@@ -168,6 +170,7 @@ impl Axis {
             drive_fault_seen: false,
             previous_controlword: Controlword(0),
             last_position: 0,
+            limit_seen: [false; 2],
         }
     }
 
@@ -244,12 +247,11 @@ impl Axis {
         let position = input.encoder_position.wrapping_add(self.offset);
         let velocity = velocity_of(self.loops.estimate(position, input.current));
 
-        // 3. I/O (the brake request of the previous step: one slow tick of latency, far below any brake time).
-        let ready = !self.faults.any_fault();
-        let io = self.io.step(input.pins, self.offset, self.brake, ready, d);
+        // 3. Inputs (the outputs follow the machine, below).
+        let inputs = self.io.inputs(input.pins, self.offset, d);
 
         // 4. Supervision.
-        self.supervise(input, &io.inputs, position, velocity);
+        self.supervise(input, &inputs, position, velocity);
 
         // 5. The machine.
         let raw_cw = Controlword(d.get(h::CONTROLWORD));
@@ -259,10 +261,10 @@ impl Axis {
         }
         self.previous_controlword = raw_cw;
         let mut cw = raw_cw;
-        if io.inputs.quick_stop {
+        if inputs.quick_stop {
             cw.0 &= !Controlword::QUICK_STOP;
         }
-        if !io.inputs.drive_enable {
+        if !inputs.drive_enable {
             cw.0 &= !Controlword::ENABLE_OPERATION;
         }
         let machine_in = Inputs {
@@ -278,7 +280,7 @@ impl Axis {
             status: StatusInputs::default(),
         };
         let out = self.machine.step(&machine_in, now);
-        self.brake = out.brake;
+        let output_pins = self.io.outputs(out.brake, !self.faults.any_fault(), d);
 
         // 6. Motion.
         let feedback = AxisFeedback {
@@ -286,9 +288,9 @@ impl Axis {
             position,
             velocity,
             current_average_ma: input.current_average_ma,
-            negative_limit: io.inputs.negative_limit,
-            positive_limit: io.inputs.positive_limit,
-            home_switch: io.inputs.home_switch,
+            negative_limit: inputs.negative_limit,
+            positive_limit: inputs.positive_limit,
+            home_switch: inputs.home_switch,
             index: EdgeLatch {
                 count: input.pins.index.count,
                 position: input.pins.index.position.wrapping_add(self.offset),
@@ -316,18 +318,21 @@ impl Axis {
             (Activity::Stopping { stop: Stop { then: StopThen::StayEnabled, .. }, .. }, Some(s)) => s.status,
             _ => ModeStatus::default(),
         };
-        // Bit 15 "position referenced": set by a successful homing (HMM bit 12), cleared while a new homing runs,
-        // kept after leaving HMM (IDX L838-857).
-        if self.activity == Activity::Following(Mode::Homing) {
-            self.referenced = self.mode_status.bit12;
+        // Bit 15 "position referenced": set by a successful homing, cleared while a new homing runs, kept after
+        // leaving HMM (IDX L838-857). A homing that ends clears the touch probes' latches (IDX L6362: homing and
+        // the touch probe cannot be used together).
+        let referenced = self.homing.attained();
+        if referenced && !self.referenced {
+            self.io.clear_touch_probes(d);
         }
+        self.referenced = referenced;
         self.publish(&out, position, velocity, d);
         AxisOutputs {
             power: out.power,
             start_calibration: out.start_current_calibration,
             fault_reset: out.transition == Some(Transition::T15),
             demand,
-            output_pins: io.output_pins,
+            output_pins,
             state: out.state,
         }
     }
@@ -387,16 +392,19 @@ impl Axis {
         } else if !outside {
             self.faults.clear_cause(FaultId::SoftwarePositionLimit);
         }
-        // Functions 24/25 (limit switches without error) stop nothing here; the homing methods use them.
-        for (switch, id) in [
-            (inputs.negative_limit_error, FaultId::NegativeLimitSwitch),
-            (inputs.positive_limit_error, FaultId::PositiveLimitSwitch),
-        ] {
-            if switch && driving && !homing {
+        // A limit switch is an error when it is reached while driving, or when the drive moves further into it
+        // (IDX L7089-7090: an event, reset at once); moving off the switch after the reset is allowed.
+        // Functions 24/25 (limit switches without error) raise nothing; the homing methods use them.
+        let demand = self.last_setpoint.velocity.0;
+        let limits = [
+            (inputs.negative_limit_error, demand < 0, FaultId::NegativeLimitSwitch),
+            (inputs.positive_limit_error, demand > 0, FaultId::PositiveLimitSwitch),
+        ];
+        for ((switch, into, id), seen) in limits.into_iter().zip(self.limit_seen.iter_mut()) {
+            if switch && driving && !homing && (!*seen || into) {
                 self.faults.raise(id, snapshot, self.now);
-            } else if !switch {
-                self.faults.clear_cause(id);
             }
+            *seen = switch;
         }
     }
 
@@ -414,6 +422,8 @@ impl Axis {
         fb: &AxisFeedback,
         d: &Dictionary,
     ) -> (Option<ModeStep>, i32) {
+        // Bit 11 is recomputed every step: the mode (target clamped, speed limited) and the loops set it.
+        self.internal_limit = false;
         let hold_or_continue = |gen: &mut ProfileGenerator, activity: Activity, last: &Setpoint| {
             if activity == Activity::Idle {
                 gen.reset(i64::from(fb.position));
@@ -537,7 +547,10 @@ impl Axis {
                     halt_deceleration,
                     windows: p.windows,
                 };
-                self.pvm.step(&input, &mut self.generator, fb)
+                let step = self.pvm.step(&input, &mut self.generator, fb);
+                // IDX PVM bit 11: the target velocity is limited to 0x607F.
+                self.internal_limit = self.pvm.speed_limited();
+                step
             }
             Mode::Homing => {
                 let limit = d.get(h::HOMING_SEARCH_DISTANCE_LIMIT);
