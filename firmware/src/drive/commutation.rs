@@ -383,6 +383,8 @@ pub struct Commutation {
     last_index_latch: Option<u16>,
     last_index_correction: AngleDelta,
     index_pulses: u32,
+    /// No encoder: the Halls alone give the angle (sector centres, updated at each edge).
+    hall_only: bool,
     /// The angle was indexed since this commutation was built: the encoder has kept counting since, so a restart
     /// (re-enable) keeps the indexed angle instead of falling back to the Hall sector.
     indexed: bool,
@@ -416,6 +418,7 @@ impl Commutation {
             last_index_correction: AngleDelta::ZERO,
             index_pulses: 0,
             indexed: false,
+            hall_only: false,
             align_ticks: 0,
             align_current: 0,
             align_step: 0,
@@ -458,6 +461,11 @@ impl Commutation {
         Ok(())
     }
 
+    /// Without an encoder (0x3000:01 sensor 1 none) the angle comes from the Hall sectors alone.
+    pub fn set_hall_only(&mut self, hall_only: bool) {
+        self.hall_only = hall_only;
+    }
+
     /// Back to not started (outputs off, e.g. on a fault). Keeps the learned index offset.
     pub fn stop(&mut self) {
         self.stage = CommutationStage::Unknown;
@@ -490,6 +498,10 @@ impl Commutation {
             let sector = HallSector::from_state(feedback.hall)?;
             if self.stage == CommutationStage::HallSector {
                 self.refine_at_hall_edge(sector);
+            } else if self.hall_only && self.stage == CommutationStage::HallEdge && self.last_sector != Some(sector) {
+                // No encoder to carry the angle between edges: every edge sets it, to the centre of the sector
+                // just entered (+-30 degrees electrical at most, no lag on average).
+                self.set_angle_at(self.encoder.electrical_count(), sector.centre_angle(self.hall_offset));
             }
             self.last_sector = Some(sector);
         }

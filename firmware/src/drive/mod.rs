@@ -30,6 +30,7 @@
 pub mod calibration;
 pub mod commutation;
 pub mod demand;
+pub mod hall_position;
 pub mod latch;
 pub mod objects;
 pub mod protection;
@@ -50,6 +51,7 @@ use commutation::{
     EncoderConfig,
 };
 use demand::{rated_torque_micro_nm, DemandScale};
+use hall_position::HallPosition;
 use latch::PinLatches;
 use protection::Trip;
 use scaling::ShuntOffsets;
@@ -193,6 +195,10 @@ pub struct Drive {
     last_power_request: crate::cia402::PowerStage,
     /// Output pin levels from tier 2.
     output_pins: u8,
+    /// 0x3000:01 sensor 1 is the incremental encoder; without it the Halls are the position sensor.
+    encoder_present: bool,
+    /// Position counted from the Hall states (the main position without an encoder).
+    hall_position: HallPosition,
 }
 
 impl Drive {
@@ -235,6 +241,8 @@ impl Drive {
             axis: Axis::new(&dictionary),
             last_power_request: crate::cia402::PowerStage::OFF,
             output_pins: 0,
+            encoder_present: true,
+            hall_position: HallPosition::default(),
             dictionary,
         };
         drive.configure_commutation();
@@ -266,7 +274,13 @@ impl Drive {
         }
         // 2. Scaling and the position sensors (the encoder is tracked in every state).
         let v_bus = scaling::bus_voltage(m.adc.bus_voltage);
-        let feedback = FeedbackSample { hall: m.feedback.hall ^ self.hall_mask, ..m.feedback };
+        let mut feedback = FeedbackSample { hall: m.feedback.hall ^ self.hall_mask, ..m.feedback };
+        self.hall_position.update(feedback.hall);
+        if !self.encoder_present {
+            // No encoder configured: whatever the counter input shows is ignored; the angle comes from the Halls.
+            feedback.encoder_count = 0;
+            feedback.index_latch = None;
+        }
         self.signals.v_bus = v_bus;
         self.signals.hall = feedback.hall;
         let angle = match self.commutation.update(&feedback) {
@@ -362,7 +376,11 @@ impl Drive {
         self.publish_actual_values();
         let s = self.signals;
         let input = AxisInputs {
-            encoder_position: self.commutation.encoder().position(),
+            encoder_position: if self.encoder_present {
+                self.commutation.encoder().position()
+            } else {
+                self.hall_position.position()
+            },
             current: s.i_dq.q,
             current_average_ma: Amps::from_bits(self.i_q_average).to_milliamps(),
             phase_currents_ma: [s.i_abc.a.to_milliamps(), s.i_abc.b.to_milliamps(), s.i_abc.c.to_milliamps()],
@@ -553,8 +571,12 @@ impl Drive {
         let d = &self.dictionary;
         let encoder =
             EncoderConfig::from_od(d.get(h::ENCODER_PULSES), d.get(h::ENCODER_TYPE), d.get(h::MOTOR_POLE_PAIRS));
-        // 0x3000:01 bits 23..16: sensor 3 type, 4 = digital Hall sensor (device.toml).
+        // 0x3000:01 bits 23..16: sensor 3 type, 4 = digital Hall sensor; bits 7..0: sensor 1, 1 = incremental
+        // encoder (device.toml).
         let sensors = d.get(h::SENSORS_CONFIGURATION);
+        let encoder_present = sensors & 0xFF == 1;
+        let sensor_changed = encoder_present != self.encoder_present;
+        self.encoder_present = encoder_present;
         let method = if (sensors >> 16) & 0xFF == 4 {
             CommutationMethod::Hall
         } else {
@@ -563,7 +585,8 @@ impl Drive {
         // 0x301A:01 bit 0: invert all Hall signals.
         self.hall_mask = if d.get(h::HALL_CONFIGURATION) & 1 != 0 { 0b111 } else { 0 };
         let hall_offset = hall_offset_from_od(d.get(h::HALL_COMMUTATION_OFFSET));
-        let same = self.commutation.encoder().config() == &encoder
+        let same = !sensor_changed
+            && self.commutation.encoder().config() == &encoder
             && self.commutation.method() == method
             && self.commutation.hall_offset() == hall_offset;
         // 0x3010:05, the electrical angle at the index (1/65536 turn as 0x301A:03; -1 = not known): a configured
@@ -575,6 +598,7 @@ impl Drive {
         } else {
             self.commutation = Commutation::new(method, encoder, hall_offset, index_offset);
         }
+        self.commutation.set_hall_only(!self.encoder_present);
     }
 
     // ---------------------------------------------------------------------------------------------------------

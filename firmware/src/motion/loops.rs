@@ -120,6 +120,8 @@ pub struct Loops {
     active: Active,
     last_current: Amps,
     velocity_estimate: IncPerTick,
+    /// The position sensor or its resolution changed: the estimators restart at the next position.
+    restart_estimate: bool,
 }
 
 impl Loops {
@@ -136,6 +138,7 @@ impl Loops {
             active: Active::None,
             last_current: Amps::ZERO,
             velocity_estimate: IncPerTick::ZERO,
+            restart_estimate: true,
         };
         loops.refresh(d);
         loops
@@ -158,12 +161,18 @@ impl Loops {
         let [lt, lw, ll, fr, j] = o.observer;
         self.observer.set_gains(ObserverGains::from_idx_0x30a3(lt, lw, ll, fr, j, o.torque_constant, n));
         self.estimate = VelocityEstimate::from_control_structure(o.structure);
+        if o.inc_per_rev != self.objects.inc_per_rev {
+            self.restart_estimate = true;
+        }
         self.objects = o;
     }
 
     /// Updates the velocity estimate with the position of this tick and the q current applied during the last one
     /// (the observer's model input); returns it. Both estimators run, so switching between them is seamless.
     pub fn estimate(&mut self, position: i32, current: Amps) -> IncPerTick {
+        if core::mem::take(&mut self.restart_estimate) {
+            self.reset_estimate(position);
+        }
         let low_pass = self.low_pass.update(Increments(position));
         let observed = self.observer.step(Increments(position), current);
         self.velocity_estimate = match self.estimate {

@@ -408,3 +408,59 @@ pub fn bandwidth_hz(points: &[ResponsePoint]) -> f64 {
     }
     f64::NAN
 }
+
+/// Figures of a velocity hold with the Hall sensors as the only position sensor.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HallVelocityFigures {
+    /// Mean true speed over the measurement, rpm.
+    pub mean_rpm: f64,
+    /// RMS deviation of the true speed from its mean, rpm.
+    pub ripple_rms_rpm: f64,
+    /// Peak-to-peak of the true speed, rpm.
+    pub ripple_pp_rpm: f64,
+}
+
+/// CSV at `rpm` with the Hall sensors as the only position sensor (0x3000:01 without the encoder, 0x3000:05 = 42
+/// Hall increments per revolution: 7 pole pairs x 6 states), the velocity estimated by the observer (0x3000:02
+/// bits 7..4 = 2) or the low-pass filter (= 1). After commissioning with the encoder the drive is switched off,
+/// reconfigured and enabled again through the controlword; the speed is measured after 0.5 s for 1 s (the
+/// plant's true speed every slow tick).
+pub fn hall_only_velocity(seed: u64, rpm: f64, observer: bool) -> Result<HallVelocityFigures, SimError> {
+    let mut sim = prepare_motion(seed, 9)?;
+    sim.set_controlword(0x0006);
+    sim.run_slow_ticks(3);
+    {
+        let d = sim.drive.dictionary_mut();
+        d.set(h::SENSORS_CONFIGURATION, 0x0004_0000);
+        d.set(h::MAIN_SENSOR_RESOLUTION, 42);
+        d.set(h::CONTROL_STRUCTURE, if observer { 0x0001_0121 } else { 0x0001_0111 });
+        // Gains for Hall feedback, after EPOS4's tuned Hall-only case (S1 Tab 2-17 L1433-1455: a 7-pole-pair
+        // motor like the reference one, with twice its inertia): K_P 0.139 A s/rad and K_I 10.5 A/rad scaled to
+        // the reference inertia (176 g cm^2 against 368), observer l_theta 0.399, l_omega 68 Hz, l_T scaled the
+        // same way; the model's inertia and friction are the reference plant's.
+        d.set(h::VELOCITY_CONTROLLER_P_GAIN, 66_000);
+        d.set(h::VELOCITY_CONTROLLER_I_GAIN, 5_000_000);
+        d.set(h::OBSERVER_POSITION_CORRECTION_GAIN, 399);
+        d.set(h::OBSERVER_VELOCITY_CORRECTION_GAIN, 68_056);
+        d.set(h::OBSERVER_LOAD_CORRECTION_GAIN, 32_400);
+        d.set(h::INTERPOLATION_TIME_PERIOD_VALUE, 0);
+        d.set(h::TARGET_VELOCITY, rpm.round() as i32);
+    }
+    sim.enable_through_controlword(9)?;
+    let (mut n, mut sum, mut sum_sq, mut lo, mut hi) = (0_u32, 0.0, 0.0, f64::MAX, f64::MIN);
+    for k in 0..(1.5 * 2500.0) as u32 {
+        sim.setpoint_received();
+        sim.run_slow_ticks(1);
+        if k >= 1250 {
+            let v = sim.plant.state().speed_rpm;
+            n += 1;
+            sum += v;
+            sum_sq += v * v;
+            lo = lo.min(v);
+            hi = hi.max(v);
+        }
+    }
+    let mean = sum / f64::from(n);
+    let var = (sum_sq / f64::from(n) - mean * mean).max(0.0);
+    Ok(HallVelocityFigures { mean_rpm: mean, ripple_rms_rpm: var.sqrt(), ripple_pp_rpm: hi - lo })
+}
