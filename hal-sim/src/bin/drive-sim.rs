@@ -5,6 +5,7 @@
 //! drive-sim spinning     [--seed N] [--default-gains | --gains P,I] [--out DIR]   3,000 rpm, load step
 //! drive-sim csp          [--seed N] [--out DIR]                     CSP 10 rev jerk-limited move at 1 ms
 //! drive-sim csv-sweep    [--seed N] [--out DIR]                     CSV 100 rpm step, velocity-loop bandwidth
+//! drive-sim ppm          [--seed N] [--out DIR]                     PPM trapezoidal and sin² moves, target reached
 //! drive-sim bench        [--seconds S]                              host speed (build with --release)
 //! ```
 //!
@@ -17,11 +18,12 @@ use std::process::ExitCode;
 
 use hal_sim::sim::motion::{self, CspConfig};
 use hal_sim::sim::plot::{Plot, Series};
+use hal_sim::sim::profile::{self, Profile};
 use hal_sim::sim::scenarios::{self, Setup, SpinConfig, SpinStepFigures, SWEEP_FREQUENCIES_HZ};
 use hal_sim::sim::trace::Trace;
 
 const USAGE: &str =
-    "usage: drive-sim <current-step | spinning | csp | csv-sweep | bench> [--seed N] [--default-gains | --gains P,I] \
+    "usage: drive-sim <current-step | spinning | csp | csv-sweep | ppm | bench> [--seed N] [--default-gains | --gains P,I] \
                      [--out DIR] [--seconds S]";
 
 struct Args {
@@ -310,6 +312,41 @@ fn csv_sweep(args: &Args, dir: &Path) -> Result<(), String> {
     Ok(())
 }
 
+fn ppm(args: &Args, dir: &Path) -> Result<(), String> {
+    println!(
+        "ppm: reference plant (seed {}), CiA 402 PPM, absolute moves from rest, position window 0x6067 = 10 inc",
+        args.seed
+    );
+    let mut worst = i64::MIN;
+    for (name, profile_type, distance, p) in [
+        ("trapezoidal, 5 rev, 1000 rpm, 10000 rpm/s", 0_i16, 20_480, Profile::DEFAULT),
+        ("sin², 5 rev, 1000 rpm, 10000 rpm/s", 1, 20_480, Profile::DEFAULT),
+        ("trapezoidal, 10 rev, 3000 rpm, 20000/30000 rpm/s", 0, 40_960, Profile::FAST),
+        ("sin², 10 rev, 3000 rpm, 20000/30000 rpm/s", 1, 40_960, Profile::FAST),
+    ] {
+        let (f, trace) = profile::ppm_move(args.seed, profile_type, distance, &p).map_err(|e| e.to_string())?;
+        println!("  {name}:");
+        println!(
+            "    profile {} ticks; bit 10 {} tick(s) after the profile's end (bound <= 2); final error {} inc; peak \
+             following error {} inc",
+            f.analytic_ticks, f.target_reached_delay_ticks, f.final_error_inc, f.following_error_peak_inc
+        );
+        worst = worst.max(f.target_reached_delay_ticks);
+        if profile_type == 1 && distance == 40_960 {
+            let plot = seconds_plot(
+                &trace,
+                "PPM: sin² move, 10 revolutions",
+                &[("following_error_inc", "following error [inc]")],
+                "increments",
+            );
+            write(&trace, &plot, dir, "ppm")?;
+        }
+    }
+    println!();
+    println!("target_reached_delay_ticks={worst}");
+    Ok(())
+}
+
 fn bench(args: &Args) -> Result<(), String> {
     if cfg!(debug_assertions) {
         println!("note: a debug build; the figure is for `cargo run --release`");
@@ -340,6 +377,7 @@ fn main() -> ExitCode {
         "spinning" => spinning(&args, &dir),
         "csp" => csp(&args, &dir),
         "csv-sweep" => csv_sweep(&args, &dir),
+        "ppm" => ppm(&args, &dir),
         "bench" => bench(&args),
         other => Err(format!("unknown scenario {other}\n{USAGE}")),
     };

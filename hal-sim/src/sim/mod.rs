@@ -8,6 +8,7 @@
 
 pub mod motion;
 pub mod plot;
+pub mod profile;
 pub mod scenarios;
 pub mod trace;
 
