@@ -53,7 +53,7 @@ use commutation::{
 use demand::{rated_torque_micro_nm, DemandScale};
 use hall_position::HallPosition;
 use latch::PinLatches;
-use protection::Trip;
+use protection::{Limits, Trip};
 use scaling::ShuntOffsets;
 
 /// Why the drive is in [`PowerState::Fault`].
@@ -199,6 +199,12 @@ pub struct Drive {
     encoder_present: bool,
     /// Position counted from the Hall states (the main position without an encoder).
     hall_position: HallPosition,
+    /// Tier-1 trip limits (from 0x3001:02, converted in tier 2).
+    limits: Limits,
+    /// The last sample's break input (whether a trip's cause persists).
+    last_break_input: bool,
+    /// What the fast tick that tripped measured (the fault's diagnosis data).
+    trip_sample: FastSignals,
 }
 
 impl Drive {
@@ -243,6 +249,9 @@ impl Drive {
             output_pins: 0,
             encoder_present: true,
             hall_position: HallPosition::default(),
+            limits: Limits::default(),
+            last_break_input: false,
+            trip_sample: FastSignals::default(),
             dictionary,
         };
         drive.configure_commutation();
@@ -268,12 +277,18 @@ impl Drive {
 
     #[inline(always)]
     fn fast_step(&mut self, m: &Measurements) -> PwmCommand {
-        // 1. Protection: acts before anything else, in every state.
-        if let Some(trip) = protection::check(m) {
+        // 1. Protection: acts before anything else, in every state (the current checks run with the loop below).
+        self.last_break_input = m.break_input;
+        if m.break_input {
+            return self.trip(DriveError::Protection(Trip::BreakInput));
+        }
+        let v_bus = scaling::bus_voltage(m.adc.bus_voltage);
+        let switching = matches!(self.state, PowerState::OperationEnabled | PowerState::Calibrating);
+        if let Some(trip) = self.limits.check_bus(v_bus, switching) {
+            self.signals.v_bus = v_bus;
             return self.trip(DriveError::Protection(trip));
         }
         // 2. Scaling and the position sensors (the encoder is tracked in every state).
-        let v_bus = scaling::bus_voltage(m.adc.bus_voltage);
         let mut feedback = FeedbackSample { hall: m.feedback.hall ^ self.hall_mask, ..m.feedback };
         self.hall_position.update(feedback.hall);
         if !self.encoder_present {
@@ -345,6 +360,11 @@ impl Drive {
             Dq::new(Amps::ZERO, Amps::ZERO)
         };
         let i_abc = scaling::phase_currents(&m.adc, &self.offsets);
+        if let Some(trip) = self.limits.check_currents(&i_abc) {
+            // The tripping sample is what the fault snapshot reports.
+            self.signals.i_abc = i_abc;
+            return self.trip(DriveError::Protection(trip));
+        }
         let out = foc_step(&mut self.controller, &FocInput { i_abc, angle, i_ref, v_bus });
         self.signals.i_abc = i_abc;
         self.signals.i_dq = out.i_dq;
@@ -359,6 +379,7 @@ impl Drive {
     #[cold]
     fn trip(&mut self, error: DriveError) -> PwmCommand {
         self.state = PowerState::Fault(error);
+        self.trip_sample = self.signals;
         self.commutation.stop();
         self.controller.reset();
         self.signals.i_ref = Dq::default();
@@ -374,7 +395,18 @@ impl Drive {
     pub fn slow_tick(&mut self) {
         self.refresh_parameters();
         self.publish_actual_values();
-        let s = self.signals;
+        // A fault reports what the tripping tick measured, not what came after.
+        let fault = match self.state {
+            PowerState::Fault(e) => Some(e),
+            _ => None,
+        };
+        let s = if fault.is_some() { self.trip_sample } else { self.signals };
+        let power_fault_present = match fault {
+            Some(DriveError::Protection(t)) => {
+                protection::cause_present(t, self.last_break_input, self.signals.v_bus.to_millivolts())
+            }
+            _ => false,
+        };
         let input = AxisInputs {
             encoder_position: if self.encoder_present {
                 self.commutation.encoder().position()
@@ -387,6 +419,7 @@ impl Drive {
             bus_voltage_mv: s.v_bus.to_millivolts(),
             pins: &self.latches,
             power: self.state,
+            power_fault_present,
             scale: &self.scale,
         };
         let out = self.axis.step(&input, &mut self.dictionary);
@@ -453,6 +486,7 @@ impl Drive {
             self.controller.set_gains(g, g);
         }
         let nominal = d.get(h::MOTOR_NOMINAL_CURRENT);
+        self.limits = Limits::new(d.get(h::MOTOR_OUTPUT_CURRENT_LIMIT));
         let scale = DemandScale::from_od(
             nominal,
             d.get(h::MOTOR_OUTPUT_CURRENT_LIMIT),

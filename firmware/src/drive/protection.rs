@@ -1,37 +1,163 @@
-//! The tier-1 protection step: checks that must act within the same 25 kHz period, before any output is computed.
+//! The tier-1 protection checks: conditions that must switch the power stage off within the same 25 kHz period
+//! (the fault issue's "tier 1" list; IDX error codes in `crate::fault::table`).
 //!
-//! Today: the hardware break input (the over-current comparator of the reference power stage, which has already
-//! disabled the outputs in hardware, `hal::power::Measurements::break_input`) latches a trip and the drive answers
-//! with `PwmCommand::OFF` (which also acknowledges the break latch, `hal::power`). The fault issue adds its tier-1
-//! checks here (software over-current on the calibrated phase currents, bus over/under-voltage): each is one
-//! [`Trip`] variant and one comparison in [`check`], and `Drive::fast_tick` turns any trip into the fault state.
+//! - Hardware break input: the over-current comparator of the reference power stage has already disabled the
+//!   outputs in hardware (`hal::power::Measurements::break_input`); the drive latches the trip and answers with
+//!   `PwmCommand::OFF` (which also acknowledges the break latch).
+//! - DC-bus over-voltage (IDX 0x3210): above [`BUS_OVER_VOLTAGE_MV`], in every state (regeneration can raise the
+//!   bus with the outputs off; switching on would make it worse).
+//! - DC-bus under-voltage (IDX 0x3220): below [`BUS_UNDER_VOLTAGE_MV`] while the power stage switches (offset
+//!   calibration, operation enabled): the current loop cannot hold its currents, and the gate drivers' supply is
+//!   at risk.
+//! - Software over-current (IDX 0x2310): a calibrated phase current beyond the limit [`Limits::over_current`]
+//!   (1.25 x the output current limit 0x3001:02, converted in tier 2), while the current loop runs.
+//! - Phase-current sum (CiA 402 0x2330): the three shunt currents must sum to zero; more than
+//!   [`PHASE_SUM_LIMIT_MA`] means a broken shunt, amplifier or ADC channel, or an earth fault.
+//!
+//! Every check is one comparison on a value tier 1 already has; the limits are raw `I16F16` bits prepared by tier
+//! 2, so nothing converts or divides here.
 
-use crate::hal::power::Measurements;
+use crate::control::frames::{Abc, Amps, Volts};
 
-/// A condition that switches the power stage off within the same period.
+/// A condition that switched the power stage off.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Trip {
     /// The hardware break input (over-current comparator) tripped.
     BreakInput,
+    /// DC bus above the over-voltage limit.
+    BusOverVoltage,
+    /// DC bus below the under-voltage limit while switching.
+    BusUnderVoltage,
+    /// A phase current beyond the software over-current limit.
+    OverCurrent,
+    /// The phase currents do not sum to zero.
+    PhaseSum,
 }
 
-/// The tier-1 protection checks on the raw measurements; `Some` when the outputs must go off now.
-#[inline(always)]
-#[must_use]
-pub fn check(m: &Measurements) -> Option<Trip> {
-    if m.break_input {
-        return Some(Trip::BreakInput);
+/// Over-voltage trip of the reference power stage, mV: 40 V for the 24 V bus (its parts are rated 60 V; the
+/// regeneration of a braking load must stay well below that).
+pub const BUS_OVER_VOLTAGE_MV: i32 = 40_000;
+/// The bus is deemed back below the over-voltage limit under this, mV (2 V of hysteresis, so that a fault reset
+/// is refused until the bus has really come down).
+pub const BUS_OVER_VOLTAGE_CLEAR_MV: i32 = 38_000;
+/// Under-voltage trip while switching, mV (the reference power stage's lowest operating supply, 10 V, less the
+/// ripple of a loaded bus).
+pub const BUS_UNDER_VOLTAGE_MV: i32 = 9_000;
+/// The bus is deemed back above the under-voltage limit over this, mV.
+pub const BUS_UNDER_VOLTAGE_CLEAR_MV: i32 = 10_000;
+/// Largest |i_a + i_b + i_c| accepted, mA: the shunt noise (2 LSB rms of 8 mA per channel) sums to about 28 mA
+/// rms, so 1 A is 35 sigma away; a lost channel at any useful current exceeds it.
+pub const PHASE_SUM_LIMIT_MA: i32 = 1_000;
+
+/// Trip limits in tier 1's units, prepared by tier 2 when the parameters change.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Limits {
+    /// Phase-current magnitude limit, `I16F16` bits.
+    pub over_current: i32,
+    /// Phase-current sum limit, `I16F16` bits.
+    pub phase_sum: i32,
+    /// Bus over-voltage limit, `I16F16` bits.
+    pub over_voltage: i32,
+    /// Bus under-voltage limit, `I16F16` bits.
+    pub under_voltage: i32,
+}
+
+impl Limits {
+    /// The limits for an output current limit of `output_limit_ma` (0x3001:02).
+    #[must_use]
+    pub fn new(output_limit_ma: u32) -> Self {
+        let oc_ma = i32::try_from(output_limit_ma.saturating_add(output_limit_ma / 4)).unwrap_or(i32::MAX);
+        Self {
+            over_current: Amps::from_milliamps(oc_ma).to_bits(),
+            phase_sum: Amps::from_milliamps(PHASE_SUM_LIMIT_MA).to_bits(),
+            over_voltage: Volts::from_millivolts(BUS_OVER_VOLTAGE_MV).to_bits(),
+            under_voltage: Volts::from_millivolts(BUS_UNDER_VOLTAGE_MV).to_bits(),
+        }
     }
-    None
+
+    /// The bus checks: over-voltage always, under-voltage while `switching`.
+    #[inline(always)]
+    #[must_use]
+    pub fn check_bus(&self, v_bus: Volts, switching: bool) -> Option<Trip> {
+        let v = v_bus.to_bits();
+        if v > self.over_voltage {
+            return Some(Trip::BusOverVoltage);
+        }
+        if switching && v < self.under_voltage {
+            return Some(Trip::BusUnderVoltage);
+        }
+        None
+    }
+
+    /// The phase-current checks of a running current loop.
+    #[inline(always)]
+    #[must_use]
+    pub fn check_currents(&self, i: &Abc<Amps>) -> Option<Trip> {
+        let (a, b, c) = (i.a.to_bits(), i.b.to_bits(), i.c.to_bits());
+        // |x| of an I16F16 current (at most +-32768 A): unsigned_abs cannot overflow.
+        let limit = self.over_current.unsigned_abs();
+        if a.unsigned_abs() > limit || b.unsigned_abs() > limit || c.unsigned_abs() > limit {
+            return Some(Trip::OverCurrent);
+        }
+        // Each within +-2^31 / 3: the sum cannot wrap.
+        let sum = a.wrapping_add(b).wrapping_add(c);
+        if sum.unsigned_abs() > self.phase_sum.unsigned_abs() {
+            return Some(Trip::PhaseSum);
+        }
+        None
+    }
+}
+
+impl Default for Limits {
+    /// The limits for the dictionary's default output current limit (10 A).
+    fn default() -> Self {
+        Self::new(10_000)
+    }
+}
+
+/// Whether the cause of `trip` is still there in the latest measurement (`break_input`, bus voltage `v_bus_mv`):
+/// a fault reset is refused while it is. Current trips are events.
+#[must_use]
+pub fn cause_present(trip: Trip, break_input: bool, v_bus_mv: i32) -> bool {
+    match trip {
+        Trip::BreakInput => break_input,
+        Trip::BusOverVoltage => v_bus_mv > BUS_OVER_VOLTAGE_CLEAR_MV,
+        Trip::BusUnderVoltage => v_bus_mv < BUS_UNDER_VOLTAGE_CLEAR_MV,
+        Trip::OverCurrent | Trip::PhaseSum => false,
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
+    fn amps(ma: i32) -> Amps {
+        Amps::from_milliamps(ma)
+    }
+
     #[test]
-    fn break_input_trips() {
-        assert_eq!(check(&Measurements::default()), None);
-        assert_eq!(check(&Measurements { break_input: true, ..Measurements::default() }), Some(Trip::BreakInput));
+    fn bus_limits() {
+        let l = Limits::default();
+        assert_eq!(l.check_bus(Volts::from_millivolts(24_000), true), None);
+        assert_eq!(l.check_bus(Volts::from_millivolts(40_100), false), Some(Trip::BusOverVoltage));
+        assert_eq!(l.check_bus(Volts::from_millivolts(8_900), true), Some(Trip::BusUnderVoltage));
+        assert_eq!(l.check_bus(Volts::from_millivolts(8_900), false), None, "no under-voltage with outputs off");
+    }
+
+    #[test]
+    fn current_limits() {
+        let l = Limits::new(10_000);
+        assert_eq!(l.check_currents(&Abc::new(amps(12_000), amps(-6_000), amps(-6_000))), None);
+        assert_eq!(l.check_currents(&Abc::new(amps(-12_600), amps(6_300), amps(6_300))), Some(Trip::OverCurrent));
+        assert_eq!(l.check_currents(&Abc::new(amps(3_000), amps(-1_000), amps(-900))), Some(Trip::PhaseSum));
+        assert_eq!(l.check_currents(&Abc::new(amps(3_000), amps(-1_500), amps(-1_400))), None);
+    }
+
+    #[test]
+    fn causes() {
+        assert!(cause_present(Trip::BusOverVoltage, false, 39_000));
+        assert!(!cause_present(Trip::BusOverVoltage, false, 37_000));
+        assert!(cause_present(Trip::BreakInput, true, 24_000));
+        assert!(!cause_present(Trip::OverCurrent, false, 24_000));
     }
 }

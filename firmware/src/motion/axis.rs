@@ -37,6 +37,7 @@ use crate::control::interpolator::CyclicSetpoint;
 use crate::control::trajectory::{Acceleration, ProfileGenerator, Setpoint, Velocity};
 use crate::drive::demand::DemandScale;
 use crate::drive::latch::PinLatches;
+use crate::drive::protection::Trip;
 use crate::drive::{DriveError, PowerState};
 use crate::fault::snapshot::DiagnosisSnapshot;
 use crate::fault::table::FaultId;
@@ -62,6 +63,8 @@ pub struct AxisInputs<'a> {
     pub pins: &'a PinLatches,
     /// The power stage's state.
     pub power: PowerState,
+    /// The cause of the power stage's fault is still measured (bus still over-voltage, break input still set).
+    pub power_fault_present: bool,
     /// Torque/current scaling and limits (0x3001, 0x6072, 0x6073).
     pub scale: &'a DemandScale,
 }
@@ -363,22 +366,19 @@ impl Axis {
             tick: self.now,
             ..DiagnosisSnapshot::EMPTY
         };
-        // The power stage latched a fault in tier 1 (the outputs are already off).
+        // The power stage latched a fault in tier 1 (the outputs are already off). It is raised once; its cause
+        // is cleared when the power stage no longer measures it, so a fault reset is refused until then.
         match input.power {
-            PowerState::Fault(e) if !self.drive_fault_seen => {
-                self.drive_fault_seen = true;
-                let id = match e {
-                    DriveError::Calibration(_) => FaultId::CurrentOffsetCalibration,
-                    DriveError::Commutation(_) => FaultId::HallInvalidState,
-                    DriveError::Protection(_) => FaultId::PowerStageProtection,
-                };
-                self.faults.raise(id, snapshot, self.now);
-                // The power stage holds its own latch until the fault reset; the condition itself (a break-input
-                // pulse, a failed calibration, a bad Hall sample) was an event. A condition that persists trips the
-                // power stage again at once after the reset.
-                self.faults.clear_cause(id);
+            PowerState::Fault(e) => {
+                let id = drive_fault_id(e);
+                if !self.drive_fault_seen {
+                    self.drive_fault_seen = true;
+                    self.faults.raise(id, snapshot, self.now);
+                }
+                if !input.power_fault_present {
+                    self.faults.clear_cause(id);
+                }
             }
-            PowerState::Fault(_) => {}
             _ => self.drive_fault_seen = false,
         }
         let driving = self.machine.power().torque_allowed();
@@ -696,6 +696,19 @@ impl Axis {
         d.set(h::VELOCITY_DEMAND_VALUE, rpm(self.last_setpoint.velocity));
         d.set(h::VELOCITY_ACTUAL_VALUE, rpm(velocity));
         self.faults.publish(d);
+    }
+}
+
+/// The fault of a power-stage trip (`crate::fault::table`).
+const fn drive_fault_id(e: DriveError) -> FaultId {
+    match e {
+        DriveError::Calibration(_) => FaultId::CurrentOffsetCalibration,
+        DriveError::Commutation(_) => FaultId::HallInvalidState,
+        DriveError::Protection(Trip::BreakInput) => FaultId::PowerStageProtection,
+        DriveError::Protection(Trip::BusOverVoltage) => FaultId::DcBusOverVoltage,
+        DriveError::Protection(Trip::BusUnderVoltage) => FaultId::DcBusUnderVoltage,
+        DriveError::Protection(Trip::OverCurrent) => FaultId::OverCurrent,
+        DriveError::Protection(Trip::PhaseSum) => FaultId::PhaseCurrentImplausible,
     }
 }
 
