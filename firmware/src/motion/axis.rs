@@ -1,7 +1,8 @@
 //! The axis: one tier-2 step (2.5 kHz) of the complete CiA 402 drive on top of the current loop.
 //!
 //! Order within a step (every input is the latest, every output goes out in the same step):
-//! 1. parameters (compared raw, converted on change): [`MotionParams`], [`Loops`], [`Monitor`];
+//! 1. parameters: converted before the step by [`Axis::refresh`] (compared raw, converted on change:
+//!    [`MotionParams`], [`Loops`], [`Monitor`]);
 //! 2. feedback: position actual = encoder position + home offset; velocity estimate ([`Loops::estimate`]);
 //! 3. inputs: input functions with their latched edges ([`Io::inputs`]); the outputs (brake, ready) follow the
 //!    machine in the same step ([`Io::outputs`]);
@@ -241,10 +242,6 @@ impl Axis {
     pub fn step(&mut self, input: &AxisInputs<'_>, d: &mut Dictionary) -> AxisOutputs {
         self.now = Ticks(self.now.0.wrapping_add(1));
         let now = self.now;
-        self.params.refresh(d);
-        self.loops.refresh(d);
-        self.monitor.refresh(d);
-        self.refresh_machine_config(d);
 
         // 2. Feedback.
         let position = input.encoder_position.wrapping_add(self.offset);
@@ -338,6 +335,15 @@ impl Axis {
             output_pins,
             state: out.state,
         }
+    }
+
+    /// Converts the parameters that changed (motion parameters, gains, monitoring limits, brake timing); the
+    /// drive runs it before each step, outside the step's time budget.
+    pub fn refresh(&mut self, d: &Dictionary) {
+        self.params.refresh(d);
+        self.loops.refresh(d);
+        self.monitor.refresh(d);
+        self.refresh_machine_config(d);
     }
 
     /// Standstill timeout 0x30E0:03 and the brake delays 0x3158 (only with a brake output configured).
@@ -567,6 +573,11 @@ impl Axis {
                     halt_deceleration,
                 };
                 let step = self.homing.step(&input, &mut self.generator, fb);
+                if step.reset_loops {
+                    // The end stop was found: the demand stands at the actual position; the integral wound up
+                    // pushing against the stop goes too (the loops restart from zero current at the next step).
+                    self.loops.reset();
+                }
                 if let Some(r) = step.rereference {
                     let delta = r.to.wrapping_sub(r.from);
                     self.offset = self.offset.wrapping_add(delta);

@@ -6,6 +6,7 @@
 //! drive-sim csp          [--seed N] [--out DIR]                     CSP 10 rev jerk-limited move at 1 ms
 //! drive-sim csv-sweep    [--seed N] [--out DIR]                     CSV 100 rpm step, velocity-loop bandwidth
 //! drive-sim ppm          [--seed N] [--out DIR]                     PPM trapezoidal and sin² moves, target reached
+//! drive-sim homing       [--seed N] [--out DIR]                     every homing method from both sides
 //! drive-sim bench        [--seconds S]                              host speed (build with --release)
 //! ```
 //!
@@ -16,6 +17,7 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
+use hal_sim::sim::homing;
 use hal_sim::sim::motion::{self, CspConfig};
 use hal_sim::sim::plot::{Plot, Series};
 use hal_sim::sim::profile::{self, Profile};
@@ -23,7 +25,7 @@ use hal_sim::sim::scenarios::{self, Setup, SpinConfig, SpinStepFigures, SWEEP_FR
 use hal_sim::sim::trace::Trace;
 
 const USAGE: &str =
-    "usage: drive-sim <current-step | spinning | csp | csv-sweep | ppm | bench> [--seed N] [--default-gains | --gains P,I] \
+    "usage: drive-sim <current-step | spinning | csp | csv-sweep | ppm | homing | bench> [--seed N] [--default-gains | --gains P,I] \
                      [--out DIR] [--seconds S]";
 
 struct Args {
@@ -347,6 +349,38 @@ fn ppm(args: &Args, dir: &Path) -> Result<(), String> {
     Ok(())
 }
 
+fn homing_matrix(args: &Args, dir: &Path) -> Result<(), String> {
+    println!(
+        "homing: reference plant (seed {}), CiA 402 HMM, every method of 0x60E3 from each side of its reference \
+         (switch search {} rpm, zero search {} rpm)",
+        args.seed,
+        homing::SWITCH_SEARCH_RPM,
+        homing::ZERO_SEARCH_RPM
+    );
+    let m = homing::homing_matrix(args.seed).map_err(|e| e.to_string())?;
+    println!("  {:>6}  {:<10}  {:>9}  {:>9}  {:>10}", "method", "start", "outcome", "error", "homing [s]");
+    let mut t = Trace::new(&["method", "home_error_inc", "position_error_inc", "homing_s"]);
+    for r in &m.rows {
+        println!(
+            "  {:>6}  {:<10}  {:>9}  {:>+9}  {:>10.3}",
+            r.method,
+            format!("{:?}", r.start),
+            if r.passed() { "ok" } else { "FAILED" },
+            r.home_error_inc,
+            r.homing_s
+        );
+        t.push(&[f64::from(r.method), r.home_error_inc as f64, r.position_error_inc as f64, r.homing_s]);
+    }
+    let csv = dir.join("homing.csv");
+    t.write_csv(&csv).map_err(|e| format!("{}: {e}", csv.display()))?;
+    println!("  wrote {}", csv.display());
+    println!();
+    println!("methods_tested={}", m.methods_tested);
+    println!("methods_passed={}", m.methods_passed);
+    println!("home_error_max_inc={}", m.home_error_max_inc);
+    Ok(())
+}
+
 fn bench(args: &Args) -> Result<(), String> {
     if cfg!(debug_assertions) {
         println!("note: a debug build; the figure is for `cargo run --release`");
@@ -378,6 +412,7 @@ fn main() -> ExitCode {
         "csp" => csp(&args, &dir),
         "csv-sweep" => csv_sweep(&args, &dir),
         "ppm" => ppm(&args, &dir),
+        "homing" => homing_matrix(&args, &dir),
         "bench" => bench(&args),
         other => Err(format!("unknown scenario {other}\n{USAGE}")),
     };

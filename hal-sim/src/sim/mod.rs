@@ -6,6 +6,7 @@
 //! next period; when it reports a slow tick due, `drive.slow_tick()` runs before the next period (on the target tier
 //! 2 runs after tier 1 returns, well inside the same period).
 
+pub mod homing;
 pub mod motion;
 pub mod plot;
 pub mod profile;
@@ -78,6 +79,7 @@ impl Simulation {
         let m = self.plant.step(&self.cmd);
         let tick = self.drive.fast_tick(&m);
         if tick.slow_tick_due {
+            self.drive.background();
             self.drive.slow_tick();
             self.plant.set_digital_outputs(self.drive.output_pins());
         }

@@ -37,9 +37,11 @@
 //! - **Index methods 33 / 34**: zero-search speed negative / positive to the next index pulse (E3 L1952-1971).
 //! - **Current-threshold methods -1..-4** (E3 L1979-2035, IDX L912-930): switch-search speed toward the end stop until
 //!   the averaged current 0x30D1:01 exceeds 0x30B2 in magnitude. The current is compared only once the search
-//!   velocity is reached, so that the current of the acceleration ramp is not taken for the stop. The demand is
-//!   then set back to the actual position (the motor stops pushing) and that position is the reference; -1/-2
-//!   continue away from the stop at zero-search speed to the next index pulse, whose position is the reference.
+//!   velocity has been held for 32 slow ticks (12.8 ms, four time constants of the 50 Hz average), so that the
+//!   current of the acceleration ramp, still in the average when the ramp ends, is not taken for the stop. The
+//!   demand is then set back to the actual position and the axis clears its loops' integral (the motor stops
+//!   pushing: [`HomingStep::reset_loops`]), and that position is the reference; -1/-2 continue away from the stop
+//!   at zero-search speed to the next index pulse, whose position is the reference.
 //! - **35 / 37**: the actual position is the home point at once, no motion (E3 L1973-1977, IDX L905-910).
 //!
 //! # Home point and rereference
@@ -74,6 +76,11 @@ use crate::cia402::controlword::Controlword;
 use crate::control::trajectory::{
     Acceleration, ChangeMode, ProfileGenerator, ProfileParams, ProfileType, Setpoint, Velocity,
 };
+
+/// Slow ticks the search velocity of an end-stop search is held before the averaged current 0x30D1:01 is
+/// compared with 0x30B2: four time constants of its 50 Hz low-pass (8 ticks, `drive::Drive`), after which the
+/// current of the acceleration ramp has decayed to e^-4 = 2 % in the average (12.8 ms).
+const AVERAGE_SETTLE_TICKS: u16 = 32;
 
 /// The inputs of one HMM step, in internal units.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -117,6 +124,9 @@ pub struct HomingStep {
     pub mode: ModeStep,
     /// Set when the home point is defined in this step.
     pub rereference: Option<Rereference>,
+    /// Set when an end stop was found in this step: the demand went back to the actual position, and the caller
+    /// clears the loops' integral, wound up pushing against the stop, so that the motor stops pushing.
+    pub reset_loops: bool,
 }
 
 /// Why homing failed (statusword bit 13; E3 L1842: "for error cause read error code").
@@ -187,6 +197,10 @@ pub struct Homing {
     reversed: bool,
     /// Demand path length of the current search, increments.
     travel: u64,
+    /// Steps the generator has held the search velocity of an end-stop search.
+    cruise_ticks: u16,
+    /// The end stop was found in this step ([`HomingStep::reset_loops`]).
+    reset_loops: bool,
     /// Demand position at the previous step (generator coordinates).
     last_demand: i64,
     /// Position actual value at the previous step.
@@ -206,6 +220,8 @@ impl Homing {
             stop_on_entry: false,
             reversed: false,
             travel: 0,
+            cruise_ticks: 0,
+            reset_loops: false,
             last_demand: 0,
             last_position: 0,
             seen: Seen { negative_limit: (0, 0), positive_limit: (0, 0), home_switch: (0, 0), index: 0 },
@@ -320,7 +336,8 @@ impl Homing {
             Phase::Error(_) => ModeStatus { target_reached: standing, bit12: false, bit13: true },
             _ => ModeStatus::default(),
         };
-        HomingStep { mode: ModeStep { demand: LoopDemand::Position(setpoint), status }, rereference }
+        let reset_loops = core::mem::take(&mut self.reset_loops);
+        HomingStep { mode: ModeStep { demand: LoopDemand::Position(setpoint), status }, rereference, reset_loops }
     }
 
     /// Starts the procedure (bit 4 rising edge).
@@ -432,12 +449,15 @@ impl Homing {
                 (f, HomingError::LimitSwitch, HomingError::IndexNotFound)
             }
             Phase::EndStop { toward } => {
-                // Only at the search velocity: the acceleration ramp's current is not the stop.
-                let cruising = generator.is_done();
+                // Only once the search velocity has been held for AVERAGE_SETTLE_TICKS: the acceleration ramp's
+                // current is not the stop, and the average still carries it when the ramp ends.
+                self.cruise_ticks = if generator.is_done() { self.cruise_ticks.saturating_add(1) } else { 0 };
+                let cruising = self.cruise_ticks >= AVERAGE_SETTLE_TICKS;
                 if cruising && feedback.current_average_ma.unsigned_abs() > input.current_threshold_ma {
                     let stop_position = feedback.position;
-                    // Stop pushing: the demand goes back to where the axis is blocked.
+                    // Stop pushing: the demand goes back to where the axis is blocked, the loops' integral to 0.
                     generator.reset(demand_of(generator.setpoint(), stop_position));
+                    self.reset_loops = true;
                     if m.index {
                         self.begin(Phase::Index, f, slow, input, generator);
                     } else {
@@ -471,6 +491,7 @@ impl Homing {
             Direction::Negative => magnitude.wrapping_neg(),
         });
         self.travel = 0;
+        self.cruise_ticks = 0;
         match generator.set_velocity_target(velocity, &params(speed, input.acceleration)) {
             Ok(()) => self.phase = phase,
             Err(_) => self.fail(HomingError::ZeroSpeedOrAcceleration, input, generator),
