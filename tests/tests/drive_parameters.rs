@@ -114,6 +114,7 @@ fn saved_parameters_are_loaded_at_the_next_boot() {
     );
     drive.sdo_write(0x1010, 1, &SAVE_SIGNATURE.to_le_bytes(), PRE_OP, &mut store).expect("save");
     // The running drive takes the new gain at its next slow tick.
+    drive.background();
     drive.slow_tick();
     assert_changed(&drive, &mut store);
 

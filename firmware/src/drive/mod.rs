@@ -390,10 +390,19 @@ impl Drive {
     // Tier 2
     // ---------------------------------------------------------------------------------------------------------
 
-    /// The 2.5 kHz hook: publishes actual values to the dictionary and re-reads the parameters of tier 1 when they
-    /// changed. Called after every [`SLOW_TICK_DIVIDER`]-th fast tick (see [`FastTick::slow_tick_due`]).
-    pub fn slow_tick(&mut self) {
+    /// Converts the parameters that changed since the last call into the units the tiers use: current gains
+    /// 0x30A0, motor data and limits, and the axis's motion parameters, gains, monitoring limits and brake
+    /// timing. Tier 2 runs it before each [`Self::slow_tick`] (its cost is reported separately: it compares the
+    /// raw values every time, and converts, with 64- and 128-bit arithmetic, only what changed).
+    pub fn background(&mut self) {
         self.refresh_parameters();
+        self.axis.refresh(&self.dictionary);
+    }
+
+    /// The 2.5 kHz hook: publishes the actual values and runs the CiA 402 axis (state machine, modes, loops,
+    /// monitoring) with the parameters [`Self::background`] converted. Called after every
+    /// [`SLOW_TICK_DIVIDER`]-th fast tick (see [`FastTick::slow_tick_due`]).
+    pub fn slow_tick(&mut self) {
         self.publish_actual_values();
         // A fault reports what the tripping tick measured, not what came after.
         let fault = match self.state {

@@ -73,8 +73,14 @@ pub fn fast_tick(m: &Measurements, drive: &mut Drive) -> FastTick {
     drive.fast_tick(m)
 }
 
-/// One velocity/position-loop period.
+/// One velocity/position-loop period. Not inlined: tier 2 measures exactly this call.
 #[inline(never)]
 pub fn slow_tick(drive: &mut Drive) {
     drive.slow_tick();
+}
+
+/// The parameter conversion tier 2 runs before each slow tick (measured separately).
+#[inline(never)]
+pub fn background(drive: &mut Drive) {
+    drive.background();
 }

@@ -50,6 +50,7 @@ async fn slow_loop() {
         if new > 1 {
             SLOW_MISSED.store(SLOW_MISSED.load(Ordering::Relaxed).wrapping_add(new.wrapping_sub(1)), Ordering::Relaxed);
         }
+        let _ = super::tier1::with_drive(app::background);
         let start = crate::board::counter::now();
         let _ = super::tier1::with_drive(app::slow_tick);
         let cost = crate::board::counter::now().wrapping_sub(start);
