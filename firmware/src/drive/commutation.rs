@@ -498,7 +498,7 @@ impl Commutation {
             let sector = HallSector::from_state(feedback.hall)?;
             if self.stage == CommutationStage::HallSector {
                 self.refine_at_hall_edge(sector);
-            } else if self.hall_only && self.stage == CommutationStage::HallEdge && self.last_sector != Some(sector) {
+            } else if self.stage == CommutationStage::HallEdge && self.hall_only && self.last_sector != Some(sector) {
                 // No encoder to carry the angle between edges: every edge sets it, to the centre of the sector
                 // just entered (+-30 degrees electrical at most, no lag on average).
                 self.set_angle_at(self.encoder.electrical_count(), sector.centre_angle(self.hall_offset));

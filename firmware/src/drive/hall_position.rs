@@ -12,6 +12,7 @@ use super::commutation::HallSector;
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct HallPosition {
     last: Option<HallSector>,
+    last_state: u8,
     position: i32,
 }
 
@@ -19,15 +20,15 @@ impl HallPosition {
     /// One sample of the Hall state (after inversion, bit 0 = H1).
     #[inline(always)]
     pub fn update(&mut self, hall: u8) {
-        let Ok(sector) = HallSector::from_state(hall) else { return };
-        if self.last == Some(sector) {
-            return;
+        if hall != self.last_state {
+            self.step(hall);
         }
-        self.step(sector);
     }
 
     #[cold]
-    fn step(&mut self, sector: HallSector) {
+    fn step(&mut self, hall: u8) {
+        self.last_state = hall;
+        let Ok(sector) = HallSector::from_state(hall) else { return };
         if let Some(last) = self.last {
             if sector == last.next() {
                 self.position = self.position.wrapping_add(1);

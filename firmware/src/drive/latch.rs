@@ -15,9 +15,9 @@ use crate::motion::EdgeLatch;
 pub const DIGITAL_INPUTS: usize = 4;
 
 /// Edges of the wired input levels and of the index, with the raw encoder position at each.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct PinLatches {
-    /// Levels as wired at the last sample: bit n = input n+1.
+    /// Levels as wired at the last sample: bit n = input n+1 (0xFF before the first sample).
     pub levels: u8,
     /// The latest low-to-high edge of each input (as wired).
     pub rising: [EdgeLatch; DIGITAL_INPUTS],
@@ -25,43 +25,54 @@ pub struct PinLatches {
     pub falling: [EdgeLatch; DIGITAL_INPUTS],
     /// The latest index pulse.
     pub index: EdgeLatch,
-    /// Whether `levels` holds a sample yet (the first sample sets the levels without edges).
-    primed: bool,
+}
+
+/// `levels` before the first sample.
+const UNSAMPLED: u8 = 0xFF;
+
+impl Default for PinLatches {
+    fn default() -> Self {
+        Self {
+            levels: UNSAMPLED,
+            rising: [EdgeLatch::default(); DIGITAL_INPUTS],
+            falling: [EdgeLatch::default(); DIGITAL_INPUTS],
+            index: EdgeLatch::default(),
+        }
+    }
 }
 
 impl PinLatches {
     /// Takes one sample: `levels` of the inputs and the `position` of the encoder at the same instant.
     #[inline(always)]
     pub fn sample_inputs(&mut self, levels: u8, position: i32) {
+        // `levels` holds 0xFF until the first sample (no input has bits above 3): the first sample differs and
+        // only sets the levels.
         let levels = levels & 0b1111;
-        if levels != self.levels || !self.primed {
+        if levels != self.levels {
             self.latch_inputs(levels, position);
         }
     }
 
-    #[cold]
-    #[inline(never)]
+    #[inline(always)]
     fn latch_inputs(&mut self, levels: u8, position: i32) {
-        if !self.primed {
-            self.primed = true;
-            self.levels = levels;
+        let previous = core::mem::replace(&mut self.levels, levels);
+        if previous == UNSAMPLED {
             return;
         }
-        let changed = levels ^ self.levels;
+        // Only the inputs that changed: usually one. A fixed four-step loop (unrolled by the compiler).
+        let changed = levels ^ previous;
         for (bit, (rise, fall)) in self.rising.iter_mut().zip(self.falling.iter_mut()).enumerate() {
             let mask = 1u8 << bit;
-            if changed & mask == 0 {
-                continue;
+            if changed & mask != 0 {
+                let latch = if levels & mask != 0 { rise } else { fall };
+                latch.count = latch.count.wrapping_add(1);
+                latch.position = position;
             }
-            let latch = if levels & mask != 0 { rise } else { fall };
-            latch.count = latch.count.wrapping_add(1);
-            latch.position = position;
         }
-        self.levels = levels;
     }
 
     /// Records an index pulse at encoder `position`.
-    #[cold]
+    #[inline(always)]
     pub fn latch_index(&mut self, position: i32) {
         self.index.count = self.index.count.wrapping_add(1);
         self.index.position = position;

@@ -60,51 +60,88 @@ pub struct Limits {
     pub over_voltage: i32,
     /// Bus under-voltage limit, `I16F16` bits.
     pub under_voltage: i32,
+    /// `2 x over_current` as unsigned (the one-compare magnitude check).
+    over_current_span: u32,
+    /// `2 x phase_sum` as unsigned.
+    phase_sum_span: u32,
 }
 
 impl Limits {
     /// The limits for an output current limit of `output_limit_ma` (0x3001:02).
     #[must_use]
     pub fn new(output_limit_ma: u32) -> Self {
+        // At most 1.25 x 12 A (0x3001:02's maximum) = 15 A, far below 2^14 A: the doubled spans fit a u32.
         let oc_ma = i32::try_from(output_limit_ma.saturating_add(output_limit_ma / 4)).unwrap_or(i32::MAX);
+        let over_current = Amps::from_milliamps(oc_ma.min(1 << 24)).to_bits().max(0);
+        let phase_sum = Amps::from_milliamps(PHASE_SUM_LIMIT_MA).to_bits();
         Self {
-            over_current: Amps::from_milliamps(oc_ma).to_bits(),
-            phase_sum: Amps::from_milliamps(PHASE_SUM_LIMIT_MA).to_bits(),
+            over_current,
+            phase_sum,
+            over_current_span: over_current.unsigned_abs().saturating_mul(2),
+            phase_sum_span: phase_sum.unsigned_abs().saturating_mul(2),
             over_voltage: Volts::from_millivolts(BUS_OVER_VOLTAGE_MV).to_bits(),
             under_voltage: Volts::from_millivolts(BUS_UNDER_VOLTAGE_MV).to_bits(),
         }
     }
 
-    /// The bus checks: over-voltage always, under-voltage while `switching`.
+    /// Whether the bus is outside its limits (over-voltage always, under-voltage while `switching`): the hot
+    /// path, two compares; [`Self::bus_trip`] says which.
     #[inline(always)]
     #[must_use]
-    pub fn check_bus(&self, v_bus: Volts, switching: bool) -> Option<Trip> {
+    pub fn bus_outside(&self, v_bus: Volts, switching: bool) -> bool {
         let v = v_bus.to_bits();
-        if v > self.over_voltage {
-            return Some(Trip::BusOverVoltage);
+        v > self.over_voltage || (switching && v < self.under_voltage)
+    }
+
+    /// Which bus limit `v_bus` violates (cold path after [`Self::bus_outside`]).
+    #[must_use]
+    pub fn bus_trip(&self, v_bus: Volts) -> Trip {
+        if v_bus.to_bits() > self.over_voltage {
+            Trip::BusOverVoltage
+        } else {
+            Trip::BusUnderVoltage
         }
-        if switching && v < self.under_voltage {
-            return Some(Trip::BusUnderVoltage);
+    }
+
+    /// The bus checks: over-voltage always, under-voltage while `switching`.
+    #[must_use]
+    pub fn check_bus(&self, v_bus: Volts, switching: bool) -> Option<Trip> {
+        self.bus_outside(v_bus, switching).then(|| self.bus_trip(v_bus))
+    }
+
+    /// Whether a phase current or their sum is outside its limit: the hot path, one add and one unsigned compare
+    /// per value (`x + l` as unsigned exceeds `2 l` exactly when `|x| > l`); [`Self::current_trip`] says which.
+    #[inline(always)]
+    #[must_use]
+    pub fn currents_outside(&self, i: &Abc<Amps>) -> bool {
+        let (a, b, c) = (i.a.to_bits(), i.b.to_bits(), i.c.to_bits());
+        let l = self.over_current;
+        // Limits are positive and below 2^30; wrapping on purpose: the reinterpretation as u32 is the trick.
+        let outside = |x: i32| (x.wrapping_add(l) as u32) > self.over_current_span;
+        // The currents come from 12-bit codes (+-16.5 A, far inside I16F16): the sum cannot wrap.
+        let sum = a.wrapping_add(b).wrapping_add(c);
+        // Bitwise or: four compares and no branch until the one that decides.
+        outside(a) | outside(b) | outside(c) | ((sum.wrapping_add(self.phase_sum) as u32) > self.phase_sum_span)
+    }
+
+    /// Which current limit is violated (cold path after [`Self::currents_outside`]).
+    #[must_use]
+    pub fn current_trip(&self, i: &Abc<Amps>) -> Trip {
+        let limit = self.over_current.unsigned_abs();
+        if i.a.to_bits().unsigned_abs() > limit
+            || i.b.to_bits().unsigned_abs() > limit
+            || i.c.to_bits().unsigned_abs() > limit
+        {
+            Trip::OverCurrent
+        } else {
+            Trip::PhaseSum
         }
-        None
     }
 
     /// The phase-current checks of a running current loop.
-    #[inline(always)]
     #[must_use]
     pub fn check_currents(&self, i: &Abc<Amps>) -> Option<Trip> {
-        let (a, b, c) = (i.a.to_bits(), i.b.to_bits(), i.c.to_bits());
-        // |x| of an I16F16 current (at most +-32768 A): unsigned_abs cannot overflow.
-        let limit = self.over_current.unsigned_abs();
-        if a.unsigned_abs() > limit || b.unsigned_abs() > limit || c.unsigned_abs() > limit {
-            return Some(Trip::OverCurrent);
-        }
-        // Each within +-2^31 / 3: the sum cannot wrap.
-        let sum = a.wrapping_add(b).wrapping_add(c);
-        if sum.unsigned_abs() > self.phase_sum.unsigned_abs() {
-            return Some(Trip::PhaseSum);
-        }
-        None
+        self.currents_outside(i).then(|| self.current_trip(i))
     }
 }
 

@@ -82,9 +82,23 @@ pub struct Trip {
     pub snapshot: DiagnosisSnapshot,
 }
 
+/// What tier 2 asks the manager every step, computed when a fault changes instead of per query.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+struct Summary {
+    any_fault: bool,
+    warning: bool,
+    connection_lost: bool,
+    cause_present: bool,
+    error_code: u16,
+    error_register: u8,
+}
+
 /// The fault manager; `Q` is the EMCY queue capacity.
 #[derive(Clone, Debug)]
 pub struct FaultManager<const Q: usize = DEFAULT_QUEUE> {
+    summary: Summary,
+    /// 0x603F and 0x1001 differ from what was last published.
+    unpublished: bool,
     slots: [Option<ActiveFault>; FAULT_COUNT],
     order: u32,
     raised_class: Option<FaultClass>,
@@ -104,6 +118,15 @@ impl<const Q: usize> FaultManager<Q> {
     /// A manager with nothing active and an EMCY inhibit time of 0.
     pub const fn new() -> Self {
         Self {
+            summary: Summary {
+                any_fault: false,
+                warning: false,
+                connection_lost: false,
+                cause_present: false,
+                error_code: 0,
+                error_register: 0,
+            },
+            unpublished: true,
             slots: [None; FAULT_COUNT],
             order: 0,
             raised_class: None,
@@ -124,6 +147,14 @@ impl<const Q: usize> FaultManager<Q> {
 
     /// Raises `id` with the values measured when it was detected, at manager time `now`.
     pub fn raise(&mut self, id: FaultId, snapshot: DiagnosisSnapshot, now: Ticks) -> Raised {
+        let raised = self.raise_inner(id, snapshot, now);
+        if raised != Raised::Ignored {
+            self.update_summary();
+        }
+        raised
+    }
+
+    fn raise_inner(&mut self, id: FaultId, snapshot: DiagnosisSnapshot, now: Ticks) -> Raised {
         if id == FaultId::EmcyOverflow {
             return Raised::Ignored;
         }
@@ -140,7 +171,7 @@ impl<const Q: usize> FaultManager<Q> {
         *slot = Some(ActiveFault { id, snapshot, raised_at: now, cause_present, order });
         self.order = self.order.wrapping_add(1);
 
-        let register = self.error_register();
+        let register = self.active().fold(0, |acc, a| acc | a.id.info().register);
         if !info.reaction.is_warning() {
             if no_fault_before {
                 self.first_trip = Some(Trip { id, snapshot });
@@ -172,12 +203,35 @@ impl<const Q: usize> FaultManager<Q> {
         let Some(slot) = self.slot_mut(id) else { return };
         match (latch, slot.as_mut()) {
             (_, None) => {}
-            (LatchPolicy::Latching, Some(active)) => active.cause_present = false,
+            (LatchPolicy::Latching, Some(active)) => {
+                if active.cause_present {
+                    active.cause_present = false;
+                    self.update_summary();
+                }
+            }
             (LatchPolicy::SelfClearing, Some(_)) => {
                 *slot = None;
                 self.report_if_all_clear();
+                self.update_summary();
             }
         }
+    }
+
+    /// Recomputes what the per-step queries return (once per change, not per query).
+    fn update_summary(&mut self) {
+        let present = self.active().any(|a| a.cause_present && a.id.info().reaction.machine_class().is_some());
+        let summary = Summary {
+            any_fault: self.active().next().is_some(),
+            warning: self.warnings().next().is_some(),
+            connection_lost: self.active().any(|a| a.id.info().reaction == ReactionClass::AbortConnection),
+            cause_present: present,
+            error_code: self.compute_error_code(),
+            error_register: self.active().fold(0, |acc, a| acc | a.id.info().register),
+        };
+        if summary.error_code != self.summary.error_code || summary.error_register != self.summary.error_register {
+            self.unpublished = true;
+        }
+        self.summary = summary;
     }
 
     /// A fault reset (controlword bit 7 rising edge, CiA 402 transition 15): clears every latched fault if none
@@ -196,6 +250,7 @@ impl<const Q: usize> FaultManager<Q> {
         self.raised_class = None;
         if cleared {
             self.report_if_all_clear();
+            self.update_summary();
         }
         Ok(())
     }
@@ -228,12 +283,12 @@ impl<const Q: usize> FaultManager<Q> {
 
     /// Whether any fault (not warning) is active.
     pub fn any_fault(&self) -> bool {
-        self.active().next().is_some()
+        self.summary.any_fault
     }
 
     /// Statusword bit 7: a warning is active (IDX L5584).
     pub fn warning_active(&self) -> bool {
-        self.warnings().next().is_some()
+        self.summary.warning
     }
 
     /// The snapshot stored with active `id`.
@@ -248,11 +303,15 @@ impl<const Q: usize> FaultManager<Q> {
 
     /// 0x1001: the OR of the active faults' register bits (0 when none).
     pub fn error_register(&self) -> u8 {
-        self.active().fold(0, |acc, a| acc | a.id.info().register)
+        self.summary.error_register
     }
 
     /// 0x603F: the code of the most severe active fault, the earliest among equals; 0 when none.
     pub fn error_code(&self) -> u16 {
+        self.summary.error_code
+    }
+
+    fn compute_error_code(&self) -> u16 {
         self.active()
             .max_by(|x, y| {
                 let sx = x.id.info().reaction.severity();
@@ -266,22 +325,22 @@ impl<const Q: usize> FaultManager<Q> {
     /// The state machine's fault input for this step: the most severe class raised since the previous call (an
     /// event, consumed here) and whether a latched fault of class d or f still has its cause present (a level).
     pub fn take_machine_input(&mut self) -> FaultInput {
-        let raised = self.raised_class.take();
-        let present = self.active().any(|a| a.cause_present && a.id.info().reaction.machine_class().is_some());
-        FaultInput { raised, present }
+        FaultInput { raised: self.raised_class.take(), present: self.summary.cause_present }
     }
 
     /// `cia402::Inputs::connection_lost`: a communication fault (class "a", reaction per 0x6007) is active. It
     /// stays set until the fault is reset, so the 0x6007 reaction holds until then (IDX: class "a" errors end in
     /// Fault and are reset with the controlword, L7340-L7436).
     pub fn connection_lost(&self) -> bool {
-        self.active().any(|a| a.id.info().reaction == ReactionClass::AbortConnection)
+        self.summary.connection_lost
     }
 
     /// Writes 0x603F and 0x1001 through their typed handles and adds the new history entries to 0x1003.
     pub fn publish(&mut self, dict: &mut Dictionary) {
-        dict.set(ERROR_CODE, self.error_code());
-        dict.set(ERROR_REGISTER, self.error_register());
+        if core::mem::take(&mut self.unpublished) {
+            dict.set(ERROR_CODE, self.summary.error_code);
+            dict.set(ERROR_REGISTER, self.summary.error_register);
+        }
         while let Some(entry) = self.history_pending.pop_front() {
             history::push(dict, entry);
         }

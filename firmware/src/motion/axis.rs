@@ -363,13 +363,17 @@ impl Axis {
 
     /// Raises and clears the faults the axis detects.
     fn supervise(&mut self, input: &AxisInputs<'_>, inputs: &InputState, position: i32, velocity: Velocity) {
-        let snapshot = DiagnosisSnapshot {
+        // The diagnosis data, built only when something is raised (the rpm conversion is 128-bit).
+        let scale = self.params.scale;
+        let (state, now) = (self.machine.state(), self.now);
+        let snapshot = |detail: i32| DiagnosisSnapshot {
             phase_currents_ma: input.phase_currents_ma,
             bus_voltage_mv: input.bus_voltage_mv,
             position_inc: position,
-            velocity_rpm: i32::try_from(self.params.scale.velocity_to_rpm(velocity)).unwrap_or(i32::MAX),
-            state: self.machine.state(),
-            tick: self.now,
+            velocity_rpm: i32::try_from(scale.velocity_to_rpm(velocity)).unwrap_or(i32::MAX),
+            state,
+            tick: now,
+            detail,
             ..DiagnosisSnapshot::EMPTY
         };
         // The power stage latched a fault in tier 1 (the outputs are already off). It is raised once; its cause
@@ -379,7 +383,7 @@ impl Axis {
                 let id = drive_fault_id(e);
                 if !self.drive_fault_seen {
                     self.drive_fault_seen = true;
-                    self.faults.raise(id, snapshot, self.now);
+                    self.faults.raise(id, snapshot(0), self.now);
                 }
                 if !input.power_fault_present {
                     self.faults.clear_cause(id);
@@ -390,11 +394,12 @@ impl Axis {
         let driving = self.machine.power().torque_allowed();
         let homing = self.activity == Activity::Following(Mode::Homing);
         if self.following_error_exceeded && driving {
-            self.faults.raise(FaultId::FollowingError, DiagnosisSnapshot { detail: self.fe(), ..snapshot }, self.now);
+            let fe = self.fe();
+            self.faults.raise(FaultId::FollowingError, snapshot(fe), self.now);
         }
         let outside = self.monitor.outside_limits(position);
         if outside && driving && !homing {
-            self.faults.raise(FaultId::SoftwarePositionLimit, snapshot, self.now);
+            self.faults.raise(FaultId::SoftwarePositionLimit, snapshot(0), self.now);
         } else if !outside {
             self.faults.clear_cause(FaultId::SoftwarePositionLimit);
         }
@@ -408,7 +413,7 @@ impl Axis {
         ];
         for ((switch, into, id), seen) in limits.into_iter().zip(self.limit_seen.iter_mut()) {
             if switch && driving && !homing && (!*seen || into) {
-                self.faults.raise(id, snapshot, self.now);
+                self.faults.raise(id, snapshot(0), self.now);
             }
             *seen = switch;
         }
@@ -701,11 +706,8 @@ impl Axis {
         d.set(h::POSITION_ACTUAL_INTERNAL_VALUE, position.wrapping_sub(self.offset));
         d.set(h::POSITION_ACTUAL_VALUE, position);
         d.set(h::FOLLOWING_ERROR_ACTUAL_VALUE, demand.wrapping_sub(position));
-        let scale = &self.params.scale;
-        let rpm =
-            |v: Velocity| i32::try_from(scale.velocity_to_rpm(v)).unwrap_or(if v.0 < 0 { i32::MIN } else { i32::MAX });
-        d.set(h::VELOCITY_DEMAND_VALUE, rpm(self.last_setpoint.velocity));
-        d.set(h::VELOCITY_ACTUAL_VALUE, rpm(velocity));
+        d.set(h::VELOCITY_DEMAND_VALUE, self.params.rpm(self.last_setpoint.velocity));
+        d.set(h::VELOCITY_ACTUAL_VALUE, self.params.rpm(velocity));
         self.faults.publish(d);
     }
 }

@@ -160,24 +160,24 @@ impl Loops {
         }
         let [lt, lw, ll, fr, j] = o.observer;
         self.observer.set_gains(ObserverGains::from_idx_0x30a3(lt, lw, ll, fr, j, o.torque_constant, n));
-        self.estimate = VelocityEstimate::from_control_structure(o.structure);
-        if o.inc_per_rev != self.objects.inc_per_rev {
+        let estimate = VelocityEstimate::from_control_structure(o.structure);
+        if o.inc_per_rev != self.objects.inc_per_rev || estimate != self.estimate {
             self.restart_estimate = true;
         }
+        self.estimate = estimate;
         self.objects = o;
     }
 
     /// Updates the velocity estimate with the position of this tick and the q current applied during the last one
-    /// (the observer's model input); returns it. Both estimators run, so switching between them is seamless.
+    /// (the observer's model input); returns it. Only the configured estimator runs; a change of 0x3000:02 restarts
+    /// it from the present position.
     pub fn estimate(&mut self, position: i32, current: Amps) -> IncPerTick {
         if core::mem::take(&mut self.restart_estimate) {
             self.reset_estimate(position);
         }
-        let low_pass = self.low_pass.update(Increments(position));
-        let observed = self.observer.step(Increments(position), current);
         self.velocity_estimate = match self.estimate {
-            VelocityEstimate::LowPass => low_pass,
-            VelocityEstimate::Observer => observed,
+            VelocityEstimate::LowPass => self.low_pass.update(Increments(position)),
+            VelocityEstimate::Observer => self.observer.step(Increments(position), current),
         };
         self.velocity_estimate
     }

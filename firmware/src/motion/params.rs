@@ -77,8 +77,11 @@ pub struct MotionParams {
     pub period: InterpolationPeriod,
     /// The option codes (read every tick, they are plain copies).
     pub options: OptionCodes,
+    /// rpm per 2^-48 of a Q32 increments-per-tick velocity: `150,000 x 2^16 / N` (N increments per revolution).
+    rpm_mantissa: i64,
     raw: Option<RawParams>,
 }
+
 
 impl MotionParams {
     /// The parameters of `d`.
@@ -109,10 +112,26 @@ impl MotionParams {
             homing_profile: profile,
             period: InterpolationPeriod::DISABLED,
             options: OptionCodes::DEFAULT,
+            rpm_mantissa: 0,
             raw: None,
         };
         p.refresh(d);
         p
+    }
+
+    /// `velocity` in rpm, rounded, saturating (0x606B, 0x606C every slow tick): one 64-bit multiply; the 128-bit
+    /// conversion of [`MotionScale::velocity_to_rpm`] only when the product would not fit (beyond 2^63, e.g.
+    /// above about 60,000 rpm at 4,096 inc/rev) or the resolution is too fine for the mantissa (above 2^24
+    /// inc/rev).
+    #[must_use]
+    pub fn rpm(&self, velocity: Velocity) -> i32 {
+        let fast = if self.rpm_mantissa >= 1 << 10 { velocity.0.checked_mul(self.rpm_mantissa) } else { None };
+        let rpm = match fast {
+            // Round half up: 2^47 before the shift (saturating: the product may lie within 2^47 of i64::MAX).
+            Some(p) => p.saturating_add(1 << 47) >> 48,
+            None => self.scale.velocity_to_rpm(velocity),
+        };
+        i32::try_from(rpm).unwrap_or(if rpm < 0 { i32::MIN } else { i32::MAX })
     }
 
     /// Re-reads the dictionary; converts what changed. An invalid profile type keeps the previous profile.
@@ -154,7 +173,28 @@ impl MotionParams {
             deceleration: self.homing_acceleration,
         };
         self.period = super::cyclic::period_of(raw.period.0, raw.period.1);
+        // 1 inc/tick = 2,500 x 60 / N rpm; in Q32 and with 16 more bits of precision for the mantissa.
+        let mantissa = (150_000_u64 << 16).checked_div(u64::from(raw.inc_per_rev)).unwrap_or(0);
+        self.rpm_mantissa = i64::try_from(mantissa).unwrap_or(0);
         self.scale = scale;
         self.raw = Some(raw);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fast_rpm_matches_the_exact_conversion() {
+        let d = Dictionary::new(1);
+        let p = MotionParams::new(&d);
+        for rpm in [-25_000_i64, -3000, -1, 0, 1, 7, 100, 2449, 5000, 25_000] {
+            let v = p.scale.velocity_from_rpm(rpm);
+            assert_eq!(i64::from(p.rpm(v)), p.scale.velocity_to_rpm(v), "{rpm} rpm");
+        }
+        // Beyond the fast path's range the exact conversion takes over.
+        let huge = Velocity(i64::MAX / 2);
+        assert_eq!(i64::from(p.rpm(huge)), p.scale.velocity_to_rpm(huge).min(i64::from(i32::MAX)));
     }
 }
