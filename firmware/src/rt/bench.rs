@@ -5,34 +5,70 @@
 //!    current, a small error, demands that saturate the voltage limit either way, a low bus}, each twice so that
 //!    the integrators are both fresh and wound up. TIM2 counts instructions (`board::counter`); an empty call of
 //!    the same shape is subtracted.
-//! 2. `insn.fast_tick_max`: tier 1 runs the drive's whole fast tick for `FAST_TICKS` periods, the ADC interrupt
-//!    pended from here (QEMU has no ADC) and the built-in plant (`board::plant`) closing the loop: switch-on with
-//!    the current-offset calibration at standstill, then operation enabled with Hall commutation through the
-//!    plant's speed profile (both directions, up to 4,000 rpm) and a current demand that steps between small and
-//!    saturating values. Tier 1 measures every fast tick the way it does on the board; the maximum is printed.
-//!    `insn.slow_tick_max` is tier 2's slow tick, including the critical section it runs in.
-//! 3. Checks the tiers (every period ran, tier 2 once per ten, nothing missed, no overrun, the drive ended in
+//! 2. `insn.slow_tick_max`: the drive's whole slow tick (`Drive::slow_tick`: the CiA 402 axis with its state
+//!    machine, mode, interpolation, loops, monitoring, faults and I/O), as tier 2 measures it, including the
+//!    critical section it runs in: the maximum over every slow tick from start-up to the end of a cyclic
+//!    synchronous position run (no slow tick runs before it: tier 1 runs only when the bench pends it). The
+//!    ADC interrupt is pended from here (QEMU has no ADC), tier 1 runs the fast tick against the built-in plant
+//!    (`board::plant`) with its shaft free (the motor's torque moves the reference inertia) and raises tier 2
+//!    every tenth period. Through the controlword, as a master does: 0x6060 = 8 (CSP), 0x60C2 = 1 ms, 0x6040 =
+//!    0x06, 0x07 (transition 3 with the current-offset calibration), 0x0F, each until 0x6041 shows the state;
+//!    then a master cycle of 1 ms (`CYCLE_TICKS` periods) with a new 0x607A and `Drive::setpoint_received`
+//!    every cycle: a move `A (1 - cos)` of `CSP_AMPLITUDE_INC` over `CSP_PERIOD_CYCLES` (one turn out and
+//!    back, up to 754 rpm and 1.3 M inc/s², through the encoder index, Hall and input edges), `CSP_PERIODS`
+//!    times, then a hold. So the slow ticks include set-point arrivals at both phases of the 2.5 slow ticks per
+//!    cycle, every interpolation step in between, the transitions of the state machine, the hold, and the
+//!    conversion of the motion parameters written before the first tick (0x6060, 0x60C2). The following error
+//!    window 0x6065 stays at its default of 2,000 inc: the plant follows within about 13 inc
+//!    (`csp.following_error_peak_inc`, 0x60F4 sampled once per cycle).
+//! 3. `insn.fast_tick_max`: tier 1 measures every fast tick of the whole run the way it does on the board (the
+//!    maximum is printed): the CSP run above (input and index edges latched), then, after «Disable voltage» with
+//!    0x6040 = 0, the plant's speed profile on the direct power-stage path: switch-on with the current-offset
+//!    calibration at standstill, then operation enabled with Hall commutation through the profile (both
+//!    directions, up to 4,000 rpm) and a current demand that steps between small and saturating values. The
+//!    slow ticks of this second part are not part of `insn.slow_tick_max` (its value is taken before).
+//! 4. Checks the tiers and the drive (every period ran, tier 2 once per ten, nothing missed, no overrun, the CSP
+//!    run reached operation enabled, followed without a fault or following-error bit, the profile part ended in
 //!    operation enabled) and exits through semihosting: status 0, or 1 when a check failed.
 
 use core::hint::black_box;
 use core::sync::atomic::{compiler_fence, Ordering};
 
 use cortex_m::peripheral::NVIC;
+use micromath::F32Ext;
 
+use super::app::FastState;
 use super::{tier1, tier2};
-use crate::board::plant::{HOLD_TICKS, PROFILE_TICKS};
+
+use crate::board::plant::{self, Shaft, HOLD_TICKS, PROFILE_TICKS};
 use crate::board::semihosting::{exit, print, EXIT_CHECK_FAILED, EXIT_OK};
 use crate::board::{counter, vectors::Interrupt};
+use crate::cia402::{State, Statusword};
 use crate::control::angle::ElectricalAngle;
 use crate::control::current_loop::{foc_step, CurrentController, FocInput, FocOutput};
 use crate::control::frames::{Abc, Amps, Dq, Volts};
 use crate::drive::{DemandSource, PowerState};
 use crate::hal::power::SLOW_TICK_DIVIDER;
+use crate::od::generated::handles as h;
 
-/// Fast ticks run through tier 1: the standstill hold (calibration) and one pass through the speed profile.
+/// Fast ticks of the profile part: the standstill hold (calibration) and one pass through the speed profile.
 pub const FAST_TICKS: u32 = HOLD_TICKS + PROFILE_TICKS;
-/// Current demand steps during operation (mA), each held for `FAST_TICKS / 8` periods.
+/// Current demand steps during the profile (mA), each held for `PROFILE_TICKS / 8` periods.
 const DEMANDS_MA: [i32; 8] = [1_000, 3_000, -3_000, 10_000, 0, -10_000, 500, 6_000];
+
+/// CSP: 0x6060 value.
+const MODE_CSP: i8 = 8;
+/// The master cycle, PWM periods (25 x 40 us = 1 ms, = 0x60C2).
+const CYCLE_TICKS: u32 = 25;
+/// The move: amplitude (increments; the target swings over twice that), period (master cycles) and repetitions.
+const CSP_AMPLITUDE_INC: f32 = 2048.0;
+const CSP_PERIOD_CYCLES: u32 = 250;
+const CSP_PERIODS: u32 = 2;
+/// Cycles of the final hold (set-points keep coming at the start position).
+const CSP_HOLD_CYCLES: u32 = 50;
+/// Longest wait for a state of the CiA 402 machine, PWM periods (the calibration of transition 3 takes about
+/// 310).
+const STATE_TIMEOUT_TICKS: u32 = 2_000;
 
 /// An empty call shaped like `foc_step` (output pointer, controller, input): the calibration.
 /// Its body is an optimisation barrier only (no instructions): without it LLVM deletes the call altogether.
@@ -105,18 +141,102 @@ fn foc_step_max() -> u32 {
     max
 }
 
-/// Runs `n` tier-1 periods.
-fn run_ticks(n: u32) {
-    for _ in 0..n {
-        // Tier 1 preempts right here; tier 2 tail-chains after it when a slow tick is due.
-        NVIC::pend(Interrupt::Adc);
-        cortex_m::asm::dsb();
-        cortex_m::asm::isb();
+/// Pends the ADC interrupt `n` times (tier 1 runs each time; tier 2 after every tenth) and counts the periods.
+struct Periods {
+    pended: u32,
+}
+
+impl Periods {
+    fn run(&mut self, n: u32) {
+        for _ in 0..n {
+            // Tier 1 preempts right here; tier 2 tail-chains after it when a slow tick is due.
+            NVIC::pend(Interrupt::Adc);
+            cortex_m::asm::dsb();
+            cortex_m::asm::isb();
+        }
+        self.pended = self.pended.wrapping_add(n);
+    }
+
+    /// Runs periods until `done` holds for the drive, at most `limit`; whether it did.
+    fn run_until(&mut self, limit: u32, mut done: impl FnMut(&mut FastState) -> bool) -> bool {
+        for _ in 0..limit {
+            if tier1::with_drive(&mut done).unwrap_or(false) {
+                return true;
+            }
+            self.run(1);
+        }
+        tier1::with_drive(&mut done).unwrap_or(false)
     }
 }
 
 fn state() -> Option<PowerState> {
     tier1::with_drive(|d| d.state())
+}
+
+/// The CiA 402 state 0x6041 shows.
+fn statusword_state(d: &FastState) -> Option<State> {
+    Statusword(d.dictionary().get(h::STATUSWORD)).state()
+}
+
+/// Writes the controlword and runs until the statusword shows `state`.
+fn command(periods: &mut Periods, controlword: u16, state: State) -> bool {
+    let _ = tier1::with_drive(|d| d.dictionary_mut().set(h::CONTROLWORD, controlword));
+    periods.run_until(STATE_TIMEOUT_TICKS, |d| statusword_state(d) == Some(state))
+}
+
+/// What the CSP run saw.
+#[derive(Default)]
+struct CspRun {
+    enabled: bool,
+    setpoints: u32,
+    following_error_peak: u32,
+    fault_seen: bool,
+    bit13_seen: bool,
+    follows_seen: bool,
+    stayed_enabled: bool,
+}
+
+/// The CSP run (see the module documentation).
+fn csp(periods: &mut Periods) -> CspRun {
+    let mut run = CspRun::default();
+    let _ = tier1::with_drive(|d| {
+        let dict = d.dictionary_mut();
+        dict.set(h::MODES_OF_OPERATION, MODE_CSP);
+        dict.set(h::INTERPOLATION_TIME_PERIOD_VALUE, 1);
+        dict.set(h::INTERPOLATION_TIME_INDEX, -3);
+    });
+    run.enabled = command(periods, 0x06, State::ReadyToSwitchOn)
+        && command(periods, 0x07, State::SwitchedOn)
+        && command(periods, 0x0F, State::OperationEnabled);
+    if !run.enabled {
+        return run;
+    }
+    let start = tier1::with_drive(|d| d.dictionary().get(h::POSITION_ACTUAL_VALUE)).unwrap_or(0);
+    let cycles = CSP_PERIOD_CYCLES.saturating_mul(CSP_PERIODS).saturating_add(CSP_HOLD_CYCLES);
+    let omega = core::f32::consts::TAU / CSP_PERIOD_CYCLES as f32;
+    for k in 0..cycles {
+        let excursion = if k < CSP_PERIOD_CYCLES.saturating_mul(CSP_PERIODS) {
+            (CSP_AMPLITUDE_INC * (1.0 - (omega * k as f32).cos())) as i32
+        } else {
+            0
+        };
+        let _ = tier1::with_drive(|d| {
+            d.dictionary_mut().set(h::TARGET_POSITION, start.wrapping_add(excursion));
+            d.setpoint_received();
+        });
+        run.setpoints = run.setpoints.wrapping_add(1);
+        periods.run(CYCLE_TICKS);
+        let (sw, fe) = tier1::with_drive(|d| {
+            (d.dictionary().get(h::STATUSWORD), d.dictionary().get(h::FOLLOWING_ERROR_ACTUAL_VALUE))
+        })
+        .unwrap_or((Statusword::FAULT, i32::MAX));
+        run.following_error_peak = run.following_error_peak.max(fe.unsigned_abs());
+        run.fault_seen |= sw & Statusword::FAULT != 0;
+        run.bit13_seen |= sw & Statusword::OMS_13 != 0;
+        run.follows_seen |= sw & Statusword::OMS_12 != 0;
+    }
+    run.stayed_enabled = tier1::with_drive(|d| statusword_state(d)) == Some(Some(State::OperationEnabled));
+    run
 }
 
 /// The bench task.
@@ -127,15 +247,29 @@ pub async fn bench() {
     print(format_args!("insn.foc_step={foc}\n"));
 
     let fast_before = tier1::FAST_TICKS.load(Ordering::Relaxed);
-    // Switch on: the offset calibration runs at standstill during the plant's hold.
+    let mut periods = Periods { pended: 0 };
+
+    // CSP through the controlword on the free shaft: every slow tick so far is part of it.
+    plant::select(Shaft::Free);
+    let csp = csp(&mut periods);
+    let slow_max = tier2::SLOW_TICK_MAX.load(Ordering::Relaxed);
+    let csp_slow_ticks = tier2::SLOW_TICKS.load(Ordering::Relaxed);
+
+    // «Disable voltage», then the speed profile on the direct power-stage path. Switch on: the offset calibration
+    // runs at standstill during the plant's hold, which starts with the selection.
+    plant::select(Shaft::Profile);
+    let profile_start = periods.pended;
+    let _ = tier1::with_drive(|d| d.dictionary_mut().set(h::CONTROLWORD, 0));
+    let disabled = periods.run_until(HOLD_TICKS / 4, |d| {
+        d.state() == PowerState::Off && statusword_state(d) == Some(State::SwitchOnDisabled)
+    });
     let switched = tier1::with_drive(|d| d.switch_on().is_ok()).unwrap_or(false);
-    let mut ran = 0;
-    while ran < HOLD_TICKS && state() != Some(PowerState::SwitchedOn) {
-        run_ticks(1);
-        ran = ran.wrapping_add(1);
-    }
-    run_ticks(HOLD_TICKS.saturating_sub(ran));
-    let calibrated = state() == Some(PowerState::SwitchedOn);
+    let calibrated = periods.run_until(HOLD_TICKS.saturating_sub(periods.pended.wrapping_sub(profile_start)), |d| {
+        d.state() == PowerState::SwitchedOn
+    });
+    // The rest of the hold, then the profile.
+    let held = periods.pended.wrapping_sub(profile_start);
+    periods.run(HOLD_TICKS.saturating_sub(held));
     let enabled = tier1::with_drive(|d| {
         d.set_demand_source(DemandSource::Internal);
         d.set_current_demand(Amps::ZERO);
@@ -145,17 +279,20 @@ pub async fn bench() {
     let step = PROFILE_TICKS.checked_div(DEMANDS_MA.len() as u32).unwrap_or(0);
     for ma in DEMANDS_MA {
         let _ = tier1::with_drive(|d| d.set_current_demand(Amps::from_milliamps(ma)));
-        run_ticks(step);
+        periods.run(step);
     }
-    run_ticks(PROFILE_TICKS.saturating_sub(step.saturating_mul(DEMANDS_MA.len() as u32)));
+    periods.run(PROFILE_TICKS.saturating_sub(step.saturating_mul(DEMANDS_MA.len() as u32)));
     let final_state = state();
 
     let fast = tier1::FAST_TICKS.load(Ordering::Relaxed).wrapping_sub(fast_before);
     let slow = tier2::SLOW_TICKS.load(Ordering::Relaxed);
     print(format_args!("source.fast_tick=drive::Drive::fast_tick\n"));
     print(format_args!("insn.fast_tick_max={}\n", tier1::FAST_TICK_MAX.load(Ordering::Relaxed)));
-    print(format_args!("insn.slow_tick_max={}\n", tier2::SLOW_TICK_MAX.load(Ordering::Relaxed)));
+    print(format_args!("source.slow_tick=drive::Drive::slow_tick (CSP, 0x60C2 = 1 ms)\n"));
+    print(format_args!("insn.slow_tick_max={slow_max}\n"));
     print(format_args!("count.fast_ticks={fast}\ncount.slow_ticks={slow}\n"));
+    print(format_args!("count.csp_slow_ticks={csp_slow_ticks}\ncount.csp_setpoints={}\n", csp.setpoints));
+    print(format_args!("csp.following_error_peak_inc={}\n", csp.following_error_peak));
     print(format_args!("drive.final_state={final_state:?}\n"));
 
     let mut ok = true;
@@ -165,11 +302,16 @@ pub async fn bench() {
             ok = false;
         }
     };
+    check(csp.enabled, "CSP: the controlword reached operation enabled");
+    check(csp.follows_seen, "CSP: statusword bit 12 (drive follows the command value) was set");
+    check(!csp.fault_seen && !csp.bit13_seen, "CSP: no fault and no following error");
+    check(csp.stayed_enabled, "CSP: the drive stayed in operation enabled");
+    check(disabled, "disable voltage switched the power stage off");
     check(switched && calibrated, "switch-on calibrated the current offsets during the hold");
     check(enabled, "operation enabled");
     check(final_state == Some(PowerState::OperationEnabled), "the drive stayed in operation enabled");
-    check(fast == FAST_TICKS, "every pended ADC interrupt ran tier 1 once");
-    check(slow == FAST_TICKS / SLOW_TICK_DIVIDER, "tier 2 ran once per ten fast ticks");
+    check(fast == periods.pended, "every pended ADC interrupt ran tier 1 once");
+    check(slow == periods.pended / SLOW_TICK_DIVIDER, "tier 2 ran once per ten fast ticks");
     check(tier2::SLOW_MISSED.load(Ordering::Relaxed) == 0, "tier 2 missed no slow tick");
     check(!tier1::OVERRUN.load(Ordering::Relaxed), "no fast-tick overrun");
     exit(if ok { EXIT_OK } else { EXIT_CHECK_FAILED });

@@ -1,7 +1,8 @@
 //! `cargo run --release -p drive-tests --bin qemu-bench`: builds the target image with the `qemu` feature, runs it
 //! under QEMU with `-icount shift=0` and prints what it measured (`insn.<name>=<count>`: instructions, exact and
-//! repeatable), the image's own `source.*`/`count.*` lines and its size. Exits non-zero if the image failed.
-//! How the image boots: `drive_tests::qemu`.
+//! repeatable: `foc_step`, `fast_tick_max`, `slow_tick_max` of a CSP run; see `firmware/src/rt/bench.rs`), the
+//! image's own `source.*`/`count.*`/`csp.*` lines and its size. Exits non-zero if the image failed (a check in
+//! the image, e.g. a fault in the CSP run). How the image boots: `drive_tests::qemu`.
 
 use std::process::ExitCode;
 
