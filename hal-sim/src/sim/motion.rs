@@ -186,6 +186,7 @@ pub fn csp(config: &CspConfig) -> Result<(CspFigures, Trace), SimError> {
         "rpm",
         "iq_a",
         "iq_ref_a",
+        "bus_v",
     ]);
     let (mut fe_peak, mut fe_sq, mut fe_n) = (0.0_f64, 0.0_f64, 0_u64);
     let mut bit13 = false;
@@ -232,6 +233,7 @@ pub fn csp(config: &CspConfig) -> Result<(CspFigures, Trace), SimError> {
                 f64::from(d.get(h::VELOCITY_ACTUAL_VALUE)),
                 f64::from(sim.drive.signals().i_dq.q.to_milliamps()) / 1000.0,
                 f64::from(sim.drive.signals().i_ref.q.to_milliamps()) / 1000.0,
+                sim.plant.state().bus_voltage_v,
             ]);
         }
     }
