@@ -439,6 +439,158 @@ fn waiting_until_the_first_setpoint() {
     }
 }
 
+/// The segment `j` of the documented polynomial (played from boundary j, ending at `P_j`), `p[-1] = p[-2] = p[-3]
+/// = x0` (reset at rest at x0): `(x_a, M_a, k2, k3, sum of the Savitzky-Golay products)`, exact.
+fn segment(points: &[i64], x0: i64, j: usize) -> (i128, i128, i128, i128, i128) {
+    let at = |i: isize| -> i128 {
+        if i < 0 {
+            i128::from(x0)
+        } else {
+            i128::from(points[i as usize])
+        }
+    };
+    let j = j as isize;
+    let (xb, xa, xp, xq) = (at(j), at(j - 1), at(j - 2), at(j - 3));
+    let mb = 3 * xb - 4 * xa + xp;
+    let ma = if j == 0 { 0 } else { 3 * xa - 4 * xp + xq };
+    let d = xb - xa;
+    let w = [28i128, 7, -8, -17, -20, -17, -8, 7, 28];
+    let sg: i128 = (0..9).map(|i| w[i] * at(j - 8 + i as isize)).sum();
+    (xa, ma, 6 * d - 2 * ma - mb, -4 * d + ma + mb, sg)
+}
+
+/// The documented polynomial at `s` master microseconds into segment `j`, exactly up to the final f64 division:
+/// (position, velocity in inc/tick, Savitzky-Golay acceleration in inc/tick²).
+fn reference(points: &[i64], x0: i64, period_us: i64, j: usize, s: i64) -> (f64, f64, f64) {
+    let (xa, ma, k2, k3, sg) = segment(points, x0, j);
+    let (t, s) = (i128::from(period_us), i128::from(s));
+    // 2 T³ (p - x_a) = M_a s T² + k2 s² T + k3 s³.
+    let num = ma * s * t * t + k2 * s * s * t + k3 * s * s * s;
+    let x = xa as f64 + num as f64 / (2 * t * t * t) as f64;
+    let dnum = ma * t * t + 2 * k2 * s * t + 3 * k3 * s * s;
+    let v = dnum as f64 / (2 * t * t * t) as f64 * TICK_US as f64;
+    let a = sg as f64 / 462.0 * (TICK_US as f64 / period_us as f64).powi(2);
+    (x, v, a)
+}
+
+/// Random streams (smooth with random acceleration, and jerky) at periods with a non-dyadic tick/period ratio and
+/// very long ones, against the exact polynomial: the fixed-point evaluation stays within its stated precision.
+/// Position (Q16): 0.5 for the output rounding, 0.05 for the Horner steps, plus the fraction's error (below
+/// 2^-32 of the period) times the segment's slope. Velocity (Q32 inc/tick): 1.5 for the rounding of the
+/// coefficients and the Horner steps, plus the fraction's error times the derivative. Acceleration (Q40): 1 plus
+/// 2^-44 relative (the precomputed scale).
+#[test]
+fn fixed_point_matches_the_exact_polynomial() {
+    let mut seed = 0x2545_f491_4f6c_dd1du64;
+    let mut rnd = move || {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        seed
+    };
+    let (mut worst_x, mut worst_v, mut worst_a) = (0.0f64, 0.0f64, 0.0f64);
+    for period_us in [400i64, 480, 600, 1000, 1100, 2000, 3000, 123_457, 999_999, 25_500_000] {
+        for trial in 0..6 {
+            let jerky = trial % 2 == 1;
+            let x0 = (rnd() % 2_000_001) as i64 - 1_000_000;
+            let mut x = x0;
+            let mut v = 0i64;
+            let scale = [1i64, 100, 10_000][trial / 2];
+            let points: Vec<i64> = (0..24)
+                .map(|_| {
+                    if jerky {
+                        x += (rnd() % 2001) as i64 - 1000;
+                    } else {
+                        v += (rnd() % 21) as i64 - 10;
+                        x += v * scale / 10;
+                    }
+                    x
+                })
+                .collect();
+            let sps: Vec<_> = points.iter().map(|&p| Some(csp(p as i32))).collect();
+            let period = InterpolationPeriod::from_micros(period_us as u32).unwrap();
+            let mut ip = CyclicInterpolator::new(CyclicMode::Position, period);
+            ip.reset(x0, Velocity::ZERO);
+            // At most 200 ticks per period are checked: the first 100 and the last 100.
+            let ticks = (points.len() as u64 * period_us as u64 / TICK_US) as usize;
+            let mut next = 0usize;
+            for n in 0..ticks {
+                let t = n as i64 * TICK_US as i64;
+                while next < sps.len() && next as i64 * period_us <= t {
+                    ip.push(sps[next].unwrap());
+                    next += 1;
+                }
+                let o = ip.step();
+                let (j, s) = ((t / period_us) as usize, t % period_us);
+                if j >= points.len() || (s / TICK_US as i64 > 100 && (period_us - s) / TICK_US as i64 > 100) {
+                    continue;
+                }
+                let (xr, vr, ar) = reference(&points, x0, period_us, j, s);
+                // The fraction u = s / T is within 2^-32 of its value: bounds from the largest slope dp/du (inc)
+                // and dv/du (inc/tick) over the segment.
+                let (xa, ma, k2, k3, _) = segment(&points, x0, j);
+                let slope = (ma.abs() + 2 * k2.abs() + 3 * k3.abs()) as f64 / 2.0;
+                let dv_du = (k2.abs() + 3 * k3.abs()) as f64 * TICK_US as f64 / period_us as f64;
+                let ex = (fine(&o) - xr).abs() * 65_536.0;
+                let bound_x = 0.55 + slope * 65_536.0 / 4_294_967_296.0;
+                assert!(ex <= bound_x, "T {period_us} trial {trial} tick {n}: {ex} > {bound_x} Q16");
+                let ev = (v_f(o.velocity) - vr).abs() * Q32;
+                let bound_v = 1.5 + dv_du;
+                assert!(ev <= bound_v, "T {period_us} trial {trial} tick {n}: velocity {ev} > {bound_v} Q32");
+                let ea = (a_f(o.acceleration) - ar).abs() * Q40;
+                let bound_a = 1.0 + ar.abs() * Q40 / 17_592_186_044_416.0;
+                assert!(ea <= bound_a, "T {period_us} trial {trial} tick {n}: acceleration {ea} > {bound_a} Q40");
+                worst_x = worst_x.max(ex);
+                worst_v = worst_v.max(ev);
+                worst_a = worst_a.max(ea);
+                if s == 0 {
+                    assert_eq!(i128::from(o.position_fine), xa << 16, "exact at the boundary");
+                }
+            }
+        }
+    }
+    println!("worst |position - exact| {worst_x:.3} Q16, velocity {worst_v:.3} Q32, acceleration {worst_a:.3} Q40");
+}
+
+/// The envelope of the velocity feedforward reaches 2^28 inc/tick (0.67 x 10^12 inc/s): a constant-velocity stream
+/// at that speed (one step of 2^28 inc per 400 us period) gives it exactly, and set-points at the ends of the i32
+/// range with offsets land exactly at the boundaries.
+#[test]
+fn envelope_extremes() {
+    let period = InterpolationPeriod::from_micros(400).unwrap();
+    let step = 1i64 << 28;
+    let start = i64::from(i32::MIN) + 1000;
+    let mut ip = CyclicInterpolator::new(CyclicMode::Position, period);
+    ip.reset(start, Velocity::from_bits(step << 32));
+    for k in 1..15 {
+        let p = start + k * step;
+        ip.push(csp(p as i32));
+        let o = ip.step();
+        assert_eq!(o.position, p - step, "one period late");
+        assert_eq!(o.velocity, Velocity::from_bits(step << 32));
+        assert_eq!(o.acceleration, Acceleration::ZERO);
+    }
+    // The extremes of 0x607A + 0x60B0 (+-2^32), alternating: exact at every boundary, no panic between.
+    let mut ip = CyclicInterpolator::new(CyclicMode::Position, InterpolationPeriod::from_micros(1000).unwrap());
+    let extremes = [(i32::MAX, i32::MAX), (i32::MIN, i32::MIN), (i32::MAX, i32::MIN), (i32::MIN, i32::MAX)];
+    let points: Vec<_> = (0..40)
+        .map(|k| {
+            let (p, o) = extremes[k % 4];
+            Some(CyclicSetpoint { target_position: p, position_offset: o, ..CyclicSetpoint::default() })
+        })
+        .collect();
+    let out = run_stream(&mut ip, 1000, &points, 100);
+    for (n, o) in out.iter().enumerate() {
+        let t = n as u64 * TICK_US;
+        if t.is_multiple_of(1000) && t >= 1000 {
+            let sp = points[(t / 1000 - 1) as usize].unwrap();
+            let expect = i64::from(sp.target_position) + i64::from(sp.position_offset);
+            assert_eq!(o.position, expect, "tick {n}");
+            assert_eq!(o.position_fine, expect << 16);
+        }
+    }
+}
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: 300, ..ProptestConfig::default() })]
 
