@@ -647,6 +647,9 @@ impl Drive {
         let encoder_present = sensors & 0xFF == 1;
         let sensor_changed = encoder_present != self.encoder_present;
         self.encoder_present = encoder_present;
+        if sensor_changed {
+            self.axis.position_sensor_changed();
+        }
         let method = if (sensors >> 16) & 0xFF == 4 {
             CommutationMethod::Hall
         } else {

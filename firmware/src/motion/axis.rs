@@ -178,6 +178,12 @@ impl Axis {
         }
     }
 
+    /// The position sensor changed (encoder or Halls, 0x3000:01): its coordinates jump, so the velocity estimate
+    /// restarts from the next position.
+    pub fn position_sensor_changed(&mut self) {
+        self.loops.restart_estimate();
+    }
+
     /// Statusword bit 9: the fieldbus controls the drive (NMT operational, EtherCAT SafeOp/Op).
     pub fn set_remote(&mut self, remote: bool) {
         self.remote = remote;

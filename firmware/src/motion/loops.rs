@@ -182,6 +182,11 @@ impl Loops {
         self.velocity_estimate
     }
 
+    /// The position sensor changed (its coordinates jump): the estimators restart at the next position.
+    pub fn restart_estimate(&mut self) {
+        self.restart_estimate = true;
+    }
+
     /// Restarts the estimators at `position` (sensor change, re-enable).
     pub fn reset_estimate(&mut self, position: i32) {
         self.low_pass.reset();

@@ -82,7 +82,6 @@ pub struct MotionParams {
     raw: Option<RawParams>,
 }
 
-
 impl MotionParams {
     /// The parameters of `d`.
     #[must_use]
