@@ -323,8 +323,8 @@ fn ppm(args: &Args, dir: &Path) -> Result<(), String> {
     for (name, profile_type, distance, p) in [
         ("trapezoidal, 5 rev, 1000 rpm, 10000 rpm/s", 0_i16, 20_480, Profile::DEFAULT),
         ("sin², 5 rev, 1000 rpm, 10000 rpm/s", 1, 20_480, Profile::DEFAULT),
-        ("trapezoidal, 10 rev, 3000 rpm, 20000/30000 rpm/s", 0, 40_960, Profile::FAST),
-        ("sin², 10 rev, 3000 rpm, 20000/30000 rpm/s", 1, 40_960, Profile::FAST),
+        ("trapezoidal, 10 rev, 2500 rpm, 20000/30000 rpm/s", 0, 40_960, Profile::FAST),
+        ("sin², 10 rev, 2500 rpm, 20000/30000 rpm/s", 1, 40_960, Profile::FAST),
     ] {
         let (f, trace) = profile::ppm_move(args.seed, profile_type, distance, &p).map_err(|e| e.to_string())?;
         println!("  {name}:");
