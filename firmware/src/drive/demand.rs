@@ -90,6 +90,12 @@ impl DemandScale {
         i16::try_from(p).unwrap_or(if p < 0 { i16::MIN } else { i16::MAX })
     }
 
+    /// The same scale with the current limit lowered to `limit` (the I2t protection's), if that is lower.
+    #[must_use]
+    pub fn limited_to(self, limit: Amps) -> Self {
+        Self { current_limit_bits: self.current_limit_bits.min(limit.to_bits().max(0)), ..self }
+    }
+
     /// The current limit in force.
     #[must_use]
     pub const fn current_limit(&self) -> Amps {

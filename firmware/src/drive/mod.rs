@@ -193,6 +193,10 @@ pub struct Drive {
     hall_position: HallPosition,
     calibration: Calibration,
     scale: DemandScale,
+    /// The scale from the dictionary, before the I2t limit.
+    base_scale: DemandScale,
+    /// The I2t protection's current limit (tier 2).
+    i2t_limit: Amps,
     config: DriveConfig,
     gain_source: GainSource,
     /// What the fast tick that tripped measured (the fault's diagnosis data).
@@ -239,6 +243,8 @@ impl Drive {
             controller: CurrentController::new(CurrentLoopConfig::from_idx_0x30a0(gain_source.p, gain_source.i)),
             gain_source,
             scale: DemandScale::reference(),
+            base_scale: DemandScale::reference(),
+            i2t_limit: Amps::from_bits(i32::MAX),
             source: DemandSource::TargetTorque,
             internal_demand: Amps::ZERO,
             signals: FastSignals::default(),
@@ -417,20 +423,29 @@ impl Drive {
     // Tier 2
     // ---------------------------------------------------------------------------------------------------------
 
-    /// Converts the parameters that changed since the last call into the units the tiers use: current gains
+    /// Converts the parameters that changed since the last call into the units the tiers use (current gains
     /// 0x30A0, motor data and limits, and the axis's motion parameters, gains, monitoring limits and brake
-    /// timing. Tier 2 runs it before each [`Self::slow_tick`] (its cost is reported separately: it compares the
+    /// timing), applies the I2t current limit, and publishes the actual values (0x6077, 0x6078, 0x30D1, 0x30D2,
+    /// 0x6079, 0x3200:01, ...). Tier 2 runs it before each [`Self::slow_tick`] (its cost is reported separately: it compares the
     /// raw values every time, and converts, with 64- and 128-bit arithmetic, only what changed).
     pub fn background(&mut self) {
         self.refresh_parameters();
-        self.axis.refresh(&self.dictionary);
+        self.publish_actual_values();
+        self.axis.refresh(&mut self.dictionary);
+        // The I2t protection's current limit (applied one slow tick after the model decided it: far inside the
+        // winding's thermal time constant).
+        let i2t_limit = Amps::from_milliamps(i32::try_from(self.axis.i2t_current_limit_ma()).unwrap_or(i32::MAX));
+        if i2t_limit != self.i2t_limit {
+            self.i2t_limit = i2t_limit;
+            self.scale = self.base_scale.limited_to(i2t_limit);
+        }
     }
 
-    /// The 2.5 kHz hook: publishes the actual values and runs the CiA 402 axis (state machine, modes, loops,
-    /// monitoring) with the parameters [`Self::background`] converted. Called after every
+    /// The 2.5 kHz hook: updates the averages and runs the CiA 402 axis (state machine, modes, loops, monitoring)
+    /// with the parameters [`Self::background`] converted. Called after every
     /// [`SLOW_TICK_DIVIDER`]-th fast tick (see [`FastTick::slow_tick_due`]).
     pub fn slow_tick(&mut self) {
-        self.publish_actual_values();
+        self.update_averages();
         // A fault reports what the tripping tick measured, not what came after.
         let fault = match self.state {
             PowerState::Fault(e) => Some(e),
@@ -529,20 +544,27 @@ impl Drive {
             d.get(h::MAX_CURRENT),
             d.get(h::MAX_TORQUE),
         );
-        self.scale = scale;
+        self.base_scale = scale;
+        self.scale = scale.limited_to(self.i2t_limit);
         // 0x6075 and 0x6076 are read-only copies derived from 0x3001 (single writer: the drive).
         d.set(h::MOTOR_RATED_CURRENT, nominal);
         d.set(h::MOTOR_RATED_TORQUE, rated_torque_micro_nm(nominal, d.get(h::MOTOR_TORQUE_CONSTANT)));
     }
 
-    /// Writes the actual values of the last fast tick and their 50 Hz averages.
+    /// Updates the 50 Hz averages of the q current and the bus voltage (0x30D1:01, 0x30D2:01, homing -1..-4).
+    fn update_averages(&mut self) {
+        let s = &self.signals;
+        // First-order low-pass y += (x - y) / 8 at 2.5 kHz: cut-off 1/8 * 2500 / (2 pi) = 49.7 Hz, the 50 Hz of
+        // IDX 0x30D1:01 / 0x30D2:01 (spec §1.3). |x|, |y| < 2^30: no wrap.
+        self.i_q_average = self.i_q_average.wrapping_add(s.i_dq.q.to_bits().wrapping_sub(self.i_q_average) >> 3);
+        self.v_bus_average = self.v_bus_average.wrapping_add(s.v_bus.to_bits().wrapping_sub(self.v_bus_average) >> 3);
+    }
+
+    /// Writes the actual values of the last fast tick and their averages into the dictionary (run by
+    /// [`Self::background`] at the start of each slow period, so a TxPDO sampled in the slow tick carries them).
     fn publish_actual_values(&mut self) {
         let s = self.signals;
         let i_q = s.i_dq.q;
-        // First-order low-pass y += (x - y) / 8 at 2.5 kHz: cut-off 1/8 * 2500 / (2 pi) = 49.7 Hz, the 50 Hz of
-        // IDX 0x30D1:01 / 0x30D2:01 (spec §1.3). |x|, |y| < 2^30: no wrap.
-        self.i_q_average = self.i_q_average.wrapping_add(i_q.to_bits().wrapping_sub(self.i_q_average) >> 3);
-        self.v_bus_average = self.v_bus_average.wrapping_add(s.v_bus.to_bits().wrapping_sub(self.v_bus_average) >> 3);
         let avg = Amps::from_bits(self.i_q_average);
         let d = &mut self.dictionary;
         d.set(h::CURRENT_ACTUAL_VALUE, i_q.to_milliamps());

@@ -15,6 +15,7 @@
 
 pub mod emcy;
 pub mod history;
+pub mod i2t;
 pub mod manager;
 pub mod snapshot;
 pub mod table;

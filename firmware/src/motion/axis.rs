@@ -40,6 +40,7 @@ use crate::drive::demand::DemandScale;
 use crate::drive::latch::PinLatches;
 use crate::drive::protection::Trip;
 use crate::drive::{DriveError, PowerState};
+use crate::fault::i2t::{I2tConfig, MotorI2t};
 use crate::fault::snapshot::DiagnosisSnapshot;
 use crate::fault::table::FaultId;
 use crate::fault::FaultManager;
@@ -143,6 +144,12 @@ pub struct Axis {
     /// The negative and positive limit switch were active while driving in the last step (so that only a new
     /// contact, or motion further into the switch, is an error).
     limit_seen: [bool; 2],
+    /// Motor I2t (0x3200:01), with its configuration from 0x3001 and the raw values it was built from.
+    i2t: MotorI2t,
+    i2t_config: I2tConfig,
+    i2t_objects: (u32, u32, u16),
+    i2t_warning: bool,
+    i2t_current_limit_ma: u32,
 }
 
 impl Axis {
@@ -175,6 +182,19 @@ impl Axis {
             previous_controlword: Controlword(0),
             last_position: 0,
             limit_seen: [false; 2],
+            i2t: MotorI2t::new(),
+            i2t_warning: false,
+            i2t_current_limit_ma: u32::MAX,
+            i2t_config: I2tConfig::from_od(
+                d.get(h::MOTOR_NOMINAL_CURRENT),
+                d.get(h::MOTOR_OUTPUT_CURRENT_LIMIT),
+                d.get(h::MOTOR_THERMAL_TIME_CONSTANT),
+            ),
+            i2t_objects: (
+                d.get(h::MOTOR_NOMINAL_CURRENT),
+                d.get(h::MOTOR_OUTPUT_CURRENT_LIMIT),
+                d.get(h::MOTOR_THERMAL_TIME_CONSTANT),
+            ),
         }
     }
 
@@ -256,7 +276,25 @@ impl Axis {
         // 3. Inputs (the outputs follow the machine, below).
         let inputs = self.io.inputs(input.pins, self.offset, d);
 
-        // 4. Supervision.
+        // 4. Supervision. Motor I2t (EPOS3 S0 L2455-2545): at its limit the current is limited to the nominal
+        // current until the level falls below 95 %; a warning (0x3200:01 shows the level).
+        let i2t = self.i2t.step(input.current.to_milliamps(), &self.i2t_config);
+        self.i2t_current_limit_ma = i2t.current_limit_ma;
+        if i2t.limit_reached != self.i2t_warning {
+            self.i2t_warning = i2t.limit_reached;
+            if i2t.limit_reached {
+                let snapshot = DiagnosisSnapshot {
+                    motor_i2t_percent: i2t.level_percent,
+                    position_inc: position,
+                    state: self.machine.state(),
+                    tick: now,
+                    ..DiagnosisSnapshot::EMPTY
+                };
+                self.faults.raise(FaultId::MotorI2tLimit, snapshot, now);
+            } else {
+                self.faults.clear_cause(FaultId::MotorI2tLimit);
+            }
+        }
         self.supervise(input, &inputs, position, velocity);
 
         // 5. The machine.
@@ -345,11 +383,28 @@ impl Axis {
 
     /// Converts the parameters that changed (motion parameters, gains, monitoring limits, brake timing); the
     /// drive runs it before each step, outside the step's time budget.
-    pub fn refresh(&mut self, d: &Dictionary) {
+    pub fn refresh(&mut self, d: &mut Dictionary) {
         self.params.refresh(d);
         self.loops.refresh(d);
         self.monitor.refresh(d);
         self.refresh_machine_config(d);
+        let i2t = (
+            d.get(h::MOTOR_NOMINAL_CURRENT),
+            d.get(h::MOTOR_OUTPUT_CURRENT_LIMIT),
+            d.get(h::MOTOR_THERMAL_TIME_CONSTANT),
+        );
+        if i2t != self.i2t_objects {
+            self.i2t_objects = i2t;
+            self.i2t_config = I2tConfig::from_od(i2t.0, i2t.1, i2t.2);
+        }
+        d.set(h::I2T_LEVEL_MOTOR, self.i2t.level_percent());
+    }
+
+    /// The motor current limit of the I2t protection, mA: the output current limit 0x3001:02, or the nominal
+    /// current 0x3001:01 while the I2t level is at its limit (the drive applies it before the next step).
+    #[must_use]
+    pub const fn i2t_current_limit_ma(&self) -> u32 {
+        self.i2t_current_limit_ma
     }
 
     /// Standstill timeout 0x30E0:03 and the brake delays 0x3158 (only with a brake output configured).

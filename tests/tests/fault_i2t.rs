@@ -1,0 +1,35 @@
+//! Motor I2t on the reference plant (thermal time constant 0x3001:04 = 20 s, nominal current 3.2 A): a locked
+//! rotor driven at twice the nominal current in CST reaches the I2t limit after the model's time, the drive then
+//! holds the current at the nominal current and shows the warning (statusword bit 7, 0x3200:01 at 100 %), and the
+//! CiA 402 state stays «Operation enabled» (a warning, not a fault).
+
+use firmware::cia402::State;
+use firmware::od::generated::handles as h;
+use hal_sim::sim::motion::prepare_motion;
+
+/// First-order thermal model of the seeds (`firmware::fault::i2t`): from cold, at k times the nominal current,
+/// the limit comes after tau ln(k^2 / (k^2 - 1)). Tolerance 2 % (the issue's): the drive integrates the measured
+/// q current (ADC noise, the current loop's settling) at 2.5 kHz.
+#[test]
+fn i2t_limits_a_locked_rotor_to_the_nominal_current() {
+    let mut sim = prepare_motion(1, 10).expect("enabled in CST");
+    sim.plant.lock_rotor(true);
+    // The model starts cold here: commissioning ran at 0.5 A, which decayed during the enable sequence.
+    let level0 = f64::from(sim.drive.dictionary().get(h::I2T_LEVEL_MOTOR));
+    assert!(level0 <= 1.0, "cold start: {level0} %");
+    sim.drive.dictionary_mut().set(h::TARGET_TORQUE, 2000); // 2 x 3.2 A
+    let t0 = sim.time_s();
+    let reached = sim.run_until(25_000 * 10, |s| s.statusword() & (1 << 7) != 0).expect("the I2t warning comes");
+    let t = reached as f64 * 40e-6;
+    let expected = 20.0 * (4.0_f64 / 3.0).ln();
+    println!("I2t limit after {t:.3} s, model {expected:.3} s");
+    assert!((t - expected).abs() <= 0.02 * expected, "limit after {t:.3} s, model {expected:.3} s");
+    assert!((sim.time_s() - t0 - t).abs() < 1e-6);
+    // Held at the nominal current from then on, still enabled.
+    sim.run(25_000);
+    let iq = sim.plant.state().i_dq_a[1];
+    assert!((iq - 3.2).abs() < 0.1, "held at the nominal current: {iq} A");
+    assert_eq!(sim.cia402_state(), State::OperationEnabled);
+    assert_eq!(sim.drive.dictionary().get(h::I2T_LEVEL_MOTOR), 100);
+    assert_eq!(sim.drive.dictionary().get(h::ERROR_CODE), 0, "a warning is not a fault");
+}
