@@ -18,13 +18,11 @@ fn i2t_limits_a_locked_rotor_to_the_nominal_current() {
     let level0 = f64::from(sim.drive.dictionary().get(h::I2T_LEVEL_MOTOR));
     assert!(level0 <= 1.0, "cold start: {level0} %");
     sim.drive.dictionary_mut().set(h::TARGET_TORQUE, 2000); // 2 x 3.2 A
-    let t0 = sim.time_s();
     let reached = sim.run_until(25_000 * 10, |s| s.statusword() & (1 << 7) != 0).expect("the I2t warning comes");
     let t = reached as f64 * 40e-6;
     let expected = 20.0 * (4.0_f64 / 3.0).ln();
     println!("I2t limit after {t:.3} s, model {expected:.3} s");
     assert!((t - expected).abs() <= 0.02 * expected, "limit after {t:.3} s, model {expected:.3} s");
-    assert!((sim.time_s() - t0 - t).abs() < 1e-6);
     // Held at the nominal current from then on, still enabled.
     sim.run(25_000);
     let iq = sim.plant.state().i_dq_a[1];

@@ -28,16 +28,15 @@ fn fault_reset(sim: &mut Simulation) {
 }
 
 /// Over-voltage: the supply rises to 58 V (a wrong supply). The outputs go off in the period whose sample first
-/// reads more than 56 V (the check is on the same sample; the tolerance of 0.1 V is the bus ADC's resolution),
-/// 0x603F = 0x3210, and the reset is refused until the bus is back under 52 V.
+/// reads more than 56 V (the check is on the same sample; the 0.1 V tolerance covers the bus ADC's 14.6 mV steps
+/// and its noise), 0x603F = 0x3210, and the reset is refused until the bus is back under 52 V.
 #[test]
 fn bus_over_voltage_trips_at_once() {
     let mut sim = prepare_motion(1, 8).expect("enabled");
     sim.plant.set_source_voltage(58.0);
-    let off = periods_until_off(&mut sim, 25_000).expect("trips");
+    periods_until_off(&mut sim, 25_000).expect("trips");
     let seen_mv = f64::from(BUS_OVER_VOLTAGE_MV) / 1000.0;
     let measured = sim.drive.signals().v_bus.to_millivolts();
-    assert!(off > 0);
     // The sample that tripped was the first one above the limit: the plant's bus at the sample is above it and
     // one period earlier it was not (the drive would have tripped then).
     assert!(f64::from(measured) / 1000.0 > seen_mv - 0.1, "tripped at {measured} mV");

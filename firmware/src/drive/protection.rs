@@ -105,12 +105,6 @@ impl Limits {
         }
     }
 
-    /// The bus checks: over-voltage always, under-voltage while `switching`.
-    #[must_use]
-    pub fn check_bus(&self, v_bus: Volts, switching: bool) -> Option<Trip> {
-        self.bus_outside(v_bus, switching).then(|| self.bus_trip(v_bus))
-    }
-
     /// Whether a phase current or their sum is outside its limit: the hot path, one add and one unsigned compare
     /// per value (`x + l` as unsigned exceeds `2 l` exactly when `|x| > l`); [`Self::current_trip`] says which.
     #[inline(always)]
@@ -139,12 +133,6 @@ impl Limits {
             Trip::PhaseSum
         }
     }
-
-    /// The phase-current checks of a running current loop.
-    #[must_use]
-    pub fn check_currents(&self, i: &Abc<Amps>) -> Option<Trip> {
-        self.currents_outside(i).then(|| self.current_trip(i))
-    }
 }
 
 impl Default for Limits {
@@ -172,6 +160,17 @@ mod tests {
 
     fn amps(ma: i32) -> Amps {
         Amps::from_milliamps(ma)
+    }
+
+    /// The bus checks as tier 1 runs them: the hot test, then which limit.
+    impl Limits {
+        fn check_bus(&self, v_bus: Volts, switching: bool) -> Option<Trip> {
+            self.bus_outside(v_bus, switching).then(|| self.bus_trip(v_bus))
+        }
+
+        fn check_currents(&self, i: &Abc<Amps>) -> Option<Trip> {
+            self.currents_outside(i).then(|| self.current_trip(i))
+        }
     }
 
     #[test]

@@ -496,13 +496,6 @@ impl Axis {
     ) -> (Option<ModeStep>, i32) {
         // Bit 11 is recomputed every step: the mode (target clamped, speed limited) and the loops set it.
         self.internal_limit = false;
-        let hold_or_continue = |gen: &mut ProfileGenerator, activity: Activity, last: &Setpoint| {
-            if activity == Activity::Idle {
-                gen.reset(i64::from(fb.position));
-            } else if !uses_generator(activity) {
-                gen.reset_moving(last.position, last.velocity);
-            }
-        };
         match motion {
             Motion::Disabled => {
                 self.activity = Activity::Idle;
@@ -513,7 +506,7 @@ impl Axis {
             }
             Motion::Hold => {
                 if self.activity != Activity::Holding {
-                    hold_or_continue(&mut self.generator, self.activity, &self.last_setpoint);
+                    self.take_over_generator(fb.position);
                     if self.activity != Activity::Idle {
                         let hold = self.generator.setpoint().position;
                         self.generator.reset(hold);
@@ -556,13 +549,21 @@ impl Axis {
         }
     }
 
-    /// Starts a stop ramp from the present demand; `true` when it runs on the current limit instead.
-    fn begin_stop(&mut self, stop: Stop, fb: &AxisFeedback) -> bool {
+    /// Makes the shared trajectory generator continue from the present demand before a new activity uses it: at
+    /// the actual `position` when the drive function was off, from the last demand (position and velocity) when
+    /// the loops followed something else (a cyclic mode, a current-limit stop); untouched when it already drove
+    /// the demand.
+    fn take_over_generator(&mut self, position: i32) {
         if self.activity == Activity::Idle {
-            self.generator.reset(i64::from(fb.position));
+            self.generator.reset(i64::from(position));
         } else if !uses_generator(self.activity) {
             self.generator.reset_moving(self.last_setpoint.position, self.last_setpoint.velocity);
         }
+    }
+
+    /// Starts a stop ramp from the present demand; `true` when it runs on the current limit instead.
+    fn begin_stop(&mut self, stop: Stop, fb: &AxisFeedback) -> bool {
+        self.take_over_generator(fb.position);
         let shaped = stop.then == StopThen::StayEnabled;
         let deceleration = match stop.ramp {
             StopRamp::SlowDown => match self.activity {
@@ -673,11 +674,7 @@ impl Axis {
     /// demand, or start at the actual position when the drive function was off.
     fn enter(&mut self, mode: Mode, cw: Controlword, fb: &AxisFeedback) {
         let from_rest = matches!(self.activity, Activity::Idle);
-        if from_rest {
-            self.generator.reset(i64::from(fb.position));
-        } else if !uses_generator(self.activity) {
-            self.generator.reset_moving(self.last_setpoint.position, self.last_setpoint.velocity);
-        }
+        self.take_over_generator(fb.position);
         let start = self.generator.setpoint();
         match mode {
             Mode::ProfilePosition => self.ppm.enter(cw, &mut self.generator, fb),
