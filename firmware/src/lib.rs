@@ -30,3 +30,4 @@ pub mod motion;
 pub mod od;
 #[cfg(target_os = "none")]
 pub mod rt;
+pub mod supervision;

@@ -31,3 +31,28 @@ fn i2t_limits_a_locked_rotor_to_the_nominal_current() {
     assert_eq!(sim.drive.dictionary().get(h::I2T_LEVEL_MOTOR), 100);
     assert_eq!(sim.drive.dictionary().get(h::ERROR_CODE), 0, "a warning is not a fault");
 }
+
+/// At three times the nominal current the limit comes after tau ln(9/8) = 2.356 s (tolerance 2 %, as above);
+/// then, at zero current, the level falls as x0 e^(-t/tau): after 10 s from 100 % to 60.7 %. Tolerance: 2 % of
+/// the value plus the 1 % resolution of 0x3200:01 (an integer percent).
+#[test]
+fn i2t_at_three_times_nominal_and_the_cool_down_follow_the_model() {
+    let mut sim = prepare_motion(2, 10).expect("enabled in CST");
+    sim.plant.lock_rotor(true);
+    sim.drive.dictionary_mut().set(h::TARGET_TORQUE, 3000); // 3 x 3.2 A = 9.6 A, below the 10 A output limit
+    let reached = sim.run_until(25_000 * 5, |s| s.statusword() & (1 << 7) != 0).expect("the I2t warning comes");
+    let t = reached as f64 * 40e-6;
+    let expected = 20.0 * (9.0_f64 / 8.0).ln();
+    println!("I2t limit at 3 x nominal after {t:.3} s, model {expected:.3} s");
+    assert!((t - expected).abs() <= 0.02 * expected, "limit after {t:.3} s, model {expected:.3} s");
+    // Cool down from the limit with no current.
+    sim.drive.dictionary_mut().set(h::TARGET_TORQUE, 0);
+    let start = f64::from(sim.drive.dictionary().get(h::I2T_LEVEL_MOTOR));
+    sim.run(25_000 * 10);
+    let level = f64::from(sim.drive.dictionary().get(h::I2T_LEVEL_MOTOR));
+    let model = start * (-10.0_f64 / 20.0).exp();
+    println!("I2t level after 10 s at zero current: {level} %, model {model:.1} % (from {start} %)");
+    assert!((level - model).abs() <= 0.02 * model + 1.0, "cooled to {level} %, model {model:.1} %");
+    assert_eq!(sim.statusword() & (1 << 7), 0, "the warning has gone below 95 %");
+    assert_eq!(sim.cia402_state(), State::OperationEnabled);
+}

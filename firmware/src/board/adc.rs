@@ -5,8 +5,13 @@
 //! | converter | rank 1 (JDR1)        | rank 2 (JDR2)                 |
 //! |-----------|----------------------|-------------------------------|
 //! | ADC1      | phase A, PC0 (IN10)  | DC-bus voltage, PC3 (IN13)    |
-//! | ADC2      | phase B, PC1 (IN11)  | temperature, PC4 (IN14)       |
-//! | ADC3      | phase C, PC2 (IN12)  | phase C again (unused)        |
+//! | ADC2      | phase B, PC1 (IN11)  | power-stage temp., PC4 (IN14) |
+//! | ADC3      | phase C, PC2 (IN12)  | motor temperature, PA3 (IN3)  |
+//!
+//! Both temperatures are linear sensors (0.5 V at 0 degC, 10 mV/K; `crate::drive::scaling::temperature_ddegc`).
+//! The motor's comes through the motor cable on PA3 (ADC123_IN3, free in the pin map of `super`), with a
+//! pull-down on the board so that a missing sensor reads code 0 (tier 2 takes a code at a rail as "no sensor
+//! connected", IDX L5476).
 //!
 //! ADCCLK = APB2 84 MHz / 4 = 21 MHz; 15-cycle sampling (0.71 us, inside the low-side conduction window of
 //! `target-qemu.md`'s budget section) + 12 cycles = 1.29 us per rank. With JL = 1 the sequencer converts JSQ3
@@ -29,6 +34,9 @@ const SR_JEOC: u32 = 1 << 2;
 /// JSTRT flag in SR.
 const SR_JSTRT: u32 = 1 << 3;
 
+/// ADC3's input for the motor temperature sensor: ADC123_IN3 on PA3.
+const MOTOR_TEMPERATURE_CHANNEL: u32 = 3;
+
 /// JSQR for two injected conversions (JL = 1): `first` in JSQ3 [14:10], `second` in JSQ4 [19:15].
 const fn jsqr(first: u32, second: u32) -> u32 {
     (1 << 20) | (first << 10) | (second << 15)
@@ -39,10 +47,13 @@ const fn jsqr(first: u32, second: u32) -> u32 {
 pub fn init() {
     // ADCPRE [17:16] = 01 (PCLK2 / 4), MULTI [4:0] = 10101 (triple, injected simultaneous only).
     ADC_CCR.write((0b01 << 16) | 0b10101);
-    // 15-cycle sampling (SMP = 001) on channels 10..14 (3 bits each from channel 10 at bit 0).
+    // 15-cycle sampling (SMP = 001) on channels 10..14 (SMPR1, 3 bits each from channel 10 at bit 0) and on
+    // channel 3 (SMPR2 [11:9]): the same sample time on every rank keeps the three sequences simultaneous.
     let smp = (0..5u32).fold(0, |acc, ch| acc | (0b001 << ch.wrapping_mul(3)));
-    for (adc, seq) in [(ADC1, jsqr(10, 13)), (ADC2, jsqr(11, 14)), (ADC3, jsqr(12, 12))] {
+    let smp_in3 = 0b001 << 9;
+    for (adc, seq) in [(ADC1, jsqr(10, 13)), (ADC2, jsqr(11, 14)), (ADC3, jsqr(12, MOTOR_TEMPERATURE_CHANNEL))] {
         adc.smpr1().write(smp);
+        adc.smpr2().write(smp_in3);
         adc.jsqr().write(seq);
         // SCAN (bit 8), 12-bit resolution.
         adc.cr1().write(1 << 8);
@@ -62,6 +73,7 @@ pub fn read() -> AdcSamples {
         phase_currents: [ADC1.jdr(0).read() as u16, ADC2.jdr(0).read() as u16, ADC3.jdr(0).read() as u16],
         bus_voltage: ADC1.jdr(1).read() as u16,
         temperature: ADC2.jdr(1).read() as u16,
+        motor_temperature: ADC3.jdr(1).read() as u16,
     };
     ADC1.sr().write(!(SR_JEOC | SR_JSTRT));
     samples

@@ -2,7 +2,8 @@
 //! on plain inputs (RM0090 section 18.3.16 "Encoder interface mode").
 //!
 //! Pins: encoder A/B on PB6/PB7 (TIM4_CH1/CH2, AF2), index on PB8 (TIM4_CH3, AF2); Halls H1/H2/H3 on
-//! PC6/PC7/PC8 (inputs with pull-ups); digital inputs 1..4 on PC0..PC3 (inputs, levels as wired).
+//! PC6/PC7/PC8 (inputs with pull-ups); digital inputs 1..4 on PC9..PC12 (inputs with pull-ups, levels as wired; PC0..PC4
+//! are the analog inputs of `super::adc`).
 //!
 //! TIM4 counts in encoder mode 3 (both edges of both channels: 4 counts per line) over the full 16 bits.
 //! Channel 3 is an input capture on the index's rising edge: the counter value at the index is latched in CCR3
@@ -19,8 +20,8 @@ const HALL_PORT: Gpio = Gpio(base::GPIOC);
 const HALL_SHIFT: u32 = 6;
 /// Port of the digital inputs 1..4.
 const INPUT_PORT: Gpio = Gpio(base::GPIOC);
-/// Bit of digital input 1 in the port's IDR (inputs 2..4 follow).
-const INPUT_SHIFT: u32 = 0;
+/// Bit of digital input 1 in the port's IDR (inputs 2..4 follow): PC9.
+const INPUT_SHIFT: u32 = 9;
 /// CC3IF in SR.
 const SR_CC3IF: u32 = 1 << 3;
 

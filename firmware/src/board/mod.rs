@@ -12,8 +12,10 @@
 //! | over-current break          | PB12 (AF1)             | TIM1 BKIN                      |
 //! | phase shunts A/B/C          | PC0, PC1, PC2 (analog) | ADC1/2/3 IN10/11/12 (injected) |
 //! | DC-bus voltage, temperature | PC3, PC4 (analog)      | ADC1 IN13, ADC2 IN14           |
+//! | motor temperature sensor    | PA3 (analog)           | ADC3 IN3                       |
 //! | encoder A/B, index          | PB6, PB7, PB8 (AF2)    | TIM4 CH1/CH2 (encoder), CH3    |
 //! | Halls H1/H2/H3              | PC6, PC7, PC8 (inputs) | GPIOC IDR                      |
+//! | digital inputs 1..4         | PC9..PC12 (inputs)     | GPIOC IDR                      |
 //!
 //! With the `qemu` feature (QEMU's `netduinoplus2`, which models neither the RCC nor these peripherals) [`init`]
 //! only starts the cost counter, and [`PowerStage`] is fed by a small built-in motor model (`plant`, present only in that build).
@@ -158,7 +160,9 @@ fn init_pins() {
     for n in 0..=4 {
         pin(c, n, Mode::Analog, 0);
     }
-    for n in [6, 7, 8] {
+    pin(a, 3, Mode::Analog, 0); // motor temperature sensor (ADC3 IN3); the pull-down is on the board
+                                // Halls, then the digital inputs 1..4.
+    for n in [6, 7, 8, 9, 10, 11, 12] {
         pin(c, n, Mode::Input, 0);
     }
 }

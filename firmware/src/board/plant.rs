@@ -127,6 +127,7 @@ impl Plant {
                 phase_currents: [adc(ia), adc(ib), adc(ic)],
                 bus_voltage: (BUS_V * ADC_COUNTS_PER_V) as u16,
                 temperature: 1200,
+                motor_temperature: 1200,
             },
             feedback: FeedbackSample {
                 encoder_count: self.count,

@@ -220,6 +220,10 @@ impl Adc {
     pub const fn smpr1(self) -> Reg {
         Reg::at(self.0, 0x0C)
     }
+    /// Sample time, channels 0..=9.
+    pub const fn smpr2(self) -> Reg {
+        Reg::at(self.0, 0x10)
+    }
     /// Injected sequence.
     pub const fn jsqr(self) -> Reg {
         Reg::at(self.0, 0x38)

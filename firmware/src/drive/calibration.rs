@@ -174,7 +174,7 @@ mod tests {
     use super::*;
 
     fn sample(codes: [u16; 3]) -> AdcSamples {
-        AdcSamples { phase_currents: codes, bus_voltage: 1638, temperature: 900 }
+        AdcSamples { phase_currents: codes, bus_voltage: 1638, temperature: 900, motor_temperature: 900 }
     }
 
     /// Runs a calibration on a fixed sequence generator; returns the final status and the ticks used.

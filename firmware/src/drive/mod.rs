@@ -40,10 +40,14 @@ use crate::control::angle::ElectricalAngle;
 use crate::control::current_loop::{foc_step, CurrentController, CurrentLoopConfig, FocInput};
 use crate::control::frames::{Abc, Amps, Dq, Volts};
 use crate::control::pi::PiGains;
+use crate::fault::emcy::InhibitTime;
+use crate::fault::table::FaultId;
 use crate::hal::power::{FeedbackSample, Measurements, PwmCommand, SLOW_TICK_DIVIDER};
 use crate::motion::axis::{Axis, AxisInputs, AxisOutputs, CurrentDemand};
 use crate::od::access::Dictionary;
 use crate::od::generated::handles as h;
+use crate::supervision::communication::LinkLoss;
+use crate::supervision::{Supervision, SupervisionInputs};
 
 use calibration::{Calibration, CalibrationConfig, CalibrationError, CalibrationStatus, CALIBRATION_COMMAND};
 use commutation::{
@@ -65,6 +69,12 @@ pub enum DriveError {
     Commutation(CommutationError),
     /// A tier-1 protection tripped.
     Protection(Trip),
+    /// The current loop did not finish within its period; the runtime measured `cost` (its counter's units:
+    /// cycles on the board, instructions under QEMU) against its budget.
+    Overrun {
+        /// The overrunning tick's cost.
+        cost: u32,
+    },
 }
 
 /// Why a power-stage request was refused.
@@ -156,6 +166,18 @@ pub struct FastSignals {
     pub torque_demand_permille: i16,
     /// Hall state after inversion (0x301A:02).
     pub hall: u8,
+    /// Raw power-stage and motor temperature samples (for tier 2's thermal supervision).
+    pub temperature_codes: [u16; 2],
+}
+
+/// Raw motor data and limits (0x3001:01/:02/:05, 0x6073, 0x6072) last converted into the demand scale.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct MotorSource {
+    nominal_ma: u32,
+    output_limit_ma: u32,
+    max_current_permille: u16,
+    max_torque_permille: u16,
+    torque_constant: u32,
 }
 
 /// Raw 0x30A0 values last converted into gains.
@@ -208,9 +230,17 @@ pub struct Drive {
     last_power_request: crate::cia402::PowerStage,
     /// Output pin levels from tier 2.
     output_pins: u8,
-    /// Tier 2: the CiA 402 machine, the modes, the loops and the supervision.
+    /// Tier 2: the CiA 402 machine, the modes, the loops and the motion supervision.
     axis: Axis,
     dictionary: Dictionary,
+    // Tier 2's background step only, after the dictionary: the slow tick reaches the dictionary and the axis
+    // with short offsets from the drive's base (measured: 3,976 -> 4,044 instructions with these in between).
+    /// The hardware detectors (temperatures, position sensors, stall, phases).
+    supervision: Supervision,
+    /// The thermal derating's current limit.
+    thermal_limit: Amps,
+    /// The motor data the demand scale was converted from (`None`: not yet).
+    motor_source: Option<MotorSource>,
 }
 
 impl Drive {
@@ -242,6 +272,7 @@ impl Drive {
             hall_mask: 0,
             controller: CurrentController::new(CurrentLoopConfig::from_idx_0x30a0(gain_source.p, gain_source.i)),
             gain_source,
+            motor_source: None,
             scale: DemandScale::reference(),
             base_scale: DemandScale::reference(),
             i2t_limit: Amps::from_bits(i32::MAX),
@@ -253,6 +284,8 @@ impl Drive {
             v_bus_average: 0,
             latches: PinLatches::default(),
             axis: Axis::new(&dictionary),
+            supervision: Supervision::new(&dictionary),
+            thermal_limit: Amps::from_bits(i32::MAX),
             last_power_request: crate::cia402::PowerStage::OFF,
             output_pins: 0,
             encoder_present: true,
@@ -300,6 +333,7 @@ impl Drive {
         }
         self.signals.v_bus = v_bus;
         self.signals.hall = feedback.hall;
+        self.signals.temperature_codes = [m.adc.temperature, m.adc.motor_temperature];
         let angle = match self.commutation.update(&feedback) {
             Ok(a) => a,
             Err(e) => return self.trip(DriveError::Commutation(e)),
@@ -432,13 +466,127 @@ impl Drive {
         self.refresh_parameters();
         self.publish_actual_values();
         self.axis.refresh(&mut self.dictionary);
-        // The I2t protection's current limit (applied one slow tick after the model decided it: far inside the
-        // winding's thermal time constant).
-        let i2t_limit = Amps::from_milliamps(i32::try_from(self.axis.i2t_current_limit_ma()).unwrap_or(i32::MAX));
-        if i2t_limit != self.i2t_limit {
-            self.i2t_limit = i2t_limit;
-            self.scale = self.base_scale.limited_to(i2t_limit);
+        // 0x1015 EMCY inhibit time (CiA 301), taken over when it changes.
+        let inhibit = InhibitTime(self.dictionary.get(h::INHIBIT_TIME_EMCY));
+        if inhibit != self.axis.faults().emcy().inhibit_time() {
+            self.axis.faults_mut().emcy_mut().set_inhibit_time(inhibit);
         }
+        self.supervision.refresh(&self.dictionary);
+        let inputs = self.supervision_inputs();
+        let supervised = self.supervision.step(&inputs, self.axis.faults_mut(), &mut self.dictionary);
+        // The I2t protection's and the thermal derating's current limits (applied one slow tick after the models
+        // decided them: far inside the winding's and the heat sink's thermal time constants).
+        let i2t_limit = Amps::from_milliamps(i32::try_from(self.axis.i2t_current_limit_ma()).unwrap_or(i32::MAX));
+        if i2t_limit != self.i2t_limit || supervised.current_limit != self.thermal_limit {
+            self.i2t_limit = i2t_limit;
+            self.thermal_limit = supervised.current_limit;
+            self.scale = self.base_scale.limited_to(i2t_limit).limited_to(self.thermal_limit);
+        }
+    }
+
+    /// What the supervision reads: the last fast tick's measurements and the axis's state.
+    fn supervision_inputs(&self) -> SupervisionInputs {
+        let s = &self.signals;
+        let encoder = self.commutation.encoder();
+        SupervisionInputs {
+            now: self.axis.now(),
+            state: self.axis.state(),
+            operation_enabled: self.state == PowerState::OperationEnabled,
+            power: self.state,
+            loops_drive_motor: self.state == PowerState::OperationEnabled && self.source == DemandSource::Internal,
+            power_stage_temperature_code: s.temperature_codes[0],
+            motor_temperature_code: s.temperature_codes[1],
+            hall: s.hall,
+            halls_present: self.commutation.method() == CommutationMethod::Hall,
+            encoder_present: self.encoder_present,
+            encoder_has_index: encoder.config().has_index,
+            encoder_position: encoder.position(),
+            encoder_counts_per_turn: encoder.config().counts_per_rev,
+            pole_pairs: encoder.config().pole_pairs,
+            // The latch counts every index pulse (the commutation only those while it runs): the same source as
+            // `index_position`, so the feedback supervision sees the pulses in every state.
+            index_pulses: u32::from(self.latches.index.count),
+            index_position: self.latches.index.position,
+            electrical_angle: self.commutation.angle(),
+            hall_offset: self.commutation.hall_offset(),
+            commutation: self.commutation.stage(),
+            i_abc: s.i_abc,
+            i_dq: s.i_dq,
+            i_ref: s.i_ref,
+            v_dq: s.v_dq,
+            saturated: s.saturated,
+            v_bus: s.v_bus,
+            // Before the thermal derating: the derating is relative to it and must not see its own output.
+            current_limit: self.base_scale.limited_to(self.i2t_limit).current_limit(),
+            velocity: self.axis.velocity(),
+            velocity_rpm: self.dictionary.get(h::VELOCITY_ACTUAL_VALUE),
+        }
+    }
+
+    /// The runtime measured a fast tick over its budget (the 40 us period cannot be kept): the power stage goes
+    /// off now, as for any tier-1 trip (issue 5: "PWM/current-loop overrun" in tier 1), and the axis reports
+    /// 0xFF0B with `cost` as its detail.
+    #[cold]
+    pub fn current_loop_overrun(&mut self, cost: u32) -> PwmCommand {
+        self.trip(DriveError::Overrun { cost })
+    }
+
+    /// The runtime found `missed` slow ticks that could not run because the previous one had not finished: the
+    /// velocity and position loops lost their period, so the drive reports 0xFF0B (IDX L7500 "not enough
+    /// resources for proper regulation"; detail = minus the ticks missed, to tell it from a current-loop overrun)
+    /// and reacts as the table says.
+    pub fn motion_loop_overrun(&mut self, missed: u32) {
+        let detail = i32::try_from(missed).unwrap_or(i32::MAX).wrapping_neg();
+        self.raise(FaultId::CurrentLoopOverrun, detail);
+    }
+
+    /// A firmware invariant did not hold (0x6180, IDX L7236); `detail` says which (documented where it is
+    /// raised). The power stage goes off as the table's class "d" says.
+    pub fn internal_error(&mut self, detail: i32) {
+        self.raise(FaultId::InternalSoftware, detail);
+    }
+
+    /// A fieldbus layer lost its link (heartbeat, RxPDO/SYNC timeout, EtherCAT watchdog, wrong lengths): the
+    /// communication fault of the table, with the reaction 0x6007 selects ([`crate::supervision::communication`]).
+    pub fn communication_lost(&mut self, loss: LinkLoss) {
+        self.raise(loss.fault(), loss.detail());
+    }
+
+    /// The link of an earlier [`Self::communication_lost`] is back: the fault's cause has gone, so a fault reset is
+    /// accepted from now on (the fault itself stays until then).
+    pub fn communication_restored(&mut self, loss: LinkLoss) {
+        self.axis.faults_mut().clear_cause(loss.fault());
+    }
+
+    /// The next EMCY frame to send (CiA 301, 8 bytes; [`crate::fault::emcy`]), respecting the inhibit time
+    /// 0x1015. The fieldbus layers call it from tier 3 and send it on their bus (CANopen: COB-ID 0x1014; CoE:
+    /// a mailbox emergency).
+    pub fn poll_emcy(&mut self) -> Option<[u8; 8]> {
+        let now = self.axis.now();
+        self.axis.faults_mut().poll_emcy(now)
+    }
+
+    /// Raises a fault found while booting (the parameter store), with `detail`.
+    pub(crate) fn raise_boot_fault(&mut self, id: FaultId, detail: i32) {
+        self.raise(id, detail);
+    }
+
+    /// Raises `id` with a snapshot of what the drive measures now. A fault of class "d" raised from outside the
+    /// tiers' own steps (the runtime, a fieldbus layer) switches the outputs off here and now, not at the next slow
+    /// tick: the class means "a secure movement is no longer possible" (IDX L7030).
+    fn raise(&mut self, id: FaultId, detail: i32) {
+        let snapshot = self.supervision_inputs().snapshot(detail);
+        let now = self.axis.now();
+        self.axis.faults_mut().raise(id, snapshot, now);
+        if id.info().reaction == crate::fault::table::ReactionClass::DisablePowerImmediately {
+            self.shutdown();
+        }
+    }
+
+    /// The hardware detectors (temperatures, position sensors, stall, phases).
+    #[must_use]
+    pub const fn supervision(&self) -> &Supervision {
+        &self.supervision
     }
 
     /// The 2.5 kHz hook: updates the averages and runs the CiA 402 axis (state machine, modes, loops, monitoring)
@@ -456,6 +604,8 @@ impl Drive {
             Some(DriveError::Protection(t)) => {
                 protection::cause_present(t, self.last_break_input, self.signals.v_bus.to_millivolts())
             }
+            // Tier 1 keeps sampling the Halls in «Fault»: the invalid state persists while they still read it.
+            Some(DriveError::Commutation(_)) => commutation::HallSector::from_state(self.signals.hall).is_err(),
             _ => false,
         };
         let input = AxisInputs {
@@ -536,19 +686,29 @@ impl Drive {
             let g = PiGains::from_idx_0x30a0(gains.p, gains.i);
             self.controller.set_gains(g, g);
         }
-        let nominal = d.get(h::MOTOR_NOMINAL_CURRENT);
-        self.limits = Limits::new(d.get(h::MOTOR_OUTPUT_CURRENT_LIMIT));
-        let scale = DemandScale::from_od(
-            nominal,
-            d.get(h::MOTOR_OUTPUT_CURRENT_LIMIT),
-            d.get(h::MAX_CURRENT),
-            d.get(h::MAX_TORQUE),
-        );
+        let motor = MotorSource {
+            nominal_ma: d.get(h::MOTOR_NOMINAL_CURRENT),
+            output_limit_ma: d.get(h::MOTOR_OUTPUT_CURRENT_LIMIT),
+            max_current_permille: d.get(h::MAX_CURRENT),
+            max_torque_permille: d.get(h::MAX_TORQUE),
+            torque_constant: d.get(h::MOTOR_TORQUE_CONSTANT),
+        };
+        // The conversion divides in 64 bits: only when a value changed (tier 2 runs this every slow tick).
+        if self.motor_source == Some(motor) {
+            return;
+        }
+        self.motor_source = Some(motor);
+        let nominal = motor.nominal_ma;
+        self.limits = Limits::new(motor.output_limit_ma);
+        let scale =
+            DemandScale::from_od(nominal, motor.output_limit_ma, motor.max_current_permille, motor.max_torque_permille);
         self.base_scale = scale;
-        self.scale = scale.limited_to(self.i2t_limit);
+        // Both protections' limits stay in force across the re-read (the thermal derating's would otherwise hold
+        // only in the slow tick it changed).
+        self.scale = scale.limited_to(self.i2t_limit).limited_to(self.thermal_limit);
         // 0x6075 and 0x6076 are read-only copies derived from 0x3001 (single writer: the drive).
         d.set(h::MOTOR_RATED_CURRENT, nominal);
-        d.set(h::MOTOR_RATED_TORQUE, rated_torque_micro_nm(nominal, d.get(h::MOTOR_TORQUE_CONSTANT)));
+        d.set(h::MOTOR_RATED_TORQUE, rated_torque_micro_nm(nominal, motor.torque_constant));
     }
 
     /// Updates the 50 Hz averages of the q current and the bus voltage (0x30D1:01, 0x30D2:01, homing -1..-4).

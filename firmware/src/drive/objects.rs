@@ -162,7 +162,18 @@ impl Drive {
     #[must_use]
     pub fn boot<F: NorFlash>(config: DriveConfig, store: &mut ParamStore<F>) -> (Self, BootReport) {
         let (dictionary, report) = boot_dictionary(config.node_id, store);
-        (Self::with_dictionary(DriveConfig { node_id: report.node_id, ..config }, dictionary), report)
+        let mut drive = Self::with_dictionary(DriveConfig { node_id: report.node_id, ..config }, dictionary);
+        // Defaults loaded because the stored record was unreadable: the drive must not run on parameters the user
+        // did not set without saying so (IDX L7252 0x6380; an erased store is a new device, not an error).
+        let detail = match report.source {
+            ParameterSource::Invalid => Some(0),
+            ParameterSource::Failed(_) => Some(1),
+            ParameterSource::Stored | ParameterSource::Empty => None,
+        };
+        if let Some(detail) = detail {
+            drive.raise_boot_fault(crate::fault::table::FaultId::ParameterStoreCorrupt, detail);
+        }
+        (drive, report)
     }
 
     /// Whether the power stage is switched on (CiA 402 "Switched on", "Operation enabled" and the calibration

@@ -165,7 +165,7 @@ pub enum FaultId {
     DcBusUnderVoltage = 6,
     /// Warning: the motor I2t model has reached its limit; the current is limited to the nominal current.
     MotorI2tLimit = 7,
-    /// The motor thermal model (I2t) went beyond its trip level.
+    /// The motor temperature sensor reads above 0x3201:04 (125 degC), or no sensor is connected (IDX L5476-L5486).
     MotorThermalOverload = 8,
     /// Warning: the power stage is close to its temperature limit.
     PowerStageTemperatureHigh = 9,
@@ -208,10 +208,12 @@ pub enum FaultId {
     InternalSoftware = 27,
     /// Warning: the EMCY queue overflowed and messages were lost (reported by the EMCY producer itself).
     EmcyOverflow = 28,
+    /// A motor phase carries no current while the others do (a broken motor lead or winding).
+    MotorPhaseOpen = 29,
 }
 
 /// Number of rows in [`FAULT_TABLE`].
-pub const FAULT_COUNT: usize = 29;
+pub const FAULT_COUNT: usize = 30;
 
 /// One row of the fault table.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -270,6 +272,7 @@ impl FaultId {
         Self::ParameterStoreCorrupt,
         Self::InternalSoftware,
         Self::EmcyOverflow,
+        Self::MotorPhaseOpen,
     ];
 
     /// The stable fault number (the table row; EMCY manufacturer byte 3).
@@ -417,7 +420,7 @@ pub static FAULT_TABLE: [FaultInfo; FAULT_COUNT] = [
         REG_GENERIC | REG_VOLTAGE,
         D,
         Level,
-        Tier::Supervision,
+        Tier::CurrentLoop,
         S::BusVoltage,
         "DC bus under-voltage",
         "IDX L7048, L7164",
@@ -438,7 +441,7 @@ pub static FAULT_TABLE: [FaultInfo; FAULT_COUNT] = [
         D,
         Level,
         Tier::Supervision,
-        S::MotorI2tLevel,
+        S::Detail,
         "Motor thermal overload",
         "IDX L7050, L7180, L5476",
     ),
@@ -657,5 +660,16 @@ pub static FAULT_TABLE: [FaultInfo; FAULT_COUNT] = [
         S::Detail,
         "EMCY queue overflow",
         "manufacturer code; CiA 301 0x8110 is the CAN controller's overrun (IDX L7071), not this queue",
+    ),
+    row(
+        FaultId::MotorPhaseOpen,
+        0x7120,
+        REG_GENERIC | REG_CURRENT,
+        D,
+        Event,
+        Tier::Supervision,
+        S::Detail,
+        "Motor phase open",
+        "[BG] CiA 402 0x7120 motor; no IDX code (IDX L7138-L7152 name winding faults only as over-current causes)",
     ),
 ];

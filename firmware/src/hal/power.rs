@@ -25,6 +25,8 @@ pub struct AdcSamples {
     pub bus_voltage: u16,
     /// Power-stage temperature sensor (12-bit).
     pub temperature: u16,
+    /// Motor winding temperature sensor (12-bit, the same linear sensor type as the power stage's).
+    pub motor_temperature: u16,
 }
 
 /// Position sensors read in the same interrupt.

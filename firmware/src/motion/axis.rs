@@ -114,17 +114,17 @@ enum Activity {
 
 /// The axis. See the module documentation.
 #[derive(Clone, Debug)]
+// `repr(C)` with what every slow tick touches first and the large, rarely reached state (the fault manager's
+// slots, the homing and profile modes, the I2t model) last: the step reaches its fields with short offsets
+// (measured in the QEMU image).
+#[repr(C)]
 pub struct Axis {
     machine: StateMachine,
-    faults: FaultManager,
     params: MotionParams,
     loops: Loops,
     monitor: Monitor,
     io: Io,
     generator: ProfileGenerator,
-    ppm: ProfilePosition,
-    pvm: ProfileVelocity,
-    homing: Homing,
     cyclic: Cyclic,
     now: Ticks,
     /// Position actual value minus encoder position (set by homing).
@@ -144,6 +144,10 @@ pub struct Axis {
     /// The negative and positive limit switch were active while driving in the last step (so that only a new
     /// contact, or motion further into the switch, is an error).
     limit_seen: [bool; 2],
+    faults: FaultManager,
+    homing: Homing,
+    ppm: ProfilePosition,
+    pvm: ProfileVelocity,
     /// Motor I2t (0x3200:01), with its configuration from 0x3001 and the raw values it was built from.
     i2t: MotorI2t,
     i2t_config: I2tConfig,
@@ -444,7 +448,7 @@ impl Axis {
                 let id = drive_fault_id(e);
                 if !self.drive_fault_seen {
                     self.drive_fault_seen = true;
-                    self.faults.raise(id, snapshot(0), self.now);
+                    self.faults.raise(id, snapshot(drive_fault_detail(e)), self.now);
                 }
                 if !input.power_fault_present {
                     self.faults.clear_cause(id);
@@ -697,7 +701,7 @@ impl Axis {
         let mut clamped = false;
         match &mut demand {
             LoopDemand::Position(sp) if !homing => {
-                let (p, c) = self.monitor.clamp_position(sp.position_i32());
+                let (p, c) = self.monitor.clamp_position_from(sp.position_i32(), self.last_setpoint.position_i32());
                 if c {
                     sp.position = i64::from(p);
                     sp.velocity = Velocity::ZERO;
@@ -780,6 +784,16 @@ const fn drive_fault_id(e: DriveError) -> FaultId {
         DriveError::Protection(Trip::BusUnderVoltage) => FaultId::DcBusUnderVoltage,
         DriveError::Protection(Trip::OverCurrent) => FaultId::OverCurrent,
         DriveError::Protection(Trip::PhaseSum) => FaultId::PhaseCurrentImplausible,
+        DriveError::Overrun { .. } => FaultId::CurrentLoopOverrun,
+    }
+}
+
+/// The detail value of a power-stage trip's snapshot: the overrunning tick's cost, the invalid Hall state.
+fn drive_fault_detail(e: DriveError) -> i32 {
+    match e {
+        DriveError::Overrun { cost } => i32::try_from(cost).unwrap_or(i32::MAX),
+        DriveError::Commutation(crate::drive::commutation::CommutationError::InvalidHallState(h)) => i32::from(h),
+        DriveError::Calibration(_) | DriveError::Protection(_) => 0,
     }
 }
 

@@ -164,6 +164,31 @@ impl Monitor {
         }
     }
 
+    /// The position demand `position` held within the software position limits for an axis whose previous
+    /// demand was `previous`: a demand inside the limits passes, one beyond a limit stops at the limit if the
+    /// previous demand was inside, and stays at the previous demand if that was beyond the limit already (the
+    /// limits were changed, or the axis was moved past them while disabled). The demand never moves further out,
+    /// and it never jumps back to the limit either: a jump of the demand is a full-current rush of the position
+    /// loop (IDX L7476: the axis stops at the limit; moving back is the master's decision). The flag says whether
+    /// the demand lay beyond a limit.
+    #[must_use]
+    pub fn clamp_position_from(&self, position: i32, previous: i32) -> (i32, bool) {
+        match self.config.software_limits {
+            Some((min, max)) if min <= max => {
+                let p = if position > max {
+                    max.max(previous.min(position))
+                } else if position < min {
+                    min.min(previous.max(position))
+                } else {
+                    position
+                };
+                // Limited whenever the demand lies beyond a limit (statusword bit 11), also on the way back.
+                (p, position > max || position < min)
+            }
+            _ => (position, false),
+        }
+    }
+
     /// Whether `position` lies outside the software position limits.
     #[must_use]
     pub fn outside_limits(&self, position: i32) -> bool {
@@ -218,6 +243,12 @@ mod tests {
         assert_eq!(m.clamp_position(6000), (5000, true));
         assert_eq!(m.clamp_position(-1001), (-1000, true));
         assert_eq!(m.clamp_position(0), (0, false));
+        // From inside: stops at the limit. From beyond the limit: holds, neither further out nor back to the limit.
+        assert_eq!(m.clamp_position_from(6000, 4990), (5000, true));
+        assert_eq!(m.clamp_position_from(9000, 8000), (8000, true));
+        assert_eq!(m.clamp_position_from(7000, 8000), (7000, true));
+        assert_eq!(m.clamp_position_from(-3000, -2000), (-2000, true));
+        assert_eq!(m.clamp_position_from(100, -2000), (100, false));
         assert!(m.outside_limits(5001));
     }
 

@@ -253,6 +253,7 @@ pub async fn bench() {
     plant::select(Shaft::Free);
     let csp = csp(&mut periods);
     let slow_max = tier2::SLOW_TICK_MAX.load(Ordering::Relaxed);
+    let background_max = tier2::BACKGROUND_MAX.load(Ordering::Relaxed);
     let csp_slow_ticks = tier2::SLOW_TICKS.load(Ordering::Relaxed);
 
     // «Disable voltage», then the speed profile on the direct power-stage path. Switch on: the offset calibration
@@ -290,6 +291,10 @@ pub async fn bench() {
     print(format_args!("insn.fast_tick_max={}\n", tier1::FAST_TICK_MAX.load(Ordering::Relaxed)));
     print(format_args!("source.slow_tick=drive::Drive::slow_tick (CSP, 0x60C2 = 1 ms)\n"));
     print(format_args!("insn.slow_tick_max={slow_max}\n"));
+    print(format_args!(
+        "source.background=drive::Drive::background (parameter conversion, hardware supervision, actual values; CSP)\n"
+    ));
+    print(format_args!("insn.background_max={background_max}\n"));
     print(format_args!("count.fast_ticks={fast}\ncount.slow_ticks={slow}\n"));
     print(format_args!("count.csp_slow_ticks={csp_slow_ticks}\ncount.csp_setpoints={}\n", csp.setpoints));
     print(format_args!("csp.following_error_peak_inc={}\n", csp.following_error_peak));

@@ -17,6 +17,7 @@
 //! | `tier2::SLOW_TICK`          | [`signal::TickSignal`]       | tier 1 (raise)    | tier-2 slow loop (wait) |
 //! | `tier2::SLOW_TICKS`         | `AtomicU32`                  | tier 2            | tier 3, QEMU bench      |
 //! | `tier2::SLOW_TICK_MAX`      | `AtomicU32`                  | tier 2            | tier 3, QEMU bench      |
+//! | `tier2::BACKGROUND_MAX`     | `AtomicU32`                  | tier 2            | QEMU bench              |
 //! | `tier2::SLOW_MISSED`        | `AtomicU32`                  | tier 2            | tier 3, QEMU bench      |
 //! | `tier3::TICK`               | [`signal::TickSignal`]       | tier 2 (raise)    | tier-3 supervisor       |
 //! | TIM1 registers (duties, MOE)| peripheral                   | tier 1; the panic/fault handlers force MOE off | - |

@@ -4,7 +4,8 @@
 //! raise tier 2 when the fast tick says a slow tick is due (every `SLOW_TICK_DIVIDER`-th period). No allocation,
 //! no logging, no locks, no panics.
 //! The fast tick's own cost is measured with the board's cost counter (cycles on the board, instructions under
-//! QEMU); the maximum is kept, and a tick over budget latches an overrun that tier 2 turns into a fault.
+//! QEMU); the maximum is kept, and a tick over budget trips the drive (outputs off at once, fault 0xFF0B) and
+//! latches [`OVERRUN`] for the diagnostics.
 
 use core::cell::UnsafeCell;
 use core::sync::atomic::{compiler_fence, AtomicBool, AtomicU32, Ordering};
@@ -75,13 +76,17 @@ pub unsafe extern "C" fn on_adc() {
     let tick = app::fast_tick(&measurements, &mut t.fast);
     compiler_fence(Ordering::SeqCst);
     let cost = counter::now().wrapping_sub(start).saturating_sub(t.overhead);
-    t.power.write(&tick.pwm);
+    // A tick over budget cannot keep the 40 us period: the drive trips (outputs off with this very write).
+    let pwm = if cost > FAST_TICK_BUDGET {
+        OVERRUN.store(true, Ordering::Relaxed);
+        t.fast.current_loop_overrun(cost)
+    } else {
+        tick.pwm
+    };
+    t.power.write(&pwm);
 
     if cost > FAST_TICK_MAX.load(Ordering::Relaxed) {
         FAST_TICK_MAX.store(cost, Ordering::Relaxed);
-    }
-    if cost > FAST_TICK_BUDGET {
-        OVERRUN.store(true, Ordering::Relaxed);
     }
     FAST_TICKS.store(FAST_TICKS.load(Ordering::Relaxed).wrapping_add(1), Ordering::Relaxed);
     if tick.slow_tick_due {

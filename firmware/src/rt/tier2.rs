@@ -16,6 +16,9 @@ pub static SLOW_TICK: TickSignal = TickSignal::new();
 pub static SLOW_TICKS: AtomicU32 = AtomicU32::new(0);
 /// Largest slow-tick cost seen, including the critical section around it (counter units). Writer: tier 2.
 pub static SLOW_TICK_MAX: AtomicU32 = AtomicU32::new(0);
+/// Largest cost of the background step (parameter conversion, hardware supervision, actual values) run before
+/// each slow tick, including its critical section (counter units). Writer: tier 2.
+pub static BACKGROUND_MAX: AtomicU32 = AtomicU32::new(0);
 /// Slow ticks missed because the previous one had not finished (tier 2 overrun). Writer: tier 2.
 pub static SLOW_MISSED: AtomicU32 = AtomicU32::new(0);
 
@@ -44,13 +47,22 @@ pub(crate) fn start() -> SendSpawner {
 /// The 2.5 kHz loop: waits for tier 1's tick, runs the slow tick, hands over to tier 3.
 #[embassy_executor::task]
 async fn slow_loop() {
-    let mut seen = 0;
+    // Ticks raised before this task first ran are not missed ones: start counting from now.
+    let mut seen = SLOW_TICK.raised();
     loop {
         let new = SLOW_TICK.wait(&mut seen).await;
         if new > 1 {
-            SLOW_MISSED.store(SLOW_MISSED.load(Ordering::Relaxed).wrapping_add(new.wrapping_sub(1)), Ordering::Relaxed);
+            let missed = new.wrapping_sub(1);
+            SLOW_MISSED.store(SLOW_MISSED.load(Ordering::Relaxed).wrapping_add(missed), Ordering::Relaxed);
+            // The loops lost their period: a fault (0xFF0B), not only a counter.
+            let _ = super::tier1::with_drive(|drive| drive.motion_loop_overrun(missed));
         }
+        let start = crate::board::counter::now();
         let _ = super::tier1::with_drive(app::background);
+        let cost = crate::board::counter::now().wrapping_sub(start);
+        if cost > BACKGROUND_MAX.load(Ordering::Relaxed) {
+            BACKGROUND_MAX.store(cost, Ordering::Relaxed);
+        }
         let start = crate::board::counter::now();
         let _ = super::tier1::with_drive(app::slow_tick);
         let cost = crate::board::counter::now().wrapping_sub(start);

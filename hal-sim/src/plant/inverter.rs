@@ -127,9 +127,90 @@ impl LegPattern {
     }
 }
 
+impl LegState {
+    /// The pole voltage (leg output to the negative rail) in this state, ignoring the switch resistance: the bus
+    /// voltage (high switch), 0 (low switch) or, in dead time, the rail of the body diode that carries
+    /// `leg_current` (positive out of the pole: the lower diode, `-v_diode`; negative: the upper one,
+    /// `v_bus + v_diode`); a leg in dead time without current is taken at mid-bus.
+    pub fn pole_voltage(self, leg_current: f64, v_bus: f64, v_diode: f64) -> f64 {
+        match self {
+            Self::High => v_bus,
+            Self::Low => 0.0,
+            Self::Off if leg_current > 0.0 => -v_diode,
+            Self::Off if leg_current < 0.0 => v_bus + v_diode,
+            Self::Off => 0.5 * v_bus,
+        }
+    }
+}
+
+/// Two inverter outputs shorted together through a resistance (`super::faults::PlantFaults::phase_short`): a
+/// cable or insulation fault between two motor leads, or a solder bridge on the board.
+///
+/// Model: a pure resistance `R` between the two poles, no inductance (a short is a few centimetres of conductor, its
+/// microhenries are negligible next to the motor's 165 uH). While the legs switch, their poles are stiff (switch
+/// on) or clamped by a body diode, so the short carries `(u_x - u_y) / (R + 2 R_switch)`: out of the pole at the
+/// higher voltage through its high switch, into the other through its low switch and its shunt. It does not
+/// change the motor currents (the poles are imposed by the switches), only what the legs, their shunts and the
+/// bus carry; the dead-time diodes stay chosen by the motor current alone (the short current, when both legs are
+/// in different states, is already through the switches). With the outputs off (all switches open) the short
+/// only connects two motor terminals through the diode bridge; that braking path is not modelled.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct OutputShort {
+    /// The shorted legs (0..=2, distinct).
+    legs: (usize, usize),
+    /// The short's resistance plus the two switches in its path, in ohm.
+    loop_ohm: f64,
+}
+
+impl OutputShort {
+    /// The short of the injected fault `(phase, phase, ohm)` with switches of `r_switch_ohm`; `None` without a fault,
+    /// for legs outside 0..=2 or equal, and for a resistance that is negative, not finite or leaves no loop
+    /// resistance at all.
+    pub fn new(fault: Option<(usize, usize, f64)>, r_switch_ohm: f64) -> Option<Self> {
+        let (x, y, ohm) = fault?;
+        let loop_ohm = ohm + 2.0 * r_switch_ohm;
+        (x < 3 && y < 3 && x != y && ohm >= 0.0 && loop_ohm > 0.0 && loop_ohm.is_finite())
+            .then_some(Self { legs: (x, y), loop_ohm })
+    }
+
+    /// The current each leg delivers into the short (out of its pole, in A) with the poles at `poles` (V): `+i` for
+    /// the first leg, `-i` for the second, 0 for the third.
+    pub fn leg_currents(&self, poles: [f64; 3]) -> [f64; 3] {
+        let (x, y) = self.legs;
+        let i = (poles[x] - poles[y]) / self.loop_ohm;
+        let mut out = [0.0; 3];
+        out[x] = i;
+        out[y] = -i;
+        out
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn output_short_carries_the_pole_difference() {
+        // A high, B low on a 24 V bus through 0.1 ohm and two 10 mOhm switches: 200 A out of A, into B.
+        let short = OutputShort::new(Some((0, 1, 0.1)), 0.01).expect("a valid short");
+        let i = short.leg_currents([24.0, 0.0, 12.0]);
+        assert!((i[0] - 200.0).abs() < 1e-9 && (i[1] + 200.0).abs() < 1e-9 && i[2] == 0.0, "{i:?}");
+        // Both low (the sample instant): nothing flows.
+        assert_eq!(short.leg_currents([0.0, 0.0, 24.0]), [0.0, 0.0, 0.0]);
+        assert!(OutputShort::new(Some((1, 1, 0.1)), 0.01).is_none());
+        assert!(OutputShort::new(Some((0, 3, 0.1)), 0.01).is_none());
+        assert!(OutputShort::new(Some((0, 1, -1.0)), 0.01).is_none());
+        assert!(OutputShort::new(None, 0.01).is_none());
+    }
+
+    #[test]
+    fn pole_voltage_of_each_state() {
+        assert_eq!(LegState::High.pole_voltage(-1.0, 24.0, 0.7), 24.0);
+        assert_eq!(LegState::Low.pole_voltage(1.0, 24.0, 0.7), 0.0);
+        assert_eq!(LegState::Off.pole_voltage(1.0, 24.0, 0.7), -0.7);
+        assert_eq!(LegState::Off.pole_voltage(-1.0, 24.0, 0.7), 24.7);
+        assert_eq!(LegState::Off.pole_voltage(0.0, 24.0, 0.7), 12.0);
+    }
 
     const T: f64 = 40e-6;
     const TD: f64 = 0.5e-6;

@@ -62,6 +62,10 @@
 //!   starts conducting when its back-EMF would pull its terminal beyond a rail, so a motor spinning with a
 //!   line-to-line EMF above `V_bus + 2 V_diode` charges the bus, and below it the currents decay to zero and stay
 //!   there. This part works in abc coordinates with the mean inductance `(Ld + Lq) / 2` (exact when `Ld = Lq`).
+//! * **Injected power faults** ([`faults::PlantFaults`]): an open motor phase carries no current, its terminal
+//!   floating at its back-EMF above the star point of the two others (`open_phase_terminal`), switching or not; a
+//!   short between two outputs is a resistance between their poles ([`inverter::OutputShort`]), loading the legs,
+//!   their shunts, the bus and the over-current comparator while they switch.
 //! * **DC bus**: `C dV/dt = i_source - i_dc` with `i_source = (V_source - V) / R_source` (not negative unless the
 //!   source sinks current) and `i_dc` the sum of the phase currents of the legs connected to the positive rail, so
 //!   regeneration raises the bus voltage.
@@ -85,6 +89,7 @@
 //! thermal nodes (time constants of 20 s and more) take one Euler step per period. No allocation in `step`: one
 //! simulated second costs about 0.05 s of CPU in release builds.
 
+pub mod faults;
 pub mod inverter;
 pub mod io;
 mod params;
@@ -228,6 +233,18 @@ fn back_emf(omega_e: f64, psi: f64, sin: f64, cos: f64) -> [f64; 3] {
     [k * sin, k * (-0.5 * sin - 0.5 * SQRT3 * cos), k * (-0.5 * sin + 0.5 * SQRT3 * cos)]
 }
 
+/// Terminal voltage of the disconnected motor phase `x` ([`faults::PlantFaults::phase_open`]) given the terminal
+/// voltages `u` of the other two and the back-EMFs `e`: the phase carries no current, so its terminal is its
+/// back-EMF above the star point, and the star point is where the two connected phases, which carry equal and
+/// opposite currents through equal inductances, put it: the mean of their `u - e`. Substituted into the dq model
+/// (whose star point is the mean of the three terminals, the zero sequence dropping out) this gives `di_x/dt = 0`
+/// exactly for `Ld = Lq` (the reference motor); with saliency the projection after each segment removes the rest.
+#[inline(always)]
+fn open_phase_terminal(u: [f64; 3], e: [f64; 3], x: usize) -> f64 {
+    let (y, z) = ((x + 1) % 3, (x + 2) % 3);
+    e[x] + 0.5 * ((u[y] - e[y]) + (u[z] - e[z]))
+}
+
 /// sin and cos of `theta0 + delta` from those of `theta0`: a rotation by a short Taylor series for the small angle
 /// steps inside one segment (truncation error below 1e-15 for |delta| < 0.02 rad), the library functions otherwise.
 #[inline(always)]
@@ -320,6 +337,9 @@ impl Coeffs {
 pub struct Plant {
     params: PlantParams,
     rng: Rng,
+    /// The motor temperature channel's noise: a stream of its own, so that adding the channel left every other
+    /// channel's noise (and so every existing trace) bit-for-bit as it was for a seed.
+    motor_sensor_rng: Rng,
     i_d: f64,
     i_q: f64,
     omega_m: f64,
@@ -336,6 +356,9 @@ pub struct Plant {
     levels: [Option<bool>; 3],
     break_latched: bool,
     last_count: i64,
+    /// What the encoder counter shows beyond the true count `last_count`: the spurious counts of noise bursts and
+    /// the counts missed while the A/B lines were broken ([`faults::PlantFaults`]). Zero for a healthy encoder.
+    encoder_error: i64,
     pending_index: Option<u16>,
     period: u64,
     at_sample: PlantState,
@@ -343,6 +366,8 @@ pub struct Plant {
     last_measurements: Measurements,
     /// Digital I/O state: forced inputs, output pins, holding brake ([`io`]).
     io: io::PlantIo,
+    /// Injected failures ([`faults`]).
+    faults: faults::PlantFaults,
 }
 
 impl core::fmt::Debug for Plant {
@@ -362,6 +387,7 @@ impl Plant {
     pub fn new(params: PlantParams, seed: u64) -> Self {
         let mut plant = Self {
             rng: Rng::new(seed),
+            motor_sensor_rng: Rng::new(seed ^ 0x6D6F_746F_725F_5445),
             i_d: 0.0,
             i_q: 0.0,
             omega_m: 0.0,
@@ -377,12 +403,14 @@ impl Plant {
             levels: [None; 3],
             break_latched: false,
             last_count: 0,
+            encoder_error: 0,
             pending_index: None,
             period: 0,
             at_sample: PlantState::default(),
             averages: PeriodAverages::default(),
             last_measurements: Measurements::default(),
             io: io::PlantIo::default(),
+            faults: faults::PlantFaults::default(),
             params,
         };
         plant.last_count = plant.count_now();
@@ -420,11 +448,16 @@ impl Plant {
     ///   at the centre, else 0 (at compare values above about 97.5 % of ARR the low switch is not on at the centre
     ///   and that shunt reads zero current, as on the hardware).
     /// * `adc.bus_voltage`: `round(gain * V_bus + noise)`; `adc.temperature`: the power-stage temperature through
-    ///   a linear sensor, `round((V_0 + k T) / V_ref * 4095 + noise)`.
+    ///   a linear sensor, `round((V_0 + k T) / V_ref * 4095 + noise)`; `adc.motor_temperature`: the winding
+    ///   temperature through the same sensor model (its own noise), or the code a broken sensor reads
+    ///   ([`faults::PlantFaults::motor_temperature_code_stuck`]).
     /// * `feedback.encoder_count`: the 16-bit counter at the sample instant; `index_latch`: the counter value at
-    ///   the last entry into the index state since the previous sample; `hall`: the Hall state at the sample.
-    /// * `break_input`: the over-current comparator (any `|i_phase| > break_current_a`, checked every sub-step
-    ///   while the outputs are enabled) has tripped. The trip latches and forces the outputs off until a command
+    ///   the last entry into the index state since the previous sample; `hall`: the Hall state at the sample. The
+    ///   injected sensor faults ([`faults::PlantFaults`]: wire break, noise burst, lost index, stuck Halls) act on
+    ///   these three only.
+    /// * `break_input`: the over-current comparator (any leg current, the phase current plus the share of an
+    ///   injected output short, beyond `break_current_a`, checked every sub-step while the outputs are enabled)
+    ///   has tripped. The trip latches and forces the outputs off until a command
     ///   with `enabled == false` acknowledges it.
     pub fn step(&mut self, cmd: &PwmCommand) -> Measurements {
         let p = &self.params;
@@ -591,7 +624,13 @@ impl Plant {
         dq_to_abc(self.i_d, self.i_q, s, c)
     }
 
-    /// One RK4 segment `[t0, t1)` with the outputs switching; returns the phase currents at its end.
+    /// One RK4 segment `[t0, t1)` with the outputs switching; returns the currents out of the three legs at its end
+    /// (the phase currents, plus a short's share, [`inverter::OutputShort`]): what the over-current comparator sees.
+    ///
+    /// A disconnected phase ([`faults::PlantFaults::phase_open`]) is a leg whose motor terminal floats at
+    /// [`open_phase_terminal`], recomputed at every RK4 stage, draws nothing from the bus, and ends every segment at
+    /// exactly zero current (the projection below, as for a diode that stopped conducting). The current a phase
+    /// carried when it was opened is cut at once (the arc of a real break lasts microseconds; its energy is dropped).
     fn segment_switching(
         &mut self,
         k: &Coeffs,
@@ -624,6 +663,12 @@ impl Plant {
                 }
             };
         }
+        // Injected faults: a disconnected phase is taken out of the neutral of the floating legs below.
+        let open = self.faults.phase_open.filter(|&x| x < 3);
+        if let Some(x) = open {
+            floating[x] = true;
+        }
+        let short = inverter::OutputShort::new(self.faults.phase_short, k.r_switch);
         if floating.iter().any(|f| *f) {
             // A leg in dead time with no current floats: its terminal follows the motor (back-EMF plus the neutral
             // set by the driven legs) so that its current stays zero, unless that would pass a rail, where its
@@ -655,6 +700,12 @@ impl Plant {
                 }
             }
         }
+        // The inverter's poles (what the averages and a short see); the motor terminal of an open phase is
+        // computed in the stages.
+        let inverter_legs = legs;
+        if let Some(x) = open {
+            legs[x] = LegDrive::default();
+        }
         let mode = self.seg_mech(k);
         let load = self.last_load_nm;
         let omega_before = self.omega_m;
@@ -662,13 +713,22 @@ impl Plant {
         let s1 = rk4(&s0, h, |s: &[f64; 5]| {
             let [i_d, i_q, omega, theta, v] = *s;
             let (sn, cs) = sin_cos_after(sn0, cs0, th0, k.p * theta - th0);
-            let u = [legs[0].a * v + legs[0].b, legs[1].a * v + legs[1].b, legs[2].a * v + legs[2].b];
+            let mut u = [legs[0].a * v + legs[0].b, legs[1].a * v + legs[1].b, legs[2].a * v + legs[2].b];
+            if let Some(x) = open {
+                u[x] = open_phase_terminal(u, back_emf(k.p * omega, k.psi, sn, cs), x);
+            }
             let [v_d, v_q] = abc_to_dq(u, sn, cs);
             let omega_e = k.p * omega;
             let di_d = (v_d - k.r * i_d + omega_e * k.lq * i_q) / k.ld;
             let di_q = (v_q - k.r * i_q - omega_e * (k.ld * i_d + k.psi)) / k.lq;
             let i = dq_to_abc(i_d, i_q, sn, cs);
-            let i_dc = legs[0].c * i[0] + legs[1].c * i[1] + legs[2].c * i[2];
+            let mut i_dc = legs[0].c * i[0] + legs[1].c * i[1] + legs[2].c * i[2];
+            if let Some(short) = short {
+                // The short's current leaves through the high switch of the leg at the higher pole.
+                let poles = inverter_legs.map(|l| l.a * v + l.b);
+                let s = short.leg_currents(poles);
+                i_dc += inverter_legs[0].c * s[0] + inverter_legs[1].c * s[1] + inverter_legs[2].c * s[2];
+            }
             let dv = (k.source_current(v) - i_dc) / k.c_bus;
             let (dw, dth) = k.mech(mode, k.torque(i_d, i_q), load, omega);
             [di_d, di_q, dw, dth, dv]
@@ -686,6 +746,9 @@ impl Plant {
             // The diode conducting in dead time carries a negative current (upper) or a positive one (lower).
             let diode_sign = if legs[x].c != 0.0 { -1.0 } else { 1.0 };
             stopped[x] = off[x] && (floating[x] || i1[x] * diode_sign <= 0.0);
+        }
+        if let Some(x) = open {
+            stopped[x] = true;
         }
         match stopped.iter().filter(|s| **s).count() {
             0 => {}
@@ -709,9 +772,18 @@ impl Plant {
         let mut poles = [0.0; 3];
         for x in 0..3 {
             let i_mid = 0.5 * (i0[x] + i1[x]);
-            poles[x] = legs[x].a * v_mid + legs[x].b - k.r_switch * i_mid;
+            poles[x] = inverter_legs[x].a * v_mid + inverter_legs[x].b - k.r_switch * i_mid;
             acc.pole_voltage_v[x] += poles[x] * h;
             acc.bus_current_a += legs[x].c * i_mid * h;
+        }
+        let mut legs_i = i1;
+        if let Some(short) = short {
+            let s_mid = short.leg_currents(inverter_legs.map(|l| l.a * v_mid + l.b));
+            let s_end = short.leg_currents(inverter_legs.map(|l| l.a * self.v_bus + l.b));
+            for x in 0..3 {
+                acc.bus_current_a += inverter_legs[x].c * s_mid[x] * h;
+                legs_i[x] += s_end[x];
+            }
         }
         let (sn, cs) = sin_cos_after(sn0, cs0, th0, k.p * 0.5 * (s0[3] + s1[3]) - th0);
         let vdq = abc_to_dq(poles, sn, cs);
@@ -720,7 +792,7 @@ impl Plant {
         acc.bus_voltage_v += v_mid * h;
         let i_sq = 0.5 * (s0[0] * s0[0] + s0[1] * s0[1] + s1[0] * s1[0] + s1[1] * s1[1]);
         acc.copper_loss_w += 1.5 * (k.r - k.r_switch) * i_sq * h;
-        i1
+        legs_i
     }
 
     /// One RK4 segment of length `h` with all switches off: the diode-bridge model (see the module docs).
@@ -734,6 +806,17 @@ impl Plant {
                 *x = 0.0;
             }
         }
+        // A disconnected phase ([`faults::PlantFaults::phase_open`]) never conducts; a current it still carried when
+        // it was opened is cut at once (as in `segment_switching`).
+        let disconnected = self.faults.phase_open.filter(|&x| x < 3);
+        if let Some(x) = disconnected {
+            let ix = i[x];
+            if ix != 0.0 {
+                for (y, iy) in i.iter_mut().enumerate() {
+                    *iy += if y == x { -ix } else { 0.5 * ix };
+                }
+            }
+        }
         let e = back_emf(k.p * self.omega_m, k.psi, sn, cs);
         let v = self.v_bus;
         // Conduction: per phase, None (open) or Some(upper?) for the diode carrying its current.
@@ -743,8 +826,9 @@ impl Plant {
         if count(&conducting) < 2 {
             conducting = [None; 3];
             i = [0.0; 3];
-            let (mut hi, mut lo) = (0, 0);
-            for x in 1..3 {
+            let first = usize::from(disconnected == Some(0));
+            let (mut hi, mut lo) = (first, first);
+            for x in (first + 1..3).filter(|&x| Some(x) != disconnected) {
                 if e[x] > e[hi] {
                     hi = x;
                 }
@@ -767,10 +851,12 @@ impl Plant {
                 }
             }
             let v_open = e[open] + v_n;
-            if v_open > v + k.v_diode {
-                conducting[open] = Some(true);
-            } else if v_open < -k.v_diode {
-                conducting[open] = Some(false);
+            if Some(open) != disconnected {
+                if v_open > v + k.v_diode {
+                    conducting[open] = Some(true);
+                } else if v_open < -k.v_diode {
+                    conducting[open] = Some(false);
+                }
             }
         }
         let n_on = count(&conducting);
@@ -883,14 +969,37 @@ impl Plant {
     }
 
     /// Follow the encoder after a segment: latch the counter if the index state was entered.
+    ///
+    /// Injected sensor faults change only what the counter shows, never the shaft: with the A/B lines broken the
+    /// counter holds its value while the shaft turns (the motion goes into `encoder_error`) and the index, which
+    /// needs the A/B state, is not latched either; with the index line broken no pulse reaches the latch. The
+    /// latched value is the counter's at the index, spurious counts included.
     fn update_encoder(&mut self) {
         let count = self.count_now();
-        if let Some(n) =
+        if self.faults.encoder_wire_break {
+            self.encoder_error -= count - self.last_count;
+        } else if let Some(n) =
             sensors::index_entry(self.last_count, count, self.params.encoder_counts_per_rev, self.params.index_count)
         {
-            self.pending_index = Some(sensors::counter_register(n));
+            if !self.faults.index_lost {
+                self.pending_index = Some(sensors::counter_register(n + self.encoder_error));
+            }
         }
         self.last_count = count;
+    }
+
+    /// A noise burst ([`faults::EncoderNoise`]) adds its spurious counts once per period, at the sample, until it
+    /// has lasted its periods.
+    fn apply_encoder_noise(&mut self) {
+        if let Some(noise) = self.faults.encoder_noise.as_mut() {
+            if noise.periods_left > 0 {
+                self.encoder_error += i64::from(noise.counts_per_period);
+                noise.periods_left -= 1;
+            }
+            if noise.periods_left == 0 {
+                self.faults.encoder_noise = None;
+            }
+        }
     }
 
     fn count_now(&self) -> i64 {
@@ -898,7 +1007,19 @@ impl Plant {
     }
 
     fn shunt_currents(&self, patterns: &[LegPattern; 3], switching: bool, t: f64) -> [f64; 3] {
-        let i = self.i_abc();
+        let mut i = self.i_abc();
+        // A short between two outputs ([`inverter::OutputShort`]) adds its current to what the two legs carry
+        // (zero at the centre while both low switches are on).
+        let short = inverter::OutputShort::new(self.faults.phase_short, self.params.switch_resistance_ohm);
+        if let Some(short) = short.filter(|_| switching) {
+            let p = &self.params;
+            let poles =
+                core::array::from_fn(|x| patterns[x].state_at(t).pole_voltage(i[x], self.v_bus, p.diode_drop_v));
+            let s = short.leg_currents(poles);
+            for x in 0..3 {
+                i[x] += s[x];
+            }
+        }
         core::array::from_fn(|x| {
             let low_conducts = if switching {
                 match patterns[x].state_at(t) {
@@ -918,6 +1039,7 @@ impl Plant {
     }
 
     fn sample(&mut self, patterns: &[LegPattern; 3], switching: bool, sample_t: f64, t: f64) -> Measurements {
+        self.apply_encoder_noise();
         let shunt = self.shunt_currents(patterns, switching, sample_t);
         let p = &self.params;
         let mut phase_currents = [0u16; 3];
@@ -932,9 +1054,19 @@ impl Plant {
         let full_scale = f64::from(firmware::hal::power::ADC_FULL_SCALE);
         let sensor_v = p.temp_sensor_v_at_0c + p.temp_sensor_v_per_k * self.t_power_stage;
         let temperature = sensors::adc_code(sensor_v / p.adc_reference_v * full_scale + temp_noise);
-        let hall = sensors::hall_state(f64::from(p.pole_pairs) * self.theta_m, p.hall_offset_rad);
+        let motor_noise = self.motor_sensor_rng.gaussian() * p.temp_noise_lsb_rms;
+        let motor_v = p.temp_sensor_v_at_0c + p.temp_sensor_v_per_k * self.t_winding;
+        let motor_temperature = match self.faults.motor_temperature_code_stuck {
+            Some(code) => code,
+            None => sensors::adc_code(motor_v / p.adc_reference_v * full_scale + motor_noise),
+        };
+        // A stuck Hall sensor or a broken Hall cable reads its fixed state whatever the rotor does.
+        let hall = match self.faults.hall_stuck {
+            Some(stuck) => stuck,
+            None => sensors::hall_state(f64::from(p.pole_pairs) * self.theta_m, p.hall_offset_rad),
+        };
         let feedback = FeedbackSample {
-            encoder_count: sensors::counter_register(self.last_count),
+            encoder_count: sensors::counter_register(self.last_count + self.encoder_error),
             index_latch: self.pending_index.take(),
             hall,
             digital_inputs: self.io.input_levels(&p.io, self.last_count),
@@ -943,7 +1075,7 @@ impl Plant {
         state.shunt_currents_a = shunt;
         self.at_sample = state;
         Measurements {
-            adc: AdcSamples { phase_currents, bus_voltage, temperature },
+            adc: AdcSamples { phase_currents, bus_voltage, temperature, motor_temperature },
             feedback,
             break_input: self.break_latched,
         }
@@ -1076,6 +1208,16 @@ impl Plant {
     pub fn force_break(&mut self) {
         self.break_latched = true;
     }
+
+    /// The injected failures ([`faults::PlantFaults`]); a change takes effect with the next period.
+    pub fn faults_mut(&mut self) -> &mut faults::PlantFaults {
+        &mut self.faults
+    }
+
+    /// The injected failures.
+    pub fn faults(&self) -> &faults::PlantFaults {
+        &self.faults
+    }
 }
 
 #[cfg(test)]
@@ -1093,5 +1235,101 @@ mod tests {
         let e = back_emf(100.0, 0.01, s, c);
         let edq = abc_to_dq(e, s, c);
         assert!(edq[0].abs() < 1e-12 && (edq[1] - 1.0).abs() < 1e-12);
+    }
+}
+
+/// The injected encoder and Hall faults ([`faults::PlantFaults`]) change what the sensors report, exactly, and
+/// nothing else: the shaft is driven at a fixed speed by the dynamometer with the outputs off, so the true count
+/// is known at every period.
+#[cfg(test)]
+mod sensor_fault_tests {
+    use super::*;
+
+    /// Radians per encoder count of the reference encoder.
+    const RAD_PER_COUNT: f64 = 2.0 * PI / 4096.0;
+
+    /// The reference plant, shaft at `start_counts + 0.5` counts, driven at `counts_per_period` counts per period.
+    fn driven(start_counts: f64, counts_per_period: f64) -> Plant {
+        let mut p = Plant::new(PlantParams::reference(), 1);
+        let speed = counts_per_period * RAD_PER_COUNT / PERIOD_S;
+        p.set_rotor_state((start_counts + 0.5) * RAD_PER_COUNT, speed);
+        p.set_mechanics(Mechanics::Driven { speed_rad_s: speed });
+        p
+    }
+
+    /// Runs `n` periods with the outputs off; the measurements of each.
+    fn run(p: &mut Plant, n: usize) -> Vec<Measurements> {
+        (0..n).map(|_| p.step(&PwmCommand::OFF)).collect()
+    }
+
+    /// The true count at the last sample.
+    fn true_count(p: &Plant) -> i64 {
+        sensors::encoder_count(p.state_at_sample().theta_m_rad, 4096, 0)
+    }
+
+    #[test]
+    fn wire_break_freezes_the_counter_and_the_index() {
+        let mut p = driven(-100.0, 2.0);
+        let before = run(&mut p, 10);
+        assert_eq!(before[9].feedback.encoder_count.wrapping_sub(before[0].feedback.encoder_count), 18);
+        p.faults_mut().encoder_wire_break = true;
+        // 100 periods = 200 counts: the shaft passes the index at count 0 on the way. The counter stops where the
+        // break found it, at the end of the last healthy period: one count (half a period) after its last sample.
+        let broken = run(&mut p, 100);
+        let frozen = broken[0].feedback.encoder_count;
+        assert_eq!(frozen.wrapping_sub(before[9].feedback.encoder_count), 1);
+        assert!(true_count(&p) > 50, "the shaft has passed the index: {}", true_count(&p));
+        assert!(broken.iter().all(|m| m.feedback.encoder_count == frozen), "the counter holds its value");
+        assert!(broken.iter().all(|m| m.feedback.index_latch.is_none()), "no index without the A/B lines");
+        // Repaired: the counter moves on from where it stopped, by the shaft's motion from then on.
+        p.faults_mut().encoder_wire_break = false;
+        let t0 = sensors::encoder_count(p.state().theta_m_rad, 4096, 0); // at the end of the last broken period
+        let after = run(&mut p, 10);
+        let moved = after[9].feedback.encoder_count.wrapping_sub(frozen);
+        assert_eq!(i64::from(moved), true_count(&p) - t0);
+    }
+
+    #[test]
+    fn noise_burst_adds_its_counts_and_displaces_the_index() {
+        let mut p = driven(-300.0, 0.0);
+        let c0 = run(&mut p, 1)[0].feedback.encoder_count;
+        p.faults_mut().encoder_noise = Some(faults::EncoderNoise { counts_per_period: 3, periods_left: 5 });
+        let burst = run(&mut p, 8);
+        let seen: Vec<i16> = burst.iter().map(|m| m.feedback.encoder_count.wrapping_sub(c0) as i16).collect();
+        assert_eq!(seen, [3, 6, 9, 12, 15, 15, 15, 15], "3 counts per period for 5 periods, then none");
+        assert_eq!(p.faults().encoder_noise, None, "the burst is over");
+        // Now turning: the index (true count 0) is latched at the counter's value there, 15 counts beyond.
+        let speed = 2.0 * RAD_PER_COUNT / PERIOD_S;
+        p.set_mechanics(Mechanics::Driven { speed_rad_s: speed });
+        let latches: Vec<u16> = run(&mut p, 200).iter().filter_map(|m| m.feedback.index_latch).collect();
+        assert_eq!(latches, [15]);
+    }
+
+    #[test]
+    fn lost_index_latches_nothing_until_repaired() {
+        let mut p = driven(-100.0, 2.0);
+        p.faults_mut().index_lost = true;
+        // 2.5 turns: the index is passed twice.
+        let lost = run(&mut p, 5120);
+        assert!(lost.iter().all(|m| m.feedback.index_latch.is_none()));
+        let counts = lost.last().map(|m| m.feedback.encoder_count).unwrap_or(0);
+        assert_eq!(i64::from(counts), true_count(&p) & 0xFFFF, "the counter itself is unaffected");
+        p.faults_mut().index_lost = false;
+        let latches: Vec<u16> = run(&mut p, 2048).iter().filter_map(|m| m.feedback.index_latch).collect();
+        assert_eq!(latches, [3 * 4096], "the next index, at three turns");
+    }
+
+    #[test]
+    fn stuck_halls_read_their_state() {
+        let mut p = driven(0.0, 2.0);
+        for stuck in [0b000, 0b111, 0b101] {
+            p.faults_mut().hall_stuck = Some(stuck);
+            // 300 periods = 600 counts = 369 degrees electrical: every true state passes.
+            assert!(run(&mut p, 300).iter().all(|m| m.feedback.hall == stuck), "stuck at {stuck:03b}");
+        }
+        p.faults_mut().hall_stuck = None;
+        let m = run(&mut p, 1)[0];
+        let truth = sensors::hall_state(7.0 * p.state_at_sample().theta_m_rad, 0.0);
+        assert_eq!(m.feedback.hall, truth);
     }
 }
