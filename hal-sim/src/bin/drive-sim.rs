@@ -7,6 +7,8 @@
 //! drive-sim csv-sweep    [--seed N] [--out DIR]                     CSV 100 rpm step, velocity-loop bandwidth
 //! drive-sim ppm          [--seed N] [--out DIR]                     PPM trapezoidal and sin² moves, target reached
 //! drive-sim homing       [--seed N] [--out DIR]                     every homing method from both sides
+//! drive-sim fault-matrix [--seed N] [--out DIR]                     every fault injected, reaction checked
+//! drive-sim duty-cycle   [--seed N] [--out DIR]                     60 s duty cycle: no false trips
 //! drive-sim bench        [--seconds S]                              host speed (build with --release)
 //! ```
 //!
@@ -17,15 +19,15 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-use hal_sim::sim::homing;
 use hal_sim::sim::motion::{self, CspConfig};
 use hal_sim::sim::plot::{Plot, Series};
 use hal_sim::sim::profile::{self, Profile};
 use hal_sim::sim::scenarios::{self, Setup, SpinConfig, SpinStepFigures, SWEEP_FREQUENCIES_HZ};
 use hal_sim::sim::trace::Trace;
+use hal_sim::sim::{duty_cycle, faults, homing};
 
 const USAGE: &str =
-    "usage: drive-sim <current-step | spinning | csp | csv-sweep | ppm | homing | bench> [--seed N] [--default-gains | --gains P,I] \
+    "usage: drive-sim <current-step | spinning | csp | csv-sweep | ppm | homing | fault-matrix | duty-cycle | bench> [--seed N] [--default-gains | --gains P,I] \
                      [--out DIR] [--seconds S]";
 
 struct Args {
@@ -381,6 +383,56 @@ fn homing_matrix(args: &Args, dir: &Path) -> Result<(), String> {
     Ok(())
 }
 
+fn fault_matrix(args: &Args, dir: &Path) -> Result<(), String> {
+    println!(
+        "fault-matrix: reference plant (seed {}), every fault of the table injected where it matters; detection, \
+         0x603F/0x1001/0x1003/EMCY, the reaction and the reset checked",
+        args.seed
+    );
+    let outcomes = faults::fault_matrix(args.seed);
+    let table = faults::matrix_table(&outcomes);
+    print!("{table}");
+    let path = dir.join("fault-matrix.md");
+    std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    std::fs::write(&path, &table).map_err(|e| format!("{}: {e}", path.display()))?;
+    println!("  wrote {}", path.display());
+    let immediate = outcomes
+        .iter()
+        .filter(|o| o.reaction == firmware::fault::ReactionClass::DisablePowerImmediately)
+        .filter_map(|o| o.off_after_detect_periods)
+        .max()
+        .unwrap_or(0);
+    println!();
+    println!("faults_tested={}", outcomes.len());
+    println!("faults_passed={}", outcomes.iter().filter(|o| o.passed()).count());
+    println!("immediate_off_latency_ticks_max={immediate}");
+    Ok(())
+}
+
+fn duty_cycle(args: &Args, dir: &Path) -> Result<(), String> {
+    println!(
+        "duty-cycle: reference plant (seed {}), {} s of CSV velocity steps at the current limit with regeneration and load \
+         steps, reference sensor noise",
+        args.seed,
+        duty_cycle::DURATION_S
+    );
+    let (figures, trace) = duty_cycle::duty_cycle(args.seed).map_err(|e| e.to_string())?;
+    println!(
+        "  moves {}, peak |iq| {:.2} A, bus {:.1}..{:.1} V, peak speed {:.0} rpm",
+        figures.moves, figures.peak_current_a, figures.bus_min_v, figures.bus_max_v, figures.peak_speed_rpm
+    );
+    for event in &figures.events {
+        println!("  {event}");
+    }
+    let csv = dir.join("duty-cycle.csv");
+    trace.write_csv(&csv).map_err(|e| format!("{}: {e}", csv.display()))?;
+    println!("  wrote {}", csv.display());
+    println!();
+    println!("false_trips={}", figures.false_trips);
+    println!("warnings={}", figures.warnings);
+    Ok(())
+}
+
 fn bench(args: &Args) -> Result<(), String> {
     if cfg!(debug_assertions) {
         println!("note: a debug build; the figure is for `cargo run --release`");
@@ -413,6 +465,8 @@ fn main() -> ExitCode {
         "csv-sweep" => csv_sweep(&args, &dir),
         "ppm" => ppm(&args, &dir),
         "homing" => homing_matrix(&args, &dir),
+        "fault-matrix" => fault_matrix(&args, &dir),
+        "duty-cycle" => duty_cycle(&args, &dir),
         "bench" => bench(&args),
         other => Err(format!("unknown scenario {other}\n{USAGE}")),
     };

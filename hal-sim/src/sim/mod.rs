@@ -6,6 +6,8 @@
 //! next period; when it reports a slow tick due, `drive.slow_tick()` runs before the next period (on the target tier
 //! 2 runs after tier 1 returns, well inside the same period).
 
+pub mod duty_cycle;
+pub mod faults;
 pub mod homing;
 pub mod motion;
 pub mod plot;
@@ -124,6 +126,17 @@ impl Simulation {
     /// The command the drive wrote for the next period.
     pub fn command(&self) -> &PwmCommand {
         &self.cmd
+    }
+
+    /// The runtime found the last fast tick over its budget (`cost` in its counter's units): the drive trips and
+    /// the outputs go off with the next period, as `rt::tier1` does on the target.
+    pub fn inject_current_loop_overrun(&mut self, cost: u32) {
+        self.cmd = self.drive.current_loop_overrun(cost);
+    }
+
+    /// Whether the plant's rotor is locked (a stop cannot be seen in the speed then).
+    pub fn plant_locked(&self) -> bool {
+        self.plant.mechanics() == crate::plant::Mechanics::Locked
     }
 
     /// Writes target torque 0x6071 (per mille of rated torque) into the dictionary, as an RxPDO would.

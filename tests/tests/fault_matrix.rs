@@ -1,0 +1,39 @@
+//! The fault matrix (issue 5): every fault of the table injected on the reference plant where it matters, with its
+//! code (0x603F), error register (0x1001), history entry (0x1003), EMCY, the state its reaction class leads to,
+//! the stop performed, the time from the detection to the outputs off (at most one PWM period for class "d"),
+//! and the reset rules (refused while a level cause persists, accepted after). `hal_sim::sim::faults` holds the
+//! cases and the checks; `drive-sim fault-matrix` prints the same table.
+
+use firmware::fault::{FaultId, ReactionClass, FAULT_COUNT};
+use hal_sim::sim::faults::{cases, matrix_table, run_case};
+
+#[test]
+fn every_fault_of_the_table_has_a_case() {
+    let covered: Vec<FaultId> = cases().iter().map(|c| c.fault).collect();
+    for id in FaultId::ALL {
+        assert!(covered.contains(&id), "no matrix case for {id:?}");
+    }
+    assert_eq!(covered.len(), FAULT_COUNT, "one case per fault");
+}
+
+#[test]
+fn every_injected_fault_is_detected_reported_reacted_to_and_reset() {
+    let outcomes: Vec<_> = cases().iter().map(|c| run_case(c, 1)).collect();
+    println!("{}", matrix_table(&outcomes));
+    let failed: Vec<String> =
+        outcomes.iter().filter(|o| !o.passed()).map(|o| format!("{:?}: {}", o.fault, o.failures.join("; "))).collect();
+    assert!(failed.is_empty(), "failed cases:\n{}", failed.join("\n"));
+    // The table in the docs is the one the cases produce now (regenerate it with `drive-sim fault-matrix`).
+    let doc = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../docs/fault-matrix.md")).expect("docs");
+    assert!(
+        doc.contains(&matrix_table(&outcomes)),
+        "docs/fault-matrix.md is out of date: run `cargo run --release -p hal-sim --bin drive-sim -- fault-matrix` \
+         and copy out/fault-matrix/fault-matrix.md into it"
+    );
+    // Class "d": the outputs are off within one PWM period of the detection.
+    for o in outcomes.iter().filter(|o| o.reaction == ReactionClass::DisablePowerImmediately) {
+        if let Some(p) = o.off_after_detect_periods {
+            assert!(p <= 1, "{:?}: outputs off {p} periods after the detection", o.fault);
+        }
+    }
+}
