@@ -7,7 +7,7 @@
 //! drive-sim csv-sweep    [--seed N] [--out DIR]                     CSV 100 rpm step, velocity-loop bandwidth
 //! drive-sim ppm          [--seed N] [--out DIR]                     PPM trapezoidal and sin² moves, target reached
 //! drive-sim homing       [--seed N] [--out DIR]                     every homing method from both sides
-//! drive-sim fault-matrix [--seed N] [--out DIR]                     every fault injected, reaction checked
+//! drive-sim fault-matrix [--seed N] [--out DIR] [--only TEXT]       every fault injected, reaction checked
 //! drive-sim duty-cycle   [--seed N] [--out DIR]                     60 s duty cycle: no false trips
 //! drive-sim bench        [--seconds S]                              host speed (build with --release)
 //! ```
@@ -28,7 +28,7 @@ use hal_sim::sim::{duty_cycle, faults, homing};
 
 const USAGE: &str =
     "usage: drive-sim <current-step | spinning | csp | csv-sweep | ppm | homing | fault-matrix | duty-cycle | bench> [--seed N] [--default-gains | --gains P,I] \
-                     [--out DIR] [--seconds S]";
+                     [--out DIR] [--seconds S] [--only TEXT]";
 
 struct Args {
     scenario: String,
@@ -38,13 +38,22 @@ struct Args {
     out: Option<PathBuf>,
     seconds: f64,
     position_gains: Option<[u32; 5]>,
+    only: Option<String>,
 }
 
 fn parse_args() -> Result<Args, String> {
     let mut it = std::env::args().skip(1);
     let scenario = it.next().ok_or_else(|| USAGE.to_owned())?;
-    let mut args =
-        Args { scenario, seed: 1, default_gains: false, gains: None, out: None, seconds: 2.0, position_gains: None };
+    let mut args = Args {
+        scenario,
+        seed: 1,
+        default_gains: false,
+        gains: None,
+        out: None,
+        seconds: 2.0,
+        position_gains: None,
+        only: None,
+    };
     while let Some(a) = it.next() {
         let mut value = |name: &str| it.next().ok_or_else(|| format!("{name} needs a value\n{USAGE}"));
         match a.as_str() {
@@ -66,6 +75,7 @@ fn parse_args() -> Result<Args, String> {
             }
             "--out" => args.out = Some(PathBuf::from(value("--out")?)),
             "--seconds" => args.seconds = value("--seconds")?.parse().map_err(|e| format!("--seconds: {e}"))?,
+            "--only" => args.only = Some(value("--only")?.to_lowercase()),
             other => return Err(format!("unknown argument {other}\n{USAGE}")),
         }
     }
@@ -389,7 +399,16 @@ fn fault_matrix(args: &Args, dir: &Path) -> Result<(), String> {
          0x603F/0x1001/0x1003/EMCY, the reaction and the reset checked",
         args.seed
     );
-    let outcomes = faults::fault_matrix(args.seed);
+    // `--only TEXT`: the cases whose fault name or injection contains TEXT (one failure on its own).
+    let outcomes: Vec<_> = faults::cases()
+        .iter()
+        .filter(|c| {
+            args.only.as_ref().is_none_or(|only| {
+                c.fault.info().name.to_lowercase().contains(only) || c.injection.to_lowercase().contains(only)
+            })
+        })
+        .map(|c| faults::run_case(c, args.seed))
+        .collect();
     let table = faults::matrix_table(&outcomes);
     print!("{table}");
     let path = dir.join("fault-matrix.md");

@@ -10,7 +10,9 @@
 //!    EMCY left with its code, register and fault number (warnings: EMCY and statusword bit 7 only);
 //! 3. reaction: the CiA 402 state its class leads to, the outputs off within one PWM period of the detection for
 //!    class "d", a ramp to standstill before the outputs go off for class "f" and for the quick stop of 0x6007;
-//! 4. reset: refused while a level cause persists, accepted once it is removed, ending in «Switch on disabled».
+//! 4. reset: refused while a level cause persists, accepted once it is removed, ending in «Switch on disabled»;
+//!    then «Enable operation» alone does nothing, and the normal «Shutdown», «Switch on», «Enable operation»
+//!    sequence enables the drive again.
 //!
 //! Latencies are counted in PWM periods (40 us): from the injection to the detection, and from the detection to
 //! the outputs off. `drive-sim fault-matrix` prints the table; `tests/tests/fault_matrix.rs` asserts it.
@@ -54,6 +56,16 @@ pub enum Situation {
 }
 
 impl Situation {
+    /// The mode of operation (0x6060) the situation runs in, if it runs the motor.
+    pub const fn mode(self) -> Option<i8> {
+        match self {
+            Self::RunningCsv | Self::ReadyToSwitchOn => Some(9),
+            Self::RunningCsp => Some(8),
+            Self::LockedTorque => Some(10),
+            Self::Boot => None,
+        }
+    }
+
     /// Short name for the table.
     pub const fn name(self) -> &'static str {
         match self {
@@ -206,7 +218,12 @@ pub fn cases() -> Vec<Case> {
                 let speed_rad_s = 9_000.0 * core::f64::consts::TAU / 60.0;
                 b.sim.plant.set_mechanics(crate::plant::Mechanics::Driven { speed_rad_s });
             },
-            |b| b.sim.plant.set_mechanics(crate::plant::Mechanics::Free),
+            |b| {
+                // The load lets go: the rotor stops where it is.
+                let theta = b.sim.plant.state().theta_m_rad;
+                b.sim.plant.set_mechanics(crate::plant::Mechanics::Free);
+                b.sim.plant.set_rotor_state(theta, 0.0);
+            },
         ),
         case(
             F::PowerStageProtection,
@@ -720,6 +737,27 @@ pub fn run_case(case: &Case, seed: u64) -> Outcome {
             f.push("the fault reset was refused after the cause was removed".into());
         } else if b.sim.cia402_state() != State::SwitchOnDisabled {
             f.push(format!("after the reset: {:?}, expected SwitchOnDisabled", b.sim.cia402_state()));
+        } else {
+            // Back only through the normal transitions: «Enable operation» straight after the reset is no command
+            // in «Switch on disabled» (CiA 402 needs «Shutdown» first), so the outputs stay off.
+            b.sim.set_controlword(0x000F);
+            b.run(20 * PERIODS_PER_SLOW_TICK);
+            if b.sim.cia402_state() != State::SwitchOnDisabled || b.sim.command().enabled {
+                f.push(format!("«Enable operation» after the reset reached {:?}", b.sim.cia402_state()));
+            }
+            if let Some(mode) = case.situation.mode() {
+                // A master re-enables a coasting axis once it has stopped (the offset calibration at switch-on
+                // needs a motor at rest: a turning one induces currents into the shunts).
+                for _ in 0..2_500 {
+                    if b.speed_rpm().abs() < 10.0 {
+                        break;
+                    }
+                    b.run(2 * PERIODS_PER_SLOW_TICK);
+                }
+                if let Err(e) = b.sim.enable_through_controlword(mode) {
+                    f.push(format!("no re-enable through the normal transitions: {e}"));
+                }
+            }
         }
     } else if warning && case.fault != FaultId::EmcyOverflow {
         (case.remove)(&mut b);
