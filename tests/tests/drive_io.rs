@@ -156,3 +156,48 @@ fn touch_probe_latches_the_index() {
     let tier1 = sim.drive.latches().index.position.wrapping_add(sim.drive.axis().position_offset());
     assert_eq!(latches.last().copied(), Some(tier1));
 }
+
+/// A fault engages the holding brake (issue 5 "the holding brake engaged"): class "d" (power-stage
+/// over-temperature) de-energises the brake output with the power stage, at once; class "f" (a limit switch)
+/// after the quick-stop ramp. Either way the brake holds within its 10 ms (0x3158:01 and the plant's brake) of the
+/// outputs going off, so a vertical axis never hangs on a disabled motor.
+#[test]
+fn a_fault_engages_the_holding_brake() {
+    for class_d in [true, false] {
+        let mut sim = prepare_motion(1, 9).expect("enabled in CSV");
+        fit_brake(&mut sim);
+        sim.drive.dictionary_mut().set(h::TARGET_VELOCITY, 300);
+        for _ in 0..200 {
+            sim.setpoint_received();
+            sim.run_slow_ticks(1);
+        }
+        assert!(!sim.plant.brake_engaged(), "released while running");
+        if class_d {
+            sim.plant.set_power_stage_temperature(105.0);
+        } else {
+            let count = (sim.plant.state().theta_m_rad / core::f64::consts::TAU * 4096.0).floor() as i64;
+            sim.plant.params_mut().io.set_positive_limit(Some(count - 1_000_000));
+        }
+        let (mut off_at, mut engaged_at) = (None, None);
+        for k in 0..periods(500) {
+            if k % 25 == 0 {
+                sim.setpoint_received();
+            }
+            sim.step();
+            if off_at.is_none() && !sim.command().enabled {
+                off_at = Some(k);
+            }
+            if engaged_at.is_none() && sim.plant.brake_engaged() {
+                engaged_at = Some(k);
+            }
+        }
+        assert_eq!(sim.cia402_state(), State::Fault, "class d: {class_d}");
+        let (off, engaged) = (off_at.expect("outputs off"), engaged_at.expect("brake engaged"));
+        println!("class d: {class_d}: outputs off after {} ms, brake engaged after {} ms", off / 25, engaged / 25);
+        assert!(
+            engaged <= off + periods(12),
+            "class d: {class_d}: brake engaged {} ms after the outputs went off",
+            (engaged as f64 - off as f64) / 25.0
+        );
+    }
+}
