@@ -480,8 +480,13 @@ impl Drive {
         if i2t_limit != self.i2t_limit || supervised.current_limit != self.thermal_limit {
             self.i2t_limit = i2t_limit;
             self.thermal_limit = supervised.current_limit;
-            self.scale = self.base_scale.limited_to(i2t_limit).limited_to(self.thermal_limit);
+            self.scale = self.limited_scale(self.base_scale);
         }
+    }
+
+    /// `scale` with the current limits of the protections in force: I2t and thermal derating.
+    fn limited_scale(&self, scale: DemandScale) -> DemandScale {
+        scale.limited_to(self.i2t_limit).limited_to(self.thermal_limit)
     }
 
     /// What the supervision reads: the last fast tick's measurements and the axis's state.
@@ -703,12 +708,12 @@ impl Drive {
         let scale =
             DemandScale::from_od(nominal, motor.output_limit_ma, motor.max_current_permille, motor.max_torque_permille);
         self.base_scale = scale;
-        // Both protections' limits stay in force across the re-read (the thermal derating's would otherwise hold
-        // only in the slow tick it changed).
-        self.scale = scale.limited_to(self.i2t_limit).limited_to(self.thermal_limit);
         // 0x6075 and 0x6076 are read-only copies derived from 0x3001 (single writer: the drive).
         d.set(h::MOTOR_RATED_CURRENT, nominal);
         d.set(h::MOTOR_RATED_TORQUE, rated_torque_micro_nm(nominal, motor.torque_constant));
+        // The protections' limits stay in force across the re-read (the thermal derating's would otherwise hold
+        // only in the slow tick it changed).
+        self.scale = self.limited_scale(scale);
     }
 
     /// Updates the 50 Hz averages of the q current and the bus voltage (0x30D1:01, 0x30D2:01, homing -1..-4).

@@ -6,7 +6,7 @@
 //! at 0x3001:02 = 10 A for about 10 ms), each deceleration feeds the motor's energy back into the bus (no braking
 //! chopper on the reference supply), and a load torque of up to 30 % of the peak torque is switched on and off
 //! every 1.7 s, out of phase with the velocity steps. The load resists the motion (a machining or conveying
-//! load, `J dw/dt = T_motor - T_load` with `T_load` of the velocity's sign): an overhauling load (a vertical axis
+//! load, `J dw/dt = T_motor - T_load` with `T_load` of the speed's sign): an overhauling load (a vertical axis
 //! lowering) regenerates without end and, with a supply that cannot take the energy back and no braking resistor,
 //! must end in the bus over-voltage trip, which is right, not a false trip. The RMS current stays below the
 //! nominal current, so the motor I2t has no reason to limit; the bus rises on each braking but stays below the
@@ -29,7 +29,7 @@ const VELOCITY_STEPS_RPM: [i32; 8] = [2_000, 0, -2_000, 0, 1_500, -1_500, 2_000,
 /// Time between two velocity steps, s.
 const STEP_PERIOD_S: f64 = 0.6;
 /// Load torque magnitudes, Nm, one every [`LOAD_PERIOD_S`] (the peak torque is 0.335 Nm); the sign follows the
-/// target velocity so that the load resists the motion.
+/// speed so that the load resists the motion.
 const LOAD_STEPS_NM: [f64; 4] = [0.1, 0.0, 0.05, 0.0];
 /// Time between two load steps, s.
 const LOAD_PERIOD_S: f64 = 1.7;
@@ -81,7 +81,8 @@ pub fn duty_cycle(seed: u64) -> Result<(DutyCycleFigures, Trace), SimError> {
             load = LOAD_STEPS_NM[load_index % LOAD_STEPS_NM.len()];
             load_index += 1;
         }
-        sim.plant.set_load_torque(load * f64::from(target.signum()));
+        // The load resists the motion: its sign follows the speed (a reversal never turns it into a drive).
+        sim.plant.set_load_torque(load * sim.plant.state().speed_rpm.signum());
         if k.is_multiple_of(PERIODS_PER_CYCLE) {
             sim.setpoint_received();
         }
