@@ -22,6 +22,7 @@ pub mod cia402;
 pub mod comm;
 pub mod control;
 pub mod drive;
+pub mod ecat;
 pub mod fault;
 pub mod flash_map;
 pub mod hal;

@@ -50,8 +50,8 @@ pub mod protocol {
     pub const FOE: u16 = 0x0008;
 }
 
-/// Whether the firmware's CoE server answers the SDO information service (ETG.1000.6 §5.6.3). Not yet.
-pub const SDO_INFO_SUPPORTED: bool = false;
+/// Whether the firmware's CoE server answers the SDO information service (ETG.1000.6 §5.6.3): `firmware::ecat::coe`.
+pub const SDO_INFO_SUPPORTED: bool = true;
 /// Whether the firmware's CoE server accepts complete access (ETG.1000.6 §5.6.2.1). Not yet; SOEM would use
 /// it to read the PDO mapping if the SII announced it.
 pub const COMPLETE_ACCESS_SUPPORTED: bool = false;

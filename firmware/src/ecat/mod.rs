@@ -1,0 +1,23 @@
+//! The EtherCAT application layer of the drive, over a narrow [`esc::Esc`] trait (register and process-RAM read
+//! and write from the PDI side), so the same code runs on `hal-sim`'s emulated ESC and, through a board driver,
+//! on an SPI ESC chip (LAN9252 / AX58100 class).
+//!
+//! Module map:
+//! - [`esc`]: the [`esc::Esc`] trait, the ESC register addresses the firmware uses, the sync-manager
+//!   configuration as the firmware reads it, and the AL status codes ([`esc::AlStatusCode`]).
+//! - [`esm`]: the EtherCAT state machine INIT, PRE-OP, SAFE-OP, OP, BOOT with the checks of each transition.
+//! - [`mailbox`]: the mailbox on SM0/SM1: header, counter and repeat rules, mailbox error replies.
+//! - [`coe`]: CoE over the mailbox: SDO (the shared [`crate::comm::sdo::coe::CoeSdoServer`]), the SDO information
+//!   service, emergencies.
+//! - [`foe`]: FoE read/write requests, accepted only in BOOT and handed to a [`foe::FoeSink`].
+//! - [`process_data`]: the PDO mapping and assignment validated as a whole, and the process images packed and
+//!   unpacked through the dictionary without searching.
+//! - [`sync`]: the synchronisation objects 0x1C32/0x1C33 (free run, SM-synchronous, DC SYNC0) and their checks.
+
+pub mod coe;
+pub mod esc;
+pub mod esm;
+pub mod foe;
+pub mod mailbox;
+pub mod process_data;
+pub mod sync;
