@@ -40,6 +40,8 @@ pub mod reg {
     pub const AL_STATUS_CODE: u16 = 0x0134;
     /// AL event request, u32.
     pub const AL_EVENT_REQUEST: u16 = 0x0220;
+    /// Watchdog time process data, u16 in units of the watchdog divider 0x0400 (0 = watchdog off).
+    pub const WATCHDOG_TIME_PD: u16 = 0x0420;
     /// Watchdog status process data, u16 (bit 0: 1 = not expired).
     pub const WATCHDOG_STATUS_PD: u16 = 0x0440;
     /// First sync manager's configuration; each is 8 bytes.

@@ -12,6 +12,7 @@
 //! - [`foe`]: FoE read/write requests, accepted only in BOOT and handed to a [`foe::FoeSink`].
 //! - [`process_data`]: the PDO mapping and assignment validated as a whole, and the process images packed and
 //!   unpacked through the dictionary without searching.
+//! - [`slave`]: [`slave::EthercatSlave`], the drive as a slave: the above tied to [`crate::drive::Drive`].
 //! - [`sync`]: the synchronisation objects 0x1C32/0x1C33 (free run, SM-synchronous, DC SYNC0) and their checks.
 
 pub mod coe;
@@ -20,4 +21,5 @@ pub mod esm;
 pub mod foe;
 pub mod mailbox;
 pub mod process_data;
+pub mod slave;
 pub mod sync;
