@@ -298,9 +298,10 @@ fn image_body(d: &Description) -> Vec<u8> {
     words[0x3F] = 1;
 
     let mut strings = Strings(Vec::new());
+    // The device name first: SOEM takes string 1 as the slave's name, whatever GENERAL's name index says.
+    let name = strings.index(&dev.device_name);
     let group = strings.index(&dev.group_name);
     let order = strings.index(&dev.order_code);
-    let name = strings.index(&dev.device_name);
     let tx = esi::assigned_pdo_layouts(d, Direction::Tx);
     let rx = esi::assigned_pdo_layouts(d, Direction::Rx);
     let tx_data = pdo_category(&tx, &mut strings);

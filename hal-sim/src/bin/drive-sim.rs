@@ -10,6 +10,8 @@
 //! drive-sim fault-matrix [--seed N] [--out DIR] [--only TEXT]       every fault injected, reaction checked
 //! drive-sim duty-cycle   [--seed N] [--out DIR]                     60 s duty cycle: no false trips
 //! drive-sim bench        [--seconds S]                              host speed (build with --release)
+//! drive-sim ethercat --iface NAME [--lock-step] [--cycle-us N] [--clock-error-ppm X] [--seconds S]
+//!                        [--idle-exit-ms N] [--seed N]            the drive as an EtherCAT slave on NAME
 //! ```
 //!
 //! Each scenario prints a human-readable report, the paths of the CSV traces and SVG plots it wrote (under
@@ -19,6 +21,7 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
+use hal_sim::sim::ethercat::{ClockMode, EthercatConfig, EthercatRunner};
 use hal_sim::sim::motion::{self, CspConfig};
 use hal_sim::sim::plot::{Plot, Series};
 use hal_sim::sim::profile::{self, Profile};
@@ -27,8 +30,9 @@ use hal_sim::sim::trace::Trace;
 use hal_sim::sim::{duty_cycle, faults, homing};
 
 const USAGE: &str =
-    "usage: drive-sim <current-step | spinning | csp | csv-sweep | ppm | homing | fault-matrix | duty-cycle | bench> [--seed N] [--default-gains | --gains P,I] \
-                     [--out DIR] [--seconds S] [--only TEXT]";
+    "usage: drive-sim <current-step | spinning | csp | csv-sweep | ppm | homing | fault-matrix | duty-cycle | bench | ethercat> [--seed N] [--default-gains | --gains P,I] \
+                     [--out DIR] [--seconds S] [--only TEXT] \
+                     [--iface NAME --lock-step --cycle-us N --clock-error-ppm X --idle-exit-ms N]";
 
 struct Args {
     scenario: String,
@@ -39,6 +43,20 @@ struct Args {
     seconds: f64,
     position_gains: Option<[u32; 5]>,
     only: Option<String>,
+    /// `ethercat`: the options of [`ethercat`].
+    ecat: EcatArgs,
+}
+
+/// The `ethercat` scenario's options.
+#[derive(Default)]
+struct EcatArgs {
+    iface: Option<String>,
+    lock_step: bool,
+    cycle_us: Option<u64>,
+    clock_error_ppm: f64,
+    /// `--seconds` as given (the scenario runs until stopped without it).
+    seconds: Option<f64>,
+    idle_exit_ms: Option<u64>,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -53,6 +71,7 @@ fn parse_args() -> Result<Args, String> {
         seconds: 2.0,
         position_gains: None,
         only: None,
+        ecat: EcatArgs::default(),
     };
     while let Some(a) = it.next() {
         let mut value = |name: &str| it.next().ok_or_else(|| format!("{name} needs a value\n{USAGE}"));
@@ -74,7 +93,23 @@ fn parse_args() -> Result<Args, String> {
                 args.position_gains = Some(g);
             }
             "--out" => args.out = Some(PathBuf::from(value("--out")?)),
-            "--seconds" => args.seconds = value("--seconds")?.parse().map_err(|e| format!("--seconds: {e}"))?,
+            "--seconds" => {
+                args.seconds = value("--seconds")?.parse().map_err(|e| format!("--seconds: {e}"))?;
+                args.ecat.seconds = Some(args.seconds);
+            }
+            "--iface" => args.ecat.iface = Some(value("--iface")?),
+            "--lock-step" => args.ecat.lock_step = true,
+            "--cycle-us" => {
+                args.ecat.cycle_us = Some(value("--cycle-us")?.parse().map_err(|e| format!("--cycle-us: {e}"))?);
+            }
+            "--clock-error-ppm" => {
+                args.ecat.clock_error_ppm =
+                    value("--clock-error-ppm")?.parse().map_err(|e| format!("--clock-error-ppm: {e}"))?;
+            }
+            "--idle-exit-ms" => {
+                args.ecat.idle_exit_ms =
+                    Some(value("--idle-exit-ms")?.parse().map_err(|e| format!("--idle-exit-ms: {e}"))?);
+            }
             "--only" => args.only = Some(value("--only")?.to_lowercase()),
             other => return Err(format!("unknown argument {other}\n{USAGE}")),
         }
@@ -468,6 +503,107 @@ fn bench(args: &Args) -> Result<(), String> {
     Ok(())
 }
 
+/// `drive-sim ethercat`: the drive as an EtherCAT slave on a network interface until `--seconds` (wall clock)
+/// pass, the master falls silent for `--idle-exit-ms` after its first frame, or the process is stopped.
+fn ethercat(args: &Args) -> Result<(), String> {
+    let e = &args.ecat;
+    let iface = e.iface.as_deref().ok_or_else(|| format!("ethercat needs --iface NAME\n{USAGE}"))?;
+    let cycle_us = e.cycle_us.unwrap_or(1_000);
+    if cycle_us == 0 {
+        return Err("--cycle-us must be above 0".to_owned());
+    }
+    if !e.clock_error_ppm.is_finite() || e.clock_error_ppm.abs() > 1_000.0 {
+        return Err(format!("--clock-error-ppm {} out of range (-1000..=1000)", e.clock_error_ppm));
+    }
+    let config = EthercatConfig {
+        clock: if e.lock_step { ClockMode::LockStep } else { ClockMode::RealTime },
+        cycle_ns: cycle_us.saturating_mul(1_000),
+        clock_error_ppb: (e.clock_error_ppm * 1_000.0).round() as i64,
+        seed: args.seed,
+    };
+    if cfg!(debug_assertions) {
+        println!("note: a debug build; real masters' timeouts want `cargo run --release`");
+    }
+    let mut runner = EthercatRunner::new(config)?;
+    match config.clock {
+        ClockMode::LockStep => println!(
+            "ethercat: serving the simulated drive on {iface}, lock-step: {cycle_us} us of simulated time per cyclic \
+             frame (LRW/LRD/LWR)"
+        ),
+        ClockMode::RealTime => println!("ethercat: serving the simulated drive on {iface}, real time"),
+    }
+    println!(
+        "  reference plant (seed {}), ESC local clock {:+} ppm against the master, stop: {}",
+        args.seed,
+        e.clock_error_ppm,
+        match (e.seconds, e.idle_exit_ms) {
+            (Some(s), Some(ms)) => format!("after {s} s or {ms} ms without frames"),
+            (Some(s), None) => format!("after {s} s"),
+            (None, Some(ms)) => format!("after {ms} ms without frames"),
+            (None, None) => "Ctrl-C".to_owned(),
+        }
+    );
+    let start = std::time::Instant::now();
+    let limit = e.seconds.map(std::time::Duration::from_secs_f64);
+    let idle_exit = e.idle_exit_ms.map(std::time::Duration::from_millis);
+    let mut last_frames = 0;
+    let mut last_frame_at = start;
+    runner
+        .serve(iface, std::time::Duration::from_millis(1), |stats| {
+            let now = std::time::Instant::now();
+            if stats.frames != last_frames {
+                last_frames = stats.frames;
+                last_frame_at = now;
+            }
+            let timed_out = limit.is_some_and(|l| now.duration_since(start) >= l);
+            let silent = idle_exit.is_some_and(|d| stats.frames > 0 && now.duration_since(last_frame_at) >= d);
+            timed_out || silent
+        })
+        .map_err(|err| err.to_string())?;
+    let s = runner.stats();
+    let wall = start.elapsed().as_secs_f64();
+    println!(
+        "  {} frames ({} cyclic, {} dropped) in {wall:.2} s wall-clock, {:.3} s simulated; {} process-data cycles",
+        s.frames,
+        s.cyclic_frames,
+        s.dropped,
+        runner.simulated_ns() as f64 * 1e-9,
+        s.cycles
+    );
+    println!();
+    println!("frames={}", s.frames);
+    println!("cyclic_frames={}", s.cyclic_frames);
+    println!("dropped_frames={}", s.dropped);
+    println!("cycles={}", s.cycles);
+    println!("sm2_writes={}", s.sm2_writes);
+    println!("sync0_pulses={}", s.sync0_pulses);
+    println!("sync0_missed={}", s.sync0_missed);
+    println!("lag_events={}", s.lag_events);
+    println!("state_reached={}", al_state_name(s.highest_al_state));
+    println!("state_final={:?}", runner.state());
+    println!("sm_event_missed={}", runner.sm_event_missed());
+    println!("simulated_s={:.6}", runner.simulated_ns() as f64 * 1e-9);
+    // The DC registers as the master left them (0x0981 SYNC activation, 0x09A0 SYNC0 cycle).
+    println!("dc_activation=0x{:02x}", runner.esc.register(0x0981));
+    println!(
+        "sync0_cycle_ns={}",
+        u32::from_le_bytes([0x09A0u16, 0x09A1, 0x09A2, 0x09A3].map(|a| runner.esc.register(a)))
+    );
+    Ok(())
+}
+
+/// The name of an AL state code (0x0130 bits 3..0).
+fn al_state_name(code: u16) -> &'static str {
+    match code {
+        1 => "INIT",
+        2 => "PREOP",
+        3 => "BOOT",
+        4 => "SAFEOP",
+        8 => "OP",
+        _ => "NONE",
+    }
+}
+
 fn main() -> ExitCode {
     let args = match parse_args() {
         Ok(a) => a,
@@ -487,6 +623,7 @@ fn main() -> ExitCode {
         "fault-matrix" => fault_matrix(&args, &dir),
         "duty-cycle" => duty_cycle(&args, &dir),
         "bench" => bench(&args),
+        "ethercat" => ethercat(&args),
         other => Err(format!("unknown scenario {other}\n{USAGE}")),
     };
     match result {

@@ -7,6 +7,7 @@
 //! 2 runs after tier 1 returns, well inside the same period).
 
 pub mod duty_cycle;
+pub mod ethercat;
 pub mod faults;
 pub mod homing;
 pub mod motion;
