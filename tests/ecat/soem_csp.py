@@ -12,9 +12,9 @@ Steps (issue 6, "What it must show"; facts in shared/spec/fieldbus-real-masters.
 2. The identity object 0x1018:01..03 read through SDO equals the SII's; 0x1008 (device name) is read.
 3. config_map (PDO discovery over CoE: 0x1C12/0x1C13 and the mapping objects), SAFE-OP, then OP.
 4. --cycles cycles of process data (LRW), each with the expected working counter (outputs + inputs = 3).
-   With --dc: 0x1C32:01/0x1C33:01 = 2 (DC SYNC0) in PRE-OP, config_dc and SYNC0 every --cycle-ns
-   (not passing yet: the drive refuses SAFE-OP with AL status code 0x0030 although SOEM left 0x0981 = 0x03
-   and 0x09A0 = the cycle; no test runs it).
+   With --dc: 0x1C32:01/0x1C33:01 = 2 (DC SYNC0) in PRE-OP, config_map with SOEM's automatic SAFE-OP request
+   switched off (see run()), config_dc and SYNC0 every --cycle-ns, then SAFE-OP and OP; after the cycles
+   0x1C32:01, 0x1C32:0A (SYNC0 cycle) and 0x1C32:0B (SM event missed) are read back over SDO.
 5. Back to INIT.
 """
 
@@ -102,6 +102,12 @@ def run(args):
             slave.sdo_write(0x1C33, 1, struct.pack("<H", 2))
             emit("sync_type", struct.unpack("<H", slave.sdo_read(0x1C32, 1))[0])
 
+        if args.dc:
+            # SOEM's config_map ends by requesting SAFE-OP of every slave it mapped (ecx_config_map_group writes
+            # AL control = 0x04 after the FMMUs unless `manualstatechange` is set), that is before config_dc and
+            # dc_sync have armed SYNC0: a DC slave must refuse that request with 0x0030 (ETG.1000.6 Table 11, SYNC0
+            # not activated) and stays in PRE-OP + error. The master requests SAFE-OP itself once SYNC0 runs.
+            master.manual_state_change = True
         # Process data: SOEM discovers the mapping over CoE, sets up SM2/SM3 and the FMMUs.
         io_bytes = master.config_map()
         if args.dc:
@@ -150,6 +156,12 @@ def run(args):
         emit("wkc_errors", bad)
         master.read_state()
         emit("state_after_cycles", state_name(slave.state))
+        if args.dc:
+            # ETG.1020 0x1C32 as the drive keeps it in OP: the sync type, the SYNC0 cycle it runs with, and
+            # the SM events missed (a SYNC0 without fresh outputs).
+            emit("sdo_sync_type", struct.unpack("<H", slave.sdo_read(0x1C32, 0x01))[0])
+            emit("sdo_sync0_cycle_ns", struct.unpack("<I", slave.sdo_read(0x1C32, 0x0A))[0])
+            emit("sdo_sm_event_missed", struct.unpack("<H", slave.sdo_read(0x1C32, 0x0B))[0])
         if bad:
             raise Fail(f"{bad} cycles with a wrong working counter, first at cycle {first_bad[0]}: {first_bad[1]}")
         if slave.state != pysoem.OP_STATE:

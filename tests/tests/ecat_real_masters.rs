@@ -6,7 +6,8 @@
 //! The test builds `drive-sim` itself, then checks what the master saw against the dictionary and the SII
 //! image: exactly one slave, its identity from the SII equal to 0x1018 read over SDO, the device name 0x1008,
 //! the process image of the default PDO assignment, OP reached, 1,000 cycles with the expected working counter,
-//! and the simulator's own count of process-data cycles and SM events missed.
+//! and the simulator's own count of process-data cycles and SM events missed. A second run does the same in DC
+//! mode (0x1C32:01 = 0x1C33:01 = 2, SOEM's `config_dc` and `dc_sync`, the ESC's clock 100 ppm fast).
 //!
 //! It skips (printing why) only when the machine cannot run it at all: no user namespaces (`unshare -Urn true`
 //! fails), or python3/pysoem missing although `scripts/setup.sh` installs them.
@@ -114,9 +115,14 @@ cat '{log}'
 }
 
 /// Runs the master script against the simulator in a fresh namespace; the master's and the simulator's output.
-fn run_in_namespace(sim_args: &str, master_args: &str) -> (HashMap<String, String>, HashMap<String, String>, String) {
+/// `name` keeps the temporary directories of tests that run at the same time (same process) apart.
+fn run_in_namespace(
+    name: &str,
+    sim_args: &str,
+    master_args: &str,
+) -> (HashMap<String, String>, HashMap<String, String>, String) {
     let drive_sim = build_drive_sim();
-    let dir = std::env::temp_dir().join(format!("ecat-real-masters-{}", std::process::id()));
+    let dir = std::env::temp_dir().join(format!("ecat-real-masters-{}-{name}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("temp dir");
     let sim_log = dir.join("drive-sim.log");
     let script = namespace_script(&drive_sim, &root().join("tests/ecat/soem_csp.py"), &sim_log, sim_args, master_args);
@@ -134,7 +140,7 @@ fn soem_finds_the_drive_takes_it_to_op_and_runs_1000_cycles_with_every_working_c
         eprintln!("SKIPPED soem_finds_the_drive...: {why}");
         return;
     }
-    let (m, s, text) = run_in_namespace("--lock-step --cycle-us 1000", "--cycles 1000");
+    let (m, s, text) = run_in_namespace("sm-sync", "--lock-step --cycle-us 1000", "--cycles 1000");
     let get = |map: &HashMap<String, String>, k: &str| {
         map.get(k).cloned().unwrap_or_else(|| panic!("no `{k}` in the output:\n{text}"))
     };
@@ -188,4 +194,72 @@ fn soem_finds_the_drive_takes_it_to_op_and_runs_1000_cycles_with_every_working_c
     assert!(cycles >= 1_000, "cycles {cycles}");
     assert_eq!(get(&s, "sm_event_missed"), "0");
     assert_eq!(get(&s, "dropped_frames"), "0");
+}
+
+/// DC SYNC0 with SOEM (`soem_csp.py --dc`): 0x1C32:01 = 0x1C33:01 = 2 written in PRE-OP, `config_map` without
+/// SOEM's automatic SAFE-OP request (it comes before SYNC0 is armed, which the drive refuses with 0x0030),
+/// `config_dc`, `dc_sync(1, 1 ms)`, SAFE-OP, OP, 11,000 cycles, then 0x1C32 read back over SDO.
+///
+/// The ESC's clock runs 100 ppm fast and lock-step follows SYNC0 (hal-sim `sim::ethercat`, "In DC mode"):
+/// with a fixed 1 ms per frame the frames would drift against SYNC0 by one pulse per 10,000 cycles and count an
+/// SM event missed within the 11,000 cycles (measured before the lock: 2 in 20,000); locked, none.
+#[test]
+fn soem_takes_the_drive_to_op_in_dc_mode_and_runs_11000_cycles_without_a_missed_sm_event() {
+    if let Some(why) = cannot_run() {
+        eprintln!("SKIPPED soem_takes_the_drive_to_op_in_dc_mode...: {why}");
+        return;
+    }
+    let (m, s, text) = run_in_namespace(
+        "dc",
+        "--lock-step --cycle-us 1000 --clock-error-ppm 100",
+        "--dc --cycle-ns 1000000 --cycles 11000",
+    );
+    let get = |map: &HashMap<String, String>, k: &str| {
+        map.get(k).cloned().unwrap_or_else(|| panic!("no `{k}` in the output:\n{text}"))
+    };
+    let num = |map: &HashMap<String, String>, k: &str| -> f64 {
+        get(map, k).parse().unwrap_or_else(|e| panic!("`{k}`: {e}\n{text}"))
+    };
+    assert_eq!(get(&m, "verdict"), "pass", "\n{text}");
+    assert_eq!(get(&m, "master_rc"), "0", "\n{text}");
+    assert_eq!(get(&m, "slaves_found"), "1");
+    assert_ne!(get(&m, "sii_vendor"), "0x00000000", "a real identity");
+
+    // The master's side: DC requested and found, SAFE-OP and OP reached, every cycle's working counter right.
+    assert_eq!(get(&m, "sync_type"), "2", "0x1C32:01 after the download");
+    assert_eq!(get(&m, "dc_slaves"), "1", "config_dc found the drive's clock");
+    assert_eq!(get(&m, "expected_wkc"), "3");
+    assert_eq!(get(&m, "safeop"), "1");
+    assert_eq!(get(&m, "op"), "1");
+    assert_eq!(get(&m, "cycles"), "11000");
+    assert_eq!(get(&m, "wkc_errors"), "0");
+    assert_eq!(get(&m, "state_after_cycles"), "OP");
+    // 0x1C32 over SDO in OP (ETG.1020): DC SYNC0, its cycle from 0x09A0, no SM event missed.
+    assert_eq!(get(&m, "sdo_sync_type"), "2");
+    assert_eq!(get(&m, "sdo_sync0_cycle_ns"), "1000000");
+    assert_eq!(get(&m, "sdo_sm_event_missed"), "0");
+    assert_eq!(get(&m, "init_again"), "1");
+
+    // The simulator's side: SYNC0 armed by the master (0x0981 = cyclic + SYNC0, 0x09A0 = 1 ms); every
+    // process-data cycle started by a SYNC0 pulse, none by the SM2 writes (which outnumber them: SOEM's start
+    // time lies 100 ms ahead), none missed.
+    assert_eq!(get(&m, "sim_rc"), "0", "drive-sim's exit status\n{text}");
+    assert_eq!(get(&s, "state_reached"), "OP");
+    assert_eq!(get(&s, "dc_activation"), "0x03");
+    assert_eq!(get(&s, "sync0_cycle_ns"), "1000000");
+    let cycles = num(&s, "cycles");
+    assert_eq!(cycles, num(&s, "sync0_pulses"), "a cycle per SYNC0 pulse\n{text}");
+    assert!(cycles >= 10_500.0, "DC cycles {cycles}");
+    assert!(num(&s, "sm2_writes") > cycles, "SM2 writes do not start cycles in DC mode");
+    assert_eq!(get(&s, "sync0_missed"), "0");
+    assert_eq!(get(&s, "sm_event_missed"), "0");
+    assert_eq!(get(&s, "dropped_frames"), "0");
+    // Locked to the ESC's clock: once SYNC0 ran (lock-step takes the first pulse within one master cycle) the
+    // frames came every 0.9999 ms of simulated time: 10,500 or more locked cycles run about 1.05 ms or more
+    // (less one PWM period of rounding) short of 1 ms per cyclic frame, plus under 1 ms saved on the frame that
+    // reached the first pulse. A fixed 1 ms per frame would make it exactly `cyclic` ms.
+    let cyclic = num(&s, "cyclic_frames");
+    let simulated_us = (num(&s, "simulated_s") * 1e6).round();
+    let short_us = cyclic * 1_000.0 - simulated_us;
+    assert!((500.0..=3_000.0).contains(&short_us), "simulated {simulated_us} us for {cyclic} cyclic frames");
 }

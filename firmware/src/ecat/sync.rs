@@ -16,6 +16,14 @@
 //! 0x0030. Sub 1 keeps what the master wrote ([`Synchronisation::publish`] does not rewrite it), so that the
 //! same rule applies again at the next PRE-OP to SAFE-OP.
 //!
+//! **Order of the master's steps.** The check reads 0x0981/0x09A0 when SAFE-OP is requested, so SYNC0 must be
+//! armed before that request. SOEM's `config_map` itself requests SAFE-OP at its end (`ecx_config_map_group`
+//! writes AL control = SAFE-OP after the FMMUs unless the context's `manualstatechange` is set), i.e. before
+//! `config_dc`/`dc_sync`: with 0x1C32:01 = 2 that request is refused with 0x0030 and the slave stays in
+//! PRE-OP + error (checked with pysoem 1.1.13: 0x0981 = 0 at the request, 0x03 after `dc_sync`). A DC master
+//! with SOEM sets `manual_state_change` (or arms SYNC0 in the PRE-OP to SAFE-OP hook) and requests SAFE-OP
+//! itself; tests/ecat/soem_csp.py --dc does so.
+//!
 //! **Counters** ([`SyncCounters`], published into sub 0x0B, 0x0C, 0x20 of both objects): an SM-event-missed is
 //! a cycle start (SYNC0) without fresh outputs since the previous one, or, SM-synchronous, one and a half cycles
 //! without an SM2 event; a cycle-time-too-small is an SM2 event less than the minimum cycle time (0x1C32:05)

@@ -177,6 +177,11 @@ impl Esc {
         self.clock.next_sync0().map(|t| t.saturating_sub(self.clock.system_time()))
     }
 
+    /// The SYNC0 cycle time (0x09A0 as armed), ns, if SYNC0 is armed and cyclic (not single shot).
+    pub fn sync0_cycle(&self) -> Option<u32> {
+        self.clock.sync0.map(|g| g.cycle).filter(|&c| c > 0)
+    }
+
     fn note_sync0(&mut self, pulses: u32) {
         if pulses == 0 {
             return;

@@ -11,7 +11,14 @@
 //! - [`ClockMode::LockStep`]: simulated time advances by exactly one master cycle with each cyclic frame (one that
 //!   carries an LRW, LRD or LWR datagram), the DC system time with it ([`Esc::advance`]), and not at all
 //!   otherwise. The master's pace is the simulation's pace, so a master on a busy 2-core machine gets the same
-//!   answers every run.
+//!   answers every run. **In DC mode** (0x1C32:01 = 2 and SYNC0 armed, its next pulse at most one SYNC0
+//!   cycle away) a cyclic frame instead runs simulated time up to and including the next SYNC0 pulse: the
+//!   master is locked to the ESC's clock as a real DC master is (it follows the reference clock's system time
+//!   that its cyclic `FRMW 0x0910` reads, fieldbus-real-masters.md item 8), so each frame is followed by exactly
+//!   one SYNC0 whatever the ESC's clock error (`--clock-error-ppm`). With a fixed master cycle instead, SYNC0
+//!   (ESC time) and the frames (simulated time) drift apart: at +100 ppm one SYNC0 pulse per 10,000 cycles
+//!   finds no fresh outputs and counts an SM event missed (0x1C32:0B). A frame then arrives at most one PWM
+//!   period after the pulse that ended the previous one, and the outputs it brings are used at the next pulse.
 //!
 //! The firmware runs as on the target: [`EthercatSlave::poll`] (tier 3: AL control, mailbox, watchdog) after every
 //! frame and idle event; [`EthercatSlave::cycle`] (the process-data cycle) where 0x1C32:01 says: after a frame
@@ -228,7 +235,11 @@ impl SlaveNode {
             self.stats.cyclic_frames = self.stats.cyclic_frames.saturating_add(1);
         }
         match self.config.clock {
-            ClockMode::LockStep if cyclic => self.run_for(esc, self.config.cycle_ns),
+            ClockMode::LockStep if cyclic => {
+                if !self.run_to_sync0(esc) {
+                    self.run_for(esc, self.config.cycle_ns);
+                }
+            }
             ClockMode::LockStep => {}
             ClockMode::RealTime => self.catch_up(esc),
         }
@@ -291,6 +302,33 @@ impl SlaveNode {
         for _ in 0..periods {
             self.step(esc);
         }
+    }
+
+    /// Lock-step in DC mode (see the module documentation): runs whole PWM periods until the next SYNC0 pulse
+    /// has fired, if 0x1C32:01 asks for DC, SYNC0 is armed and its next pulse is due within one cycle (so
+    /// that a start time far ahead, as SOEM's `dc_sync` sets it, is reached at the master's own cycle first).
+    /// Returns whether it ran; a cycle carry owed by [`Self::run_for`] is dropped (the ESC's clock sets the
+    /// pace now).
+    fn run_to_sync0(&mut self, esc: &mut Esc) -> bool {
+        if self.sync_type() != sync_type::DC_SYNC0 {
+            return false;
+        }
+        let (Some(cycle), Some(next_in)) = (esc.sync0_cycle(), esc.next_sync0_in()) else { return false };
+        let cycle = u64::from(cycle);
+        if next_in > cycle {
+            return false;
+        }
+        self.owed_ns = 0;
+        // Bounded: the pulse is at most one cycle (of local time, which runs at most 0.1 % off) away.
+        let max_periods = (3 * cycle).div_ceil(PERIOD_NS) + 1;
+        let pulses = self.stats.sync0_pulses;
+        for _ in 0..max_periods {
+            self.step(esc);
+            if self.stats.sync0_pulses != pulses {
+                break;
+            }
+        }
+        true
     }
 
     /// Real-time mode: runs the plant up to the wall clock (at most [`MAX_CATCH_UP_PERIODS`] at once).
@@ -410,6 +448,51 @@ mod tests {
         assert_eq!(s.sync0_pulses, 100);
         assert_eq!(s.sync0_missed, 0);
         assert_eq!(s.cycles, 100);
+    }
+
+    #[test]
+    fn in_dc_mode_lock_step_follows_the_esc_clock_so_a_fast_clock_gains_no_sync0_pulse() {
+        // +1000 ppm (the option's limit): with a fixed 1 ms per frame, 3,000 frames would run 3,000 ms of
+        // simulated time and see 3,003 pulses. Locked to SYNC0, each frame is followed by exactly one.
+        let mut r = lock_step(1_000_000, 1_000_000);
+        r.node.sim.drive.dictionary_mut().set(h::SM2_SYNC_TYPE, sync_type::DC_SYNC0);
+        send(
+            &mut r,
+            FrameBuilder::new()
+                .push(Command::Bwr, 0, 0x09A0, &1_000_000u32.to_le_bytes())
+                .push(Command::Bwr, 0, 0x0990, &500_000u64.to_le_bytes())
+                .push(Command::Bwr, 0, 0x0981, &[0x03]),
+        );
+        for k in 1..=3_000u64 {
+            send(&mut r, lrw());
+            assert_eq!(r.stats().sync0_pulses, k, "one SYNC0 pulse per frame (frame {k})");
+        }
+        let s = r.stats();
+        assert_eq!((s.sync0_missed, s.cycles), (0, 3_000));
+        // The ESC's clock ran 3,000 cycles (less 0.5 ms to the first pulse) in 1000 ppm less simulated time.
+        let local = r.esc.local_time();
+        assert!((2_999_500_000..2_999_500_000 + PERIOD_NS + 1_000).contains(&local), "local {local}");
+        let ideal = r.simulated_ns();
+        assert!(ideal < 2_997_000_000 && ideal > 2_996_000_000, "simulated {ideal}");
+    }
+
+    #[test]
+    fn without_sync0_armed_dc_lock_step_keeps_the_master_cycle() {
+        let mut r = lock_step(1_000_000, 1_000_000);
+        r.node.sim.drive.dictionary_mut().set(h::SM2_SYNC_TYPE, sync_type::DC_SYNC0);
+        // SYNC0 armed, but its start 10 ms ahead: the master's cycle runs until it is one cycle away.
+        send(
+            &mut r,
+            FrameBuilder::new()
+                .push(Command::Bwr, 0, 0x09A0, &1_000_000u32.to_le_bytes())
+                .push(Command::Bwr, 0, 0x0990, &10_000_000u64.to_le_bytes())
+                .push(Command::Bwr, 0, 0x0981, &[0x03]),
+        );
+        for _ in 0..5 {
+            send(&mut r, lrw());
+        }
+        assert_eq!(r.simulated_ns(), 5_000_000);
+        assert_eq!(r.stats().sync0_pulses, 0);
     }
 
     #[test]
