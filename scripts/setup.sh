@@ -9,6 +9,8 @@ rustup show active-toolchain >/dev/null
 
 need_apt=()
 command -v qemu-system-arm >/dev/null 2>&1 || need_apt+=(qemu-system-arm)
+# tshark: the EtherCAT dissectors check the capture of a real-master run (tests/tests/ecat_real_masters.rs).
+command -v tshark >/dev/null 2>&1 || need_apt+=(tshark)
 if [ ${#need_apt[@]} -gt 0 ]; then
   export DEBIAN_FRONTEND=noninteractive
   apt-get update -qq

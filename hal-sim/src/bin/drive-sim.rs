@@ -11,7 +11,8 @@
 //! drive-sim duty-cycle   [--seed N] [--out DIR]                     60 s duty cycle: no false trips
 //! drive-sim bench        [--seconds S]                              host speed (build with --release)
 //! drive-sim ethercat --iface NAME [--lock-step] [--cycle-us N] [--clock-error-ppm X] [--seconds S]
-//!                        [--idle-exit-ms N] [--seed N]            the drive as an EtherCAT slave on NAME
+//!                        [--idle-exit-ms N] [--pcap FILE] [--seed N]  the drive as an EtherCAT slave on NAME;
+//!                                                                  --pcap records every frame in and out
 //! ```
 //!
 //! Each scenario prints a human-readable report, the paths of the CSV traces and SVG plots it wrote (under
@@ -21,6 +22,8 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
+use hal_sim::esc::pcap::PcapWriter;
+use hal_sim::esc::socket::Direction;
 use hal_sim::sim::ethercat::{ClockMode, EthercatConfig, EthercatRunner};
 use hal_sim::sim::motion::{self, CspConfig};
 use hal_sim::sim::plot::{Plot, Series};
@@ -32,7 +35,7 @@ use hal_sim::sim::{duty_cycle, faults, homing};
 const USAGE: &str =
     "usage: drive-sim <current-step | spinning | csp | csv-sweep | ppm | homing | fault-matrix | duty-cycle | bench | ethercat> [--seed N] [--default-gains | --gains P,I] \
                      [--out DIR] [--seconds S] [--only TEXT] \
-                     [--iface NAME --lock-step --cycle-us N --clock-error-ppm X --idle-exit-ms N]";
+                     [--iface NAME --lock-step --cycle-us N --clock-error-ppm X --idle-exit-ms N --pcap FILE]";
 
 struct Args {
     scenario: String,
@@ -57,6 +60,8 @@ struct EcatArgs {
     /// `--seconds` as given (the scenario runs until stopped without it).
     seconds: Option<f64>,
     idle_exit_ms: Option<u64>,
+    /// `--pcap FILE`: a capture (classic pcap) of every frame received and sent.
+    pcap: Option<PathBuf>,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -110,6 +115,7 @@ fn parse_args() -> Result<Args, String> {
                 args.ecat.idle_exit_ms =
                     Some(value("--idle-exit-ms")?.parse().map_err(|e| format!("--idle-exit-ms: {e}"))?);
             }
+            "--pcap" => args.ecat.pcap = Some(PathBuf::from(value("--pcap")?)),
             "--only" => args.only = Some(value("--only")?.to_lowercase()),
             other => return Err(format!("unknown argument {other}\n{USAGE}")),
         }
@@ -548,8 +554,23 @@ fn ethercat(args: &Args) -> Result<(), String> {
     let idle_exit = e.idle_exit_ms.map(std::time::Duration::from_millis);
     let mut last_frames = 0;
     let mut last_frame_at = start;
+    let mut pcap = match &e.pcap {
+        Some(path) => {
+            let file = std::fs::File::create(path).map_err(|err| format!("--pcap {}: {err}", path.display()))?;
+            Some(PcapWriter::new(std::io::BufWriter::new(file)).map_err(|err| format!("--pcap: {err}"))?)
+        }
+        None => None,
+    };
+    // Frames are stamped with the wall clock, as a capture on the interface would be.
+    let tap = |_: Direction, frame: &[u8]| match pcap.as_mut() {
+        Some(w) => {
+            let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default();
+            w.write_frame(now, frame)
+        }
+        None => Ok(()),
+    };
     runner
-        .serve(iface, std::time::Duration::from_millis(1), |stats| {
+        .serve_tapped(iface, std::time::Duration::from_millis(1), tap, |stats| {
             let now = std::time::Instant::now();
             if stats.frames != last_frames {
                 last_frames = stats.frames;
@@ -560,6 +581,14 @@ fn ethercat(args: &Args) -> Result<(), String> {
             timed_out || silent
         })
         .map_err(|err| err.to_string())?;
+    let pcap_packets = match pcap {
+        Some(w) => {
+            let n = w.packets();
+            w.into_inner().map_err(|err| format!("--pcap: {err}"))?;
+            Some(n)
+        }
+        None => None,
+    };
     let s = runner.stats();
     let wall = start.elapsed().as_secs_f64();
     println!(
@@ -572,6 +601,9 @@ fn ethercat(args: &Args) -> Result<(), String> {
     );
     println!();
     println!("frames={}", s.frames);
+    if let Some(n) = pcap_packets {
+        println!("pcap_packets={n}");
+    }
     println!("cyclic_frames={}", s.cyclic_frames);
     println!("dropped_frames={}", s.dropped);
     println!("cycles={}", s.cycles);

@@ -22,6 +22,7 @@ pub mod datagram;
 pub mod dc;
 pub mod esm;
 pub mod fmmu;
+pub mod pcap;
 pub mod pdi;
 pub mod registers;
 pub mod sii;

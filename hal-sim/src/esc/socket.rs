@@ -107,8 +107,33 @@ where
 }
 
 /// [`serve`] on an open socket.
-pub fn serve_socket<F>(socket: &RawSocket, esc: &mut Esc, poll: Duration, mut on_event: F) -> io::Result<()>
+pub fn serve_socket<F>(socket: &RawSocket, esc: &mut Esc, poll: Duration, on_event: F) -> io::Result<()>
 where
+    F: FnMut(&mut Esc, ServeEvent<'_>) -> ControlFlow<()>,
+{
+    serve_socket_tapped(socket, esc, poll, |_, _| Ok(()), on_event)
+}
+
+/// Which way a frame went on the interface (for a capture such as [`super::pcap`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Direction {
+    /// Received from the master, before the ESC processed it (every frame, dropped ones included).
+    Received,
+    /// The processed frame as sent back.
+    Sent,
+}
+
+/// [`serve_socket`] that also hands every frame to `tap`: each received one before processing, each answer
+/// after it is sent. An error of `tap` ends the loop with that error.
+pub fn serve_socket_tapped<T, F>(
+    socket: &RawSocket,
+    esc: &mut Esc,
+    poll: Duration,
+    mut tap: T,
+    mut on_event: F,
+) -> io::Result<()>
+where
+    T: FnMut(Direction, &[u8]) -> io::Result<()>,
     F: FnMut(&mut Esc, ServeEvent<'_>) -> ControlFlow<()>,
 {
     socket.set_read_timeout(Some(poll.max(Duration::from_micros(1))))?;
@@ -118,9 +143,11 @@ where
             None => on_event(esc, ServeEvent::Idle),
             Some(n) => {
                 let frame = &mut buf[..n.min(MAX_FRAME)];
+                tap(Direction::Received, frame)?;
                 match esc.process_frame(frame) {
                     Ok(report) => {
                         socket.send(frame)?;
+                        tap(Direction::Sent, frame)?;
                         on_event(esc, ServeEvent::Frame(&report))
                     }
                     Err(_) => on_event(esc, ServeEvent::Dropped),

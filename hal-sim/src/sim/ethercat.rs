@@ -39,7 +39,7 @@ use firmware::od::generated::handles as h;
 
 use super::Simulation;
 use crate::esc::datagram::{Command, FrameReport};
-use crate::esc::socket::{serve, ServeEvent};
+use crate::esc::socket::{serve_socket_tapped, Direction, RawSocket, ServeEvent};
 use crate::esc::Esc;
 
 /// One PWM period (the current-loop period and the simulation step), ns.
@@ -178,9 +178,22 @@ impl EthercatRunner {
     /// Serves the ESC on network interface `iface` (raw socket; needs `CAP_NET_RAW`) until `stop` says so; `stop`
     /// is asked after every event with the counters so far. `poll` bounds the wait for a frame before an idle
     /// event.
-    pub fn serve(&mut self, iface: &str, poll: Duration, mut stop: impl FnMut(&RunnerStats) -> bool) -> io::Result<()> {
+    pub fn serve(&mut self, iface: &str, poll: Duration, stop: impl FnMut(&RunnerStats) -> bool) -> io::Result<()> {
+        self.serve_tapped(iface, poll, |_, _| Ok(()), stop)
+    }
+
+    /// [`EthercatRunner::serve`] that hands every frame received and every answer sent to `tap` (a capture:
+    /// `drive-sim ethercat --pcap`); see [`serve_socket_tapped`].
+    pub fn serve_tapped(
+        &mut self,
+        iface: &str,
+        poll: Duration,
+        tap: impl FnMut(Direction, &[u8]) -> io::Result<()>,
+        mut stop: impl FnMut(&RunnerStats) -> bool,
+    ) -> io::Result<()> {
         let node = &mut self.node;
-        serve(iface, &mut self.esc, poll, |esc, event| {
+        let socket = RawSocket::bind(iface)?;
+        serve_socket_tapped(&socket, &mut self.esc, poll, tap, |esc, event| {
             match event {
                 ServeEvent::Frame(report) => node.on_frame(esc, report),
                 ServeEvent::Dropped => node.on_dropped(esc),
