@@ -123,8 +123,7 @@ fn limit_switch_stops_and_faults() {
 
 /// The plant's encoder count now (what the index and the switches are placed in).
 fn plant_count(sim: &Simulation) -> i64 {
-    let theta = sim.plant.state().theta_m_rad;
-    (theta / core::f64::consts::TAU * 4096.0).floor() as i64
+    sim.plant.true_encoder_count()
 }
 
 /// Touch probe 1 on the encoder index, positive edge, continuous (0x60B8 = 0x0017): at 120 rpm each revolution
@@ -175,7 +174,7 @@ fn a_fault_engages_the_holding_brake() {
         if class_d {
             sim.plant.set_power_stage_temperature(105.0);
         } else {
-            let count = (sim.plant.state().theta_m_rad / core::f64::consts::TAU * 4096.0).floor() as i64;
+            let count = sim.plant.true_encoder_count();
             sim.plant.params_mut().io.set_positive_limit(Some(count - 1_000_000));
         }
         let (mut off_at, mut engaged_at) = (None, None);

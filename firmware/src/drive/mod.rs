@@ -77,6 +77,33 @@ pub enum DriveError {
     },
 }
 
+impl DriveError {
+    /// The fault of the table this trip is reported as (`crate::fault::table`).
+    #[must_use]
+    pub const fn fault_id(self) -> FaultId {
+        match self {
+            Self::Calibration(_) => FaultId::CurrentOffsetCalibration,
+            Self::Commutation(_) => FaultId::HallInvalidState,
+            Self::Protection(Trip::BreakInput) => FaultId::PowerStageProtection,
+            Self::Protection(Trip::BusOverVoltage) => FaultId::DcBusOverVoltage,
+            Self::Protection(Trip::BusUnderVoltage) => FaultId::DcBusUnderVoltage,
+            Self::Protection(Trip::OverCurrent) => FaultId::OverCurrent,
+            Self::Protection(Trip::PhaseSum) => FaultId::PhaseCurrentImplausible,
+            Self::Overrun { .. } => FaultId::CurrentLoopOverrun,
+        }
+    }
+
+    /// The detail value of the trip's snapshot: the overrunning tick's cost, the invalid Hall state, else 0.
+    #[must_use]
+    pub fn fault_detail(self) -> i32 {
+        match self {
+            Self::Overrun { cost } => i32::try_from(cost).unwrap_or(i32::MAX),
+            Self::Commutation(CommutationError::InvalidHallState(h)) => i32::from(h),
+            Self::Calibration(_) | Self::Protection(_) => 0,
+        }
+    }
+}
+
 /// Why a power-stage request was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum RequestError {

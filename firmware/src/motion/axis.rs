@@ -38,8 +38,7 @@ use crate::control::interpolator::CyclicSetpoint;
 use crate::control::trajectory::{Acceleration, ProfileGenerator, Setpoint, Velocity};
 use crate::drive::demand::DemandScale;
 use crate::drive::latch::PinLatches;
-use crate::drive::protection::Trip;
-use crate::drive::{DriveError, PowerState};
+use crate::drive::PowerState;
 use crate::fault::i2t::{I2tConfig, MotorI2t};
 use crate::fault::snapshot::DiagnosisSnapshot;
 use crate::fault::table::FaultId;
@@ -445,10 +444,10 @@ impl Axis {
         // is cleared when the power stage no longer measures it, so a fault reset is refused until then.
         match input.power {
             PowerState::Fault(e) => {
-                let id = drive_fault_id(e);
+                let id = e.fault_id();
                 if !self.drive_fault_seen {
                     self.drive_fault_seen = true;
-                    self.faults.raise(id, snapshot(drive_fault_detail(e)), self.now);
+                    self.faults.raise(id, snapshot(e.fault_detail()), self.now);
                 }
                 if !input.power_fault_present {
                     self.faults.clear_cause(id);
@@ -771,29 +770,6 @@ impl Axis {
         d.set(h::VELOCITY_DEMAND_VALUE, self.params.rpm(self.last_setpoint.velocity));
         d.set(h::VELOCITY_ACTUAL_VALUE, self.params.rpm(velocity));
         self.faults.publish(d);
-    }
-}
-
-/// The fault of a power-stage trip (`crate::fault::table`).
-const fn drive_fault_id(e: DriveError) -> FaultId {
-    match e {
-        DriveError::Calibration(_) => FaultId::CurrentOffsetCalibration,
-        DriveError::Commutation(_) => FaultId::HallInvalidState,
-        DriveError::Protection(Trip::BreakInput) => FaultId::PowerStageProtection,
-        DriveError::Protection(Trip::BusOverVoltage) => FaultId::DcBusOverVoltage,
-        DriveError::Protection(Trip::BusUnderVoltage) => FaultId::DcBusUnderVoltage,
-        DriveError::Protection(Trip::OverCurrent) => FaultId::OverCurrent,
-        DriveError::Protection(Trip::PhaseSum) => FaultId::PhaseCurrentImplausible,
-        DriveError::Overrun { .. } => FaultId::CurrentLoopOverrun,
-    }
-}
-
-/// The detail value of a power-stage trip's snapshot: the overrunning tick's cost, the invalid Hall state.
-fn drive_fault_detail(e: DriveError) -> i32 {
-    match e {
-        DriveError::Overrun { cost } => i32::try_from(cost).unwrap_or(i32::MAX),
-        DriveError::Commutation(crate::drive::commutation::CommutationError::InvalidHallState(h)) => i32::from(h),
-        DriveError::Calibration(_) | DriveError::Protection(_) => 0,
     }
 }
 

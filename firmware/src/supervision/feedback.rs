@@ -467,46 +467,15 @@ pub fn hall_distance(angle: ElectricalAngle, sector: HallSector, hall_offset: El
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::cia402::{State, Ticks};
+    use crate::cia402::Ticks;
     use crate::control::angle::ElectricalAngle;
-    use crate::control::frames::{Abc, Amps, Dq, Volts};
-    use crate::control::trajectory::Velocity;
 
     const DEG: f64 = 4_294_967_296.0 / 360.0;
     const SEQUENCE: [u8; 6] = [0b101, 0b001, 0b011, 0b010, 0b110, 0b100];
 
     /// The reference motor running with an indexed commutation at mechanical count 0.
     fn inputs() -> SupervisionInputs {
-        SupervisionInputs {
-            now: Ticks(0),
-            state: State::OperationEnabled,
-            operation_enabled: true,
-            power: PowerState::OperationEnabled,
-            loops_drive_motor: true,
-            power_stage_temperature_code: 0,
-            motor_temperature_code: 0,
-            hall: 0b101,
-            halls_present: true,
-            encoder_present: true,
-            encoder_has_index: true,
-            encoder_position: 0,
-            encoder_counts_per_turn: 4096,
-            pole_pairs: 7,
-            index_pulses: 0,
-            index_position: 0,
-            electrical_angle: ElectricalAngle::ZERO,
-            hall_offset: ElectricalAngle::ZERO,
-            commutation: CommutationStage::Indexed,
-            i_abc: Abc::default(),
-            i_dq: Dq::default(),
-            i_ref: Dq::default(),
-            v_dq: Dq::default(),
-            saturated: false,
-            v_bus: Volts::from_millivolts(24_000),
-            current_limit: Amps::from_milliamps(10_000),
-            velocity: Velocity::default(),
-            velocity_rpm: 0,
-        }
+        SupervisionInputs::reference_running()
     }
 
     /// An ideal reference rotor at `counts` (fractional mechanical counts from the index): the drive's inputs,

@@ -113,6 +113,45 @@ impl SupervisionInputs {
     }
 }
 
+#[cfg(test)]
+impl SupervisionInputs {
+    /// The reference drive (4,096 counts per turn, 7 pole pairs, Halls and an indexed encoder, 10 A limit, 24 V bus)
+    /// in «Operation enabled» with the loops driving the motor, at rest and without current: the base each
+    /// detector's unit tests vary.
+    pub(crate) fn reference_running() -> Self {
+        Self {
+            now: Ticks(0),
+            state: State::OperationEnabled,
+            operation_enabled: true,
+            power: PowerState::OperationEnabled,
+            loops_drive_motor: true,
+            power_stage_temperature_code: 0,
+            motor_temperature_code: 0,
+            hall: 0b101,
+            halls_present: true,
+            encoder_present: true,
+            encoder_has_index: true,
+            encoder_position: 0,
+            encoder_counts_per_turn: 4096,
+            pole_pairs: 7,
+            index_pulses: 0,
+            index_position: 0,
+            electrical_angle: ElectricalAngle::ZERO,
+            hall_offset: ElectricalAngle::ZERO,
+            commutation: CommutationStage::Indexed,
+            i_abc: Abc::default(),
+            i_dq: Dq::default(),
+            i_ref: Dq::default(),
+            v_dq: Dq::default(),
+            saturated: false,
+            v_bus: Volts::from_millivolts(24_000),
+            current_limit: Amps::from_milliamps(10_000),
+            velocity: Velocity::ZERO,
+            velocity_rpm: 0,
+        }
+    }
+}
+
 /// What the supervision asks of the drive after a step.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct SupervisionOutputs {

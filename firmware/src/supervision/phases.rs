@@ -246,11 +246,9 @@ fn judge(sum_squares: &[u64; 3], samples: u32, floor_mean_square: u64) -> Option
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::cia402::{State, Ticks};
-    use crate::control::frames::{Abc, Dq, Volts};
-    use crate::control::trajectory::Velocity;
+    use crate::cia402::Ticks;
+    use crate::control::frames::{Abc, Dq};
     use crate::drive::commutation::CommutationStage;
-    use crate::drive::PowerState;
 
     const TURN: f64 = 4_294_967_296.0;
 
@@ -260,36 +258,7 @@ mod tests {
 
     /// The reference drive running with an indexed commutation.
     fn base() -> SupervisionInputs {
-        SupervisionInputs {
-            now: Ticks(0),
-            state: State::OperationEnabled,
-            operation_enabled: true,
-            power: PowerState::OperationEnabled,
-            loops_drive_motor: true,
-            power_stage_temperature_code: 0,
-            motor_temperature_code: 0,
-            hall: 0b101,
-            halls_present: true,
-            encoder_present: true,
-            encoder_has_index: true,
-            encoder_position: 0,
-            encoder_counts_per_turn: 4096,
-            pole_pairs: 7,
-            index_pulses: 0,
-            index_position: 0,
-            electrical_angle: ElectricalAngle::ZERO,
-            hall_offset: ElectricalAngle::ZERO,
-            commutation: CommutationStage::Indexed,
-            i_abc: Abc::default(),
-            i_dq: Dq::default(),
-            i_ref: Dq::default(),
-            v_dq: Dq::default(),
-            saturated: false,
-            v_bus: Volts::from_millivolts(24_000),
-            current_limit: Amps::from_milliamps(10_000),
-            velocity: Velocity::default(),
-            velocity_rpm: 0,
-        }
+        SupervisionInputs::reference_running()
     }
 
     /// Slow tick `n` of a rotor at `rpm` (7 pole pairs) with a q current of amplitude `i_q`; `open` zeroes one

@@ -111,45 +111,12 @@ impl StallSupervision {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::cia402::State;
-    use crate::control::angle::ElectricalAngle;
-    use crate::control::frames::{Abc, Amps, Dq, Volts};
-    use crate::control::trajectory::Velocity;
-    use crate::drive::commutation::CommutationStage;
-    use crate::drive::PowerState;
+    use crate::control::frames::{Amps, Dq};
 
     /// The reference drive in CSV, the loop pushing 10 A (its limit) with the rotor standing.
     fn blocked(now: u32) -> SupervisionInputs {
-        SupervisionInputs {
-            now: Ticks(now),
-            state: State::OperationEnabled,
-            operation_enabled: true,
-            power: PowerState::OperationEnabled,
-            loops_drive_motor: true,
-            power_stage_temperature_code: 0,
-            motor_temperature_code: 0,
-            hall: 0b101,
-            halls_present: true,
-            encoder_present: true,
-            encoder_has_index: true,
-            encoder_position: 0,
-            encoder_counts_per_turn: 4096,
-            pole_pairs: 7,
-            index_pulses: 0,
-            index_position: 0,
-            electrical_angle: ElectricalAngle::ZERO,
-            hall_offset: ElectricalAngle::ZERO,
-            commutation: CommutationStage::Indexed,
-            i_abc: Abc::default(),
-            i_dq: Dq::new(Amps::ZERO, Amps::from_milliamps(10_000)),
-            i_ref: Dq::new(Amps::ZERO, Amps::from_milliamps(10_000)),
-            v_dq: Dq::default(),
-            saturated: false,
-            v_bus: Volts::from_millivolts(24_000),
-            current_limit: Amps::from_milliamps(10_000),
-            velocity: Velocity::default(),
-            velocity_rpm: 0,
-        }
+        let limit = Dq::new(Amps::ZERO, Amps::from_milliamps(10_000));
+        SupervisionInputs { now: Ticks(now), i_dq: limit, i_ref: limit, ..SupervisionInputs::reference_running() }
     }
 
     fn supervision() -> StallSupervision {

@@ -269,10 +269,6 @@ fn derating(base: Amps, nominal: Amps, t: i16, start: i16) -> Amps {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::cia402::{State, Ticks};
-    use crate::control::angle::ElectricalAngle;
-    use crate::control::frames::{Abc, Dq, Volts};
-    use crate::control::trajectory::Velocity;
     use crate::drive::commutation::CommutationStage;
 
     /// The code of `ddegc` on the sensor (inverse of [`temperature_ddegc`], rounded).
@@ -282,34 +278,13 @@ mod tests {
 
     fn inputs(stage: u16, motor: u16, limit: Amps) -> SupervisionInputs {
         SupervisionInputs {
-            now: Ticks(0),
-            state: State::OperationEnabled,
-            operation_enabled: true,
-            power: crate::drive::PowerState::OperationEnabled,
             loops_drive_motor: false,
             power_stage_temperature_code: stage,
             motor_temperature_code: motor,
             hall: 0b001,
-            halls_present: true,
-            encoder_present: true,
-            encoder_has_index: true,
-            encoder_position: 0,
-            encoder_counts_per_turn: 4096,
-            pole_pairs: 7,
-            index_pulses: 0,
-            index_position: 0,
-            electrical_angle: ElectricalAngle::ZERO,
-            hall_offset: ElectricalAngle::ZERO,
             commutation: CommutationStage::Unknown,
-            i_abc: Abc::default(),
-            i_dq: Dq::default(),
-            i_ref: Dq::default(),
-            v_dq: Dq::<Volts>::default(),
-            saturated: false,
-            v_bus: Volts::from_millivolts(24_000),
             current_limit: limit,
-            velocity: Velocity::ZERO,
-            velocity_rpm: 0,
+            ..SupervisionInputs::reference_running()
         }
     }
 

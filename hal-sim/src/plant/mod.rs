@@ -1002,6 +1002,12 @@ impl Plant {
         }
     }
 
+    /// The encoder count the rotor's true angle gives now, in the plant's coordinates (where the limit and home
+    /// switches are placed), without the injected sensor faults.
+    pub fn true_encoder_count(&self) -> i64 {
+        self.count_now()
+    }
+
     fn count_now(&self) -> i64 {
         sensors::encoder_count(self.theta_m, self.params.encoder_counts_per_rev, self.params.encoder_offset_counts)
     }

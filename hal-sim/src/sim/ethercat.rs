@@ -401,6 +401,17 @@ mod tests {
         FrameBuilder::new().push_logical(Command::Lrw, 0, &[0; 4])
     }
 
+    /// Arms SYNC0 as a master does (ESC datasheet: 0x09A0 cycle, 0x0990 start time, 0x0981 = 0x03 activate).
+    fn arm_sync0(r: &mut EthercatRunner, cycle_ns: u32, start_ns: u64) {
+        send(
+            r,
+            FrameBuilder::new()
+                .push(Command::Bwr, 0, 0x09A0, &cycle_ns.to_le_bytes())
+                .push(Command::Bwr, 0, 0x0990, &start_ns.to_le_bytes())
+                .push(Command::Bwr, 0, 0x0981, &[0x03]),
+        );
+    }
+
     #[test]
     fn lock_step_advances_one_cycle_per_cyclic_frame_and_not_otherwise() {
         let mut r = lock_step(1_000_000, 0);
@@ -446,13 +457,7 @@ mod tests {
         let mut r = lock_step(1_000_000, 100_000);
         r.node.sim.drive.dictionary_mut().set(h::SM2_SYNC_TYPE, sync_type::DC_SYNC0);
         // SYNC0 every 1 ms from 0.5 ms on (ESC datasheet: 0x09A0 cycle, 0x0990 start, 0x0981 = 0x03 activate).
-        send(
-            &mut r,
-            FrameBuilder::new()
-                .push(Command::Bwr, 0, 0x09A0, &1_000_000u32.to_le_bytes())
-                .push(Command::Bwr, 0, 0x0990, &500_000u64.to_le_bytes())
-                .push(Command::Bwr, 0, 0x0981, &[0x03]),
-        );
+        arm_sync0(&mut r, 1_000_000, 500_000);
         for _ in 0..100 {
             send(&mut r, lrw());
         }
@@ -469,13 +474,7 @@ mod tests {
         // simulated time and see 3,003 pulses. Locked to SYNC0, each frame is followed by exactly one.
         let mut r = lock_step(1_000_000, 1_000_000);
         r.node.sim.drive.dictionary_mut().set(h::SM2_SYNC_TYPE, sync_type::DC_SYNC0);
-        send(
-            &mut r,
-            FrameBuilder::new()
-                .push(Command::Bwr, 0, 0x09A0, &1_000_000u32.to_le_bytes())
-                .push(Command::Bwr, 0, 0x0990, &500_000u64.to_le_bytes())
-                .push(Command::Bwr, 0, 0x0981, &[0x03]),
-        );
+        arm_sync0(&mut r, 1_000_000, 500_000);
         for k in 1..=3_000u64 {
             send(&mut r, lrw());
             assert_eq!(r.stats().sync0_pulses, k, "one SYNC0 pulse per frame (frame {k})");
@@ -494,13 +493,7 @@ mod tests {
         let mut r = lock_step(1_000_000, 1_000_000);
         r.node.sim.drive.dictionary_mut().set(h::SM2_SYNC_TYPE, sync_type::DC_SYNC0);
         // SYNC0 armed, but its start 10 ms ahead: the master's cycle runs until it is one cycle away.
-        send(
-            &mut r,
-            FrameBuilder::new()
-                .push(Command::Bwr, 0, 0x09A0, &1_000_000u32.to_le_bytes())
-                .push(Command::Bwr, 0, 0x0990, &10_000_000u64.to_le_bytes())
-                .push(Command::Bwr, 0, 0x0981, &[0x03]),
-        );
+        arm_sync0(&mut r, 1_000_000, 10_000_000);
         for _ in 0..5 {
             send(&mut r, lrw());
         }

@@ -394,7 +394,7 @@ pub fn cases() -> Vec<Case> {
             20,
             |b| {
                 b.sim.drive.dictionary_mut().set(h::TARGET_VELOCITY, -RUNNING_RPM);
-                let count = plant_count(&b.sim);
+                let count = b.sim.plant.true_encoder_count();
                 b.sim.plant.params_mut().io.set_negative_limit(Some(count + 1_000_000));
             },
             |b| b.sim.plant.params_mut().io.set_negative_limit(None),
@@ -405,7 +405,7 @@ pub fn cases() -> Vec<Case> {
             S::RunningCsv,
             20,
             |b| {
-                let count = plant_count(&b.sim);
+                let count = b.sim.plant.true_encoder_count();
                 b.sim.plant.params_mut().io.set_positive_limit(Some(count - 1_000_000));
             },
             |b| b.sim.plant.params_mut().io.set_positive_limit(None),
@@ -514,12 +514,6 @@ pub fn cases() -> Vec<Case> {
     ]
 }
 
-/// The plant's encoder count now.
-fn plant_count(sim: &Simulation) -> i64 {
-    let theta = sim.plant.state().theta_m_rad;
-    (theta / core::f64::consts::TAU * 4096.0).floor() as i64
-}
-
 /// Prepares the situation of `case` on the reference plant (noise `seed`).
 fn prepare(situation: Situation, seed: u64) -> Result<Bench, SimError> {
     let bench = match situation {
@@ -609,10 +603,12 @@ pub fn run_case(case: &Case, seed: u64) -> Outcome {
         if k > 0 {
             b.step();
         }
-        let tripped = matches!(b.sim.drive.state(), firmware::drive::PowerState::Fault(_));
+        // Tier 1 trips the power stage before the fault manager hears of it (at the next slow tick).
+        let tripped =
+            matches!(b.sim.drive.state(), firmware::drive::PowerState::Fault(e) if e.fault_id() == case.fault);
         // The overflow is not an active fault: the producer counts the messages it lost.
         let overflowed = case.fault == FaultId::EmcyOverflow && b.sim.drive.axis().faults().emcy().stats().lost > 0;
-        if detected_at.is_none() && (is_active(&b, case.fault) || (tripped && tier1_fault(case.fault)) || overflowed) {
+        if detected_at.is_none() && (is_active(&b, case.fault) || tripped || overflowed) {
             detected_at = Some(k);
         }
         if off_at.is_none() && was_enabled && !b.sim.command().enabled {
@@ -774,21 +770,6 @@ pub fn run_case(case: &Case, seed: u64) -> Outcome {
         }
     }
     outcome
-}
-
-/// Whether tier 1 trips the power stage for `id` (detected before the fault manager hears of it).
-fn tier1_fault(id: FaultId) -> bool {
-    matches!(
-        id,
-        FaultId::OverCurrent
-            | FaultId::PowerStageProtection
-            | FaultId::CurrentLoopOverrun
-            | FaultId::PhaseCurrentImplausible
-            | FaultId::CurrentOffsetCalibration
-            | FaultId::DcBusOverVoltage
-            | FaultId::DcBusUnderVoltage
-            | FaultId::HallInvalidState
-    )
 }
 
 /// A fault reset as a master sends it: controlword 0 then the bit-7 edge.

@@ -69,7 +69,7 @@ use firmware::od::generated::handles as h;
 
 use super::motion::prepare_motion;
 use super::{SimError, Simulation};
-use crate::plant::{sensors, InputSource, PERIOD_S};
+use crate::plant::{InputSource, PERIOD_S};
 
 /// 0x6099:01 speed for switch search used by the runs, rpm.
 pub const SWITCH_SEARCH_RPM: u32 = 300;
@@ -511,16 +511,10 @@ impl HomingResult {
     }
 }
 
-/// The plant's total encoder count now.
-fn plant_count(sim: &Simulation) -> i64 {
-    let p = sim.plant.params();
-    sensors::encoder_count(sim.plant.state().theta_m_rad, p.encoder_counts_per_rev, p.encoder_offset_counts)
-}
-
 /// The plant count minus the drive's raw encoder position, at the sample the drive last took: the count the
 /// plant showed when the drive's encoder started (it counts from 0).
 pub fn encoder_offset(sim: &Simulation) -> i64 {
-    let now = plant_count(sim);
+    let now = sim.plant.true_encoder_count();
     // The 16-bit counter of the last sample, extended around the count now (the shaft moves far less than
     // 32,768 counts in one period).
     let counter = sim.measurements().feedback.encoder_count;
@@ -623,7 +617,7 @@ pub fn homing_run_with(cfg: &HomingConfig) -> Result<HomingResult, RunError> {
     // The index that puts the start nearest the axis.
     let probe = geometry(&truth, cfg.start, 0, disp).ok_or(no_start)?;
     let enc_offset = encoder_offset(&sim);
-    let here = plant_count(&sim);
+    let here = sim.plant.true_encoder_count();
     let index = (here - probe.start + CPR / 2).div_euclid(CPR) * CPR;
     let mut g = geometry(&truth, cfg.start, index, disp).ok_or(no_start)?;
     position_axis(&mut sim, g.start)?;
@@ -651,7 +645,7 @@ pub fn homing_run_with(cfg: &HomingConfig) -> Result<HomingResult, RunError> {
     sim.run_slow_ticks(5);
     if matches!(truth.family, Family::Here) {
         // The actual position is the reference: the count the shaft stands on now.
-        g.start = plant_count(&sim);
+        g.start = sim.plant.true_encoder_count();
         g.reference = g.start;
     }
 
@@ -690,7 +684,7 @@ pub fn homing_run_with(cfg: &HomingConfig) -> Result<HomingResult, RunError> {
         position_error_inc: i64::from(position) - home_value,
         encoder_offset_inc: enc_offset,
         encoder_drift_inc: encoder_offset(&sim) - enc_offset,
-        stopped_at_inc: plant_count(&sim),
+        stopped_at_inc: sim.plant.true_encoder_count(),
         homing_s,
         simulated_s: sim.time_s(),
     })
