@@ -2,3 +2,4 @@
 
 pub mod ecat_master;
 pub mod qemu;
+pub mod real_master;

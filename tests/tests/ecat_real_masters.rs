@@ -19,24 +19,13 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use drive_tests::real_master::{self, cannot_make_namespace, default_image_bytes, default_u32, root};
 use firmware::od::access::{Dictionary, NoApplicationObjects};
 
-/// The workspace root.
-fn root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("workspace root").to_path_buf()
-}
-
-/// Why the machine cannot run a real-master test, if it cannot.
+/// Why the machine cannot run a SOEM test, if it cannot.
 fn cannot_run() -> Option<String> {
-    match Command::new("unshare").args(["-Urn", "true"]).output() {
-        Ok(o) if o.status.success() => {}
-        Ok(o) => {
-            return Some(format!(
-                "`unshare -Urn true` failed ({}): no user/network namespaces here",
-                String::from_utf8_lossy(&o.stderr).trim()
-            ))
-        }
-        Err(e) => return Some(format!("cannot run unshare: {e}")),
+    if let Some(why) = cannot_make_namespace() {
+        return Some(why);
     }
     match Command::new("python3").args(["-c", "import pysoem"]).output() {
         Ok(o) if o.status.success() => None,
@@ -46,33 +35,6 @@ fn cannot_run() -> Option<String> {
         )),
         Err(e) => Some(format!("cannot run python3 ({e}); run scripts/setup.sh")),
     }
-}
-
-/// Builds `drive-sim` (the dev profile: the artifacts `cargo test` already built) and returns its path.
-fn build_drive_sim() -> PathBuf {
-    let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
-    let out = Command::new(cargo)
-        .current_dir(root())
-        .args(["build", "-p", "hal-sim", "--bin", "drive-sim", "--message-format=json-render-diagnostics"])
-        .output()
-        .expect("run cargo build");
-    assert!(out.status.success(), "cargo build drive-sim failed:\n{}", String::from_utf8_lossy(&out.stderr));
-    // One JSON message per line; the artifact line of the binary names its executable.
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    let line = stdout
-        .lines()
-        .find(|l| {
-            l.contains("\"reason\":\"compiler-artifact\"") && l.contains("\"executable\":\"") && l.contains("drive-sim")
-        })
-        .expect("cargo reported the drive-sim executable");
-    let start = line.find("\"executable\":\"").expect("executable field") + "\"executable\":\"".len();
-    let end = line[start..].find('"').expect("end of the path") + start;
-    PathBuf::from(&line[start..end])
-}
-
-/// `key=value` lines of `text` (the last value wins).
-fn figures(text: &str) -> HashMap<String, String> {
-    text.lines().filter_map(|l| l.split_once('=')).map(|(k, v)| (k.trim().to_owned(), v.trim().to_owned())).collect()
 }
 
 /// A world-readable temporary directory for a capture (tshark may have to read it as another user).
@@ -120,66 +82,17 @@ fn count_frames(pcap: &Path, filter: &str) -> usize {
     tshark(pcap, &["-Y", filter, "-T", "fields", "-e", "frame.number"]).lines().filter(|l| !l.trim().is_empty()).count()
 }
 
-/// A u32 of the default dictionary.
-fn default_u32(d: &Dictionary, index: u16, sub: u8) -> u32 {
-    let mut b = [0u8; 4];
-    let r = d.read(index, sub, 0, &mut b, &mut NoApplicationObjects).expect("default value");
-    u32::from_le_bytes(b) & (u32::MAX >> (32 - 8 * r.total_len.min(4) as u32))
-}
-
-/// Bytes of the process image the default assignment `assign` (0x1C12 or 0x1C13) maps.
-fn default_image_bytes(d: &Dictionary, assign: u16) -> u32 {
-    let pdos = default_u32(d, assign, 0);
-    let bits: u32 = (1..=pdos)
-        .map(|k| default_u32(d, assign, k as u8) as u16)
-        .map(|pdo| (1..=default_u32(d, pdo, 0)).map(|k| default_u32(d, pdo, k as u8) & 0xFF).sum::<u32>())
-        .sum();
-    bits.div_ceil(8)
-}
-
-/// The shell script run inside the namespace: lo up, the veth pair, the simulator on ecs0 in the background,
-/// the master on ecm0 (every step bounded in time), then the simulator's exit report.
-fn namespace_script(drive_sim: &Path, master: &Path, sim_log: &Path, sim_args: &str, master_args: &str) -> String {
-    format!(
-        "set -u
-ip link set lo up
-ip link add ecm0 type veth peer name ecs0
-ip link set ecm0 up
-ip link set ecs0 up
-timeout 200 '{sim}' ethercat --iface ecs0 {sim_args} --seconds 180 --idle-exit-ms 1500 > '{log}' 2>&1 &
-SIM=$!
-sleep 0.3
-timeout 150 python3 '{master}' --iface ecm0 {master_args}
-echo master_rc=$?
-wait $SIM
-echo sim_rc=$?
-echo '--- drive-sim'
-cat '{log}'
-",
-        sim = drive_sim.display(),
-        master = master.display(),
-        log = sim_log.display(),
-    )
-}
-
-/// Runs the master script against the simulator in a fresh namespace; the master's and the simulator's output.
-/// `name` keeps the temporary directories of tests that run at the same time (same process) apart.
+/// Runs `tests/ecat/soem_csp.py <master_args>` against `drive-sim ethercat <sim_args>` in a fresh namespace;
+/// the master's and the simulator's figures and the whole output.
 fn run_in_namespace(
     name: &str,
     sim_args: &str,
     master_args: &str,
 ) -> (HashMap<String, String>, HashMap<String, String>, String) {
-    let drive_sim = build_drive_sim();
-    let dir = std::env::temp_dir().join(format!("ecat-real-masters-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&dir).expect("temp dir");
-    let sim_log = dir.join("drive-sim.log");
-    let script = namespace_script(&drive_sim, &root().join("tests/ecat/soem_csp.py"), &sim_log, sim_args, master_args);
-    let out = Command::new("unshare").args(["-Urn", "sh", "-c", &script]).output().expect("run unshare");
-    let text = String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
-    let _ = std::fs::remove_dir_all(&dir);
-    // The master's lines and both exit statuses come first; the simulator's log after the marker.
-    let (master_part, sim_part) = text.split_once("--- drive-sim").unwrap_or((&text, ""));
-    (figures(master_part), figures(sim_part), text)
+    let script = root().join("tests/ecat/soem_csp.py");
+    let command = format!("python3 '{}' --iface ecm0 {master_args}", script.display());
+    let out = real_master::run_in_namespace(name, sim_args, &command);
+    (out.master, out.sim, out.text)
 }
 
 #[test]
