@@ -3,4 +3,5 @@
 //! Every protocol here is sans-IO (ARCHITECTURE convention 1): it takes the bytes received and the time, and
 //! returns the bytes to send; the bus drivers own the hardware.
 
+pub mod pdo;
 pub mod sdo;
