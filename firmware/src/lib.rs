@@ -18,6 +18,8 @@
 
 #[cfg(target_os = "none")]
 pub mod board;
+pub mod boot;
+pub mod canopen;
 pub mod cia402;
 pub mod comm;
 pub mod control;

@@ -198,14 +198,22 @@ pub fn run_image(elf: &Path) -> Result<Run, Error> {
     }
     let boot = elf.with_extension("boot.bin");
     std::fs::write(&boot, boot_words(elf)?).map_err(|e| Error::Run(format!("{}: {e}", boot.display())))?;
-    let mut child = Command::new("qemu-system-arm")
+    run_qemu(elf, &[(boot.as_path(), BOOT_ALIAS)])
+}
+
+/// One QEMU run of `kernel` (loaded at its link addresses) with raw files loaded at flash addresses first.
+fn run_qemu(kernel: &Path, raw_files: &[(&Path, u32)]) -> Result<Run, Error> {
+    let mut command = Command::new("qemu-system-arm");
+    command
         .args(["-machine", "netduinoplus2", "-cpu", "cortex-m4", "-display", "none", "-monitor", "none"])
         .args(["-serial", "none", "-semihosting-config", "enable=on,target=native"])
-        .args(["-icount", "shift=0,align=off,sleep=off"])
-        .arg("-device")
-        .arg(format!("loader,file={},addr={BOOT_ALIAS:#010x},force-raw=on", boot.display()))
+        .args(["-icount", "shift=0,align=off,sleep=off"]);
+    for (file, addr) in raw_files {
+        command.arg("-device").arg(format!("loader,file={},addr={addr:#010x},force-raw=on", file.display()));
+    }
+    let mut child = command
         .arg("-kernel")
-        .arg(elf)
+        .arg(kernel)
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
@@ -280,4 +288,118 @@ pub fn image_size(elf: &Path) -> Option<ImageSize> {
     // Berkeley format: a header line, then "text data bss dec hex filename".
     let mut fields = text.lines().nth(1)?.split_whitespace().map(str::parse::<u64>);
     Some(ImageSize { text: fields.next()?.ok()?, data: fields.next()?.ok()?, bss: fields.next()?.ok()? })
+}
+
+/// The bootloader binary (issue 7): links at 0x0800_0000, verifies slot A and starts it (`firmware/src/bin/bootloader.rs`).
+pub const BOOTLOADER_BIN: &str = "bootloader";
+/// Exit status of the bootloader image when it stays in its fallback (`board::semihosting::EXIT_NO_VALID_IMAGE`).
+pub const EXIT_NO_VALID_IMAGE: i32 = 3;
+
+/// Builds target binaries of the firmware in release (`--features` `extra_features`, e.g. `qemu`) and returns their
+/// ELF paths in the order given.
+pub fn build_target_bins(bins: &[&str], features: &[&str]) -> Result<Vec<PathBuf>, Error> {
+    let target_dir = image_target_dir();
+    let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
+    let mut command = Command::new(cargo);
+    command
+        .current_dir(workspace_root())
+        .env_remove("RUSTFLAGS")
+        .env_remove("CARGO_ENCODED_RUSTFLAGS")
+        .env_remove("CARGO_BUILD_RUSTFLAGS")
+        .env_remove("CARGO_BUILD_TARGET")
+        .env("CARGO_TARGET_DIR", &target_dir)
+        .args(["build", "-p", "firmware", "--release", "--target", TARGET]);
+    for bin in bins {
+        command.args(["--bin", bin]);
+    }
+    if !features.is_empty() {
+        command.arg("--features").arg(features.join(","));
+    }
+    let output = command.output().map_err(|e| Error::Build(format!("cannot start cargo: {e}")))?;
+    if !output.status.success() {
+        return Err(Error::Build(String::from_utf8_lossy(&output.stderr).into_owned()));
+    }
+    Ok(bins.iter().map(|b| target_dir.join(TARGET).join("release").join(b)).collect())
+}
+
+/// Builds the host tool `drive-image` (image-tool) into the image target directory and returns its path.
+pub fn build_image_tool() -> Result<PathBuf, Error> {
+    let target_dir = image_target_dir();
+    let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
+    let output = Command::new(cargo)
+        .current_dir(workspace_root())
+        .env_remove("CARGO_BUILD_TARGET")
+        .env("CARGO_TARGET_DIR", &target_dir)
+        .args(["build", "-p", "image-tool", "--bin", "drive-image"])
+        .output()
+        .map_err(|e| Error::Build(format!("cannot start cargo: {e}")))?;
+    if !output.status.success() {
+        return Err(Error::Build(String::from_utf8_lossy(&output.stderr).into_owned()));
+    }
+    Ok(target_dir.join("debug").join("drive-image"))
+}
+
+/// Packs `elf` into a signed image with `drive-image pack` and the development key (`keys/dev-signing-key.secret`);
+/// returns the image bytes (header, then payload).
+pub fn pack_image(tool: &Path, elf: &Path, version: &str) -> Result<Vec<u8>, Error> {
+    let out = elf.with_extension("img");
+    let key = workspace_root().join("keys").join("dev-signing-key.secret");
+    let output = Command::new(tool)
+        .arg("pack")
+        .arg("--elf")
+        .arg(elf)
+        .arg("--key")
+        .arg(&key)
+        .args(["--version", version, "--out"])
+        .arg(&out)
+        .output()
+        .map_err(|e| Error::Build(format!("cannot start {}: {e}", tool.display())))?;
+    if !output.status.success() {
+        return Err(Error::Build(String::from_utf8_lossy(&output.stderr).into_owned()));
+    }
+    std::fs::read(&out).map_err(|e| Error::Build(format!("{}: {e}", out.display())))
+}
+
+/// Slot A as a factory install leaves it: erased (0xFF), the image's payload from the slot start, its header in the
+/// last 128 bytes of the image area (`firmware::boot::image`: `HEADER_OFFSET`).
+pub fn slot_a_contents(image: &[u8]) -> Vec<u8> {
+    use firmware::boot::image::{HEADER_LEN, HEADER_OFFSET, IMAGE_AREA_LEN};
+    let (header, payload) = image.split_at(HEADER_LEN as usize);
+    let mut slot = vec![0xFF; IMAGE_AREA_LEN as usize];
+    slot[..payload.len()].copy_from_slice(payload);
+    slot[HEADER_OFFSET as usize..].copy_from_slice(header);
+    slot
+}
+
+/// Runs the bootloader ELF (loaded at 0x0800_0000, where the core fetches SP and reset vector) with `slot_a` loaded
+/// at the start of slot A: what the board does at reset. Same QEMU settings as [`run_image`].
+pub fn run_with_bootloader(bootloader: &Path, slot_a: &[u8], name: &str) -> Result<Run, Error> {
+    if !qemu_available() {
+        return Err(Error::QemuMissing);
+    }
+    let file = bootloader.with_extension(format!("{name}.slot-a.bin"));
+    std::fs::write(&file, slot_a).map_err(|e| Error::Run(format!("{}: {e}", file.display())))?;
+    run_qemu(bootloader, &[(file.as_path(), firmware::flash_map::SLOT_A_START)])
+}
+
+/// Lowest and highest-plus-one load (physical) address of an ELF32's loadable contents in flash (PT_LOAD segments
+/// with file contents below the SRAM at 0x2000_0000): where the image lies in flash, `.data`'s load copy included.
+pub fn flash_extent(elf: &[u8]) -> Option<(u32, u32)> {
+    if elf.get(0..6)? != b"\x7fELF\x01\x01" {
+        return None;
+    }
+    let phoff = u32_at(elf, 0x1C)? as usize;
+    let phentsize = usize::from(u16_at(elf, 0x2A)?);
+    let phnum = usize::from(u16_at(elf, 0x2C)?);
+    let mut extent: Option<(u32, u32)> = None;
+    for i in 0..phnum {
+        let ph = phoff.checked_add(i.checked_mul(phentsize)?)?;
+        let (kind, paddr, filesz) = (u32_at(elf, ph)?, u32_at(elf, ph + 12)?, u32_at(elf, ph + 16)?);
+        if kind != 1 || filesz == 0 || paddr >= 0x2000_0000 {
+            continue;
+        }
+        let end = paddr.checked_add(filesz)?;
+        extent = Some(extent.map_or((paddr, end), |(lo, hi)| (lo.min(paddr), hi.max(end))));
+    }
+    extent
 }

@@ -83,7 +83,7 @@ const FLASH_BASE: u32 = 0x0800_0000;
 
 /// The F405 sector holding `address`, if it is the start of one: 4 x 16 KiB, 1 x 64 KiB, then 128 KiB sectors
 /// (RM0090 Table 5).
-const fn sector_number(address: u32) -> Option<u32> {
+pub(super) const fn sector_number(address: u32) -> Option<u32> {
     let Some(offset) = address.checked_sub(FLASH_BASE) else { return None };
     match offset {
         0x0_0000..=0x0_FFFF if offset % 0x4000 == 0 => Some(offset / 0x4000),
@@ -283,4 +283,40 @@ impl NorFlash for ParamFlash {
         let completed = wait_idle();
         finish(completed)
     }
+}
+
+/// Programs `data` (whole words) at the absolute flash `address` (word-aligned): the same sequence as
+/// [`ParamFlash`]'s program, for the update regions of `board::boot`. The caller owns the range and has checked
+/// it, its alignment and the NOR rule (no bit rises); nothing here reads the range.
+pub(super) fn program_absolute(address: u32, data: &[u8]) -> Result<(), FlashError> {
+    if !address.is_multiple_of(WORD) || !data.len().is_multiple_of(WORD as usize) {
+        return Err(FlashError::Misaligned);
+    }
+    unlock()?;
+    CR.modify(CR_PSIZE_MASK | CR_SER | CR_SNB_MASK, CR_PSIZE_X32 | CR_PG);
+    let mut at = address;
+    let mut completed = true;
+    for chunk in data.chunks_exact(WORD as usize) {
+        // SAFETY: `at` is a word-aligned flash address inside a region the caller owns (`board::boot` checks the
+        // range against its region), mapped flash no Rust reference points into; with PG set the write only
+        // starts the controller's programming of that word (RM0090 section 3.6.2).
+        unsafe { core::ptr::write_volatile(at as usize as *mut u32, word_of(chunk)) };
+        if !wait_idle() || SR.read() & SR_ERRORS != 0 {
+            completed = false;
+            break;
+        }
+        at = at.wrapping_add(WORD);
+    }
+    finish(completed)
+}
+
+/// Erases the F405 sector that starts at the absolute `address` (RM0090 section 3.6.3); an address that is not
+/// the start of a sector is refused with [`FlashError::OutOfBounds`].
+pub(super) fn erase_absolute(address: u32) -> Result<(), FlashError> {
+    let number = sector_number(address).ok_or(FlashError::OutOfBounds)?;
+    unlock()?;
+    CR.modify(CR_PSIZE_MASK | CR_PG | CR_SNB_MASK, CR_PSIZE_X32 | CR_SER | (number << CR_SNB_SHIFT));
+    CR.modify(0, CR_STRT);
+    let completed = wait_idle();
+    finish(completed)
 }

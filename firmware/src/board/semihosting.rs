@@ -19,6 +19,9 @@ pub const EXIT_PANIC: u32 = 101;
 pub const EXIT_HARD_FAULT: u32 = 102;
 /// Exit status: an interrupt without a handler fired.
 pub const EXIT_UNEXPECTED_INTERRUPT: u32 = 103;
+/// Exit status of the bootloader image: no valid application image, the bootloader stays in its fallback
+/// (`firmware/src/bin/bootloader.rs`).
+pub const EXIT_NO_VALID_IMAGE: u32 = 3;
 
 /// Writes to the host's stdout.
 pub fn print(args: fmt::Arguments) {

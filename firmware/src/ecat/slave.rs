@@ -39,7 +39,7 @@
 
 use super::esc::{reg, AlStatusCode, Esc};
 use super::esm::{AlState, Esm, EsmConfig};
-use super::foe::NoFoeSink;
+use super::foe::{FoeSink, NoFoeSink};
 use super::mailbox::{Mailbox, MailboxContext, MailboxLayout};
 use super::process_data::ProcessDataLayout;
 use super::sync::{SyncCounters, SyncMode};
@@ -135,6 +135,20 @@ impl EthercatSlave {
         app: &mut A,
         now_ms: u32,
     ) {
+        let mut sink = self.foe_sink;
+        self.poll_with_foe(esc, drive, app, &mut sink, now_ms);
+    }
+
+    /// [`EthercatSlave::poll`] with FoE writes going to `foe_sink` (issue 7: the firmware download in BOOT,
+    /// `boot::program::SharedPort`) instead of the built-in sink that answers 0x8001.
+    pub fn poll_with_foe<E: Esc, A: ApplicationObjects + ?Sized, S: FoeSink + ?Sized>(
+        &mut self,
+        esc: &mut E,
+        drive: &mut Drive,
+        app: &mut A,
+        foe_sink: &mut S,
+        now_ms: u32,
+    ) {
         let _ = self.esm.poll(esc, drive.dictionary(), now_ms);
         self.follow_state(esc, drive);
         self.supervise(esc, drive);
@@ -145,7 +159,7 @@ impl EthercatSlave {
             dict: drive.dictionary_mut(),
             app,
             power_stage_enabled,
-            foe_sink: &mut self.foe_sink,
+            foe_sink,
         };
         self.mailbox.poll(esc, &mut ctx);
         if let Some(pd) = self.process_data.as_ref() {

@@ -19,7 +19,13 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
     }
     #[cfg(not(feature = "qemu"))]
     {
-        crate::rt_error!("panic: {}", defmt::Display2Format(info));
+        // The location only: formatting the message would pull `core::fmt` into every image, and the
+        // bootloader (which shares this handler) must fit its 32 KiB sectors with defmt on too.
+        #[cfg(feature = "defmt")]
+        match info.location() {
+            Some(at) => crate::rt_error!("panic at {=str}:{=u32}", at.file(), at.line()),
+            None => crate::rt_error!("panic"),
+        }
         #[cfg(not(feature = "defmt"))]
         let _ = info;
         cortex_m::peripheral::SCB::sys_reset()

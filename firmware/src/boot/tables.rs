@@ -1,0 +1,167 @@
+//! The two dictionary tables program control switches between (built at compile time from the generated one):
+//!
+//! * [`APPLICATION_TABLE`]: the generated dictionary with 0x100A *Manufacturer software version* served by the
+//!   application, so that it reports the version string of the image the loader verified (image header offset
+//!   32) instead of a constant compiled into the dictionary (issue 7: "after the reset, 0x1F56 and 0x100A report
+//!   the new image").
+//! * [`BOOTLOADER_TABLE`]: the reduced object set of a drive whose program is stopped (E4 Table 4-32/4-33,
+//!   L2162-2209; comms-faults-bootloader.md §4.2): 0x1000 device type reads 0x0000_012E (CiA 302, E4 L2199),
+//!   0x1008, 0x1018 (revision 0x0000_0000, E4 L2190-2209) and 0x1F50, 0x1F51, 0x1F56, 0x1F57 (IDX L3413 adds the
+//!   flash status). Every other object answers 0x0602_0000 (object does not exist), as the seeds' bootloader
+//!   does not have it.
+//!
+//! Both keep the generated entries' value offsets, so the drive's value storage is the same under either table.
+
+use crate::od::access::Table;
+use crate::od::entry::{Access, Entry, Object, Storage};
+use crate::od::generated::{ENTRIES, OBJECTS};
+
+/// 0x1000 while the program is stopped: CiA 302 (0x012E) in the profile field (E4 L2199).
+pub const BOOTLOADER_DEVICE_TYPE: u32 = 0x0000_012E;
+/// 0x100A *Manufacturer software version*.
+pub const MANUFACTURER_SOFTWARE_VERSION: u16 = 0x100A;
+
+const DEVICE_TYPE_BYTES: [u8; 4] = BOOTLOADER_DEVICE_TYPE.to_le_bytes();
+const ZERO_U32: [u8; 4] = [0; 4];
+
+/// Objects the stopped program keeps (E4 Table 4-33, plus 0x1F57 from IDX L3413).
+const BOOTLOADER_OBJECTS: [u16; 7] = [0x1000, 0x1008, 0x1018, 0x1F50, 0x1F51, 0x1F56, 0x1F57];
+
+const ENTRY_COUNT: usize = ENTRIES.len();
+const OBJECT_COUNT: usize = OBJECTS.len();
+
+// The tables are computed by the compiler: an index out of range here is a build error, never a run-time panic.
+#[allow(clippy::indexing_slicing, clippy::arithmetic_side_effects)]
+const fn application_entries() -> [Entry; ENTRY_COUNT] {
+    let mut out = ENTRIES;
+    let mut i = 0;
+    while i < ENTRY_COUNT {
+        if out[i].index == MANUFACTURER_SOFTWARE_VERSION {
+            out[i].storage = Storage::Application;
+            out[i].access = Access::ReadOnly;
+        }
+        i += 1;
+    }
+    out
+}
+
+#[allow(clippy::indexing_slicing, clippy::arithmetic_side_effects)]
+const fn kept(index: u16) -> bool {
+    let mut i = 0;
+    while i < BOOTLOADER_OBJECTS.len() {
+        if BOOTLOADER_OBJECTS[i] == index {
+            return true;
+        }
+        i += 1;
+    }
+    false
+}
+
+#[allow(clippy::indexing_slicing, clippy::arithmetic_side_effects)]
+const fn count_entries() -> usize {
+    let mut n = 0;
+    let mut i = 0;
+    while i < ENTRY_COUNT {
+        if kept(ENTRIES[i].index) {
+            n += 1;
+        }
+        i += 1;
+    }
+    n
+}
+
+#[allow(clippy::indexing_slicing, clippy::arithmetic_side_effects)]
+const fn count_objects() -> usize {
+    let mut n = 0;
+    let mut i = 0;
+    while i < OBJECT_COUNT {
+        if kept(OBJECTS[i].index) {
+            n += 1;
+        }
+        i += 1;
+    }
+    n
+}
+
+const BOOT_ENTRY_COUNT: usize = count_entries();
+const BOOT_OBJECT_COUNT: usize = count_objects();
+
+#[allow(clippy::indexing_slicing, clippy::arithmetic_side_effects)]
+const fn bootloader_entries() -> [Entry; BOOT_ENTRY_COUNT] {
+    let mut out = [ENTRIES[0]; BOOT_ENTRY_COUNT];
+    let mut n = 0;
+    let mut i = 0;
+    while i < ENTRY_COUNT {
+        let mut e = ENTRIES[i];
+        if kept(e.index) {
+            if e.index == 0x1000 {
+                e.storage = Storage::Const(&DEVICE_TYPE_BYTES);
+                e.access = Access::ReadOnly;
+            } else if e.index == 0x1018 && e.sub == 3 {
+                // Revision: software version and application version both 0x0000 (E4 Table 4-33).
+                e.storage = Storage::Const(&ZERO_U32);
+                e.access = Access::ReadOnly;
+            }
+            out[n] = e;
+            n += 1;
+        }
+        i += 1;
+    }
+    out
+}
+
+#[allow(clippy::indexing_slicing, clippy::arithmetic_side_effects)]
+const fn bootloader_objects() -> [Object; BOOT_OBJECT_COUNT] {
+    let mut out = [OBJECTS[0]; BOOT_OBJECT_COUNT];
+    let mut n = 0;
+    let mut first = 0u16;
+    let mut i = 0;
+    while i < OBJECT_COUNT {
+        let mut o = OBJECTS[i];
+        if kept(o.index) {
+            o.first_entry = first;
+            first += o.entry_count;
+            out[n] = o;
+            n += 1;
+        }
+        i += 1;
+    }
+    out
+}
+
+static APPLICATION_ENTRIES: [Entry; ENTRY_COUNT] = application_entries();
+static BOOTLOADER_ENTRIES: [Entry; BOOT_ENTRY_COUNT] = bootloader_entries();
+static BOOTLOADER_OBJECT_LIST: [Object; BOOT_OBJECT_COUNT] = bootloader_objects();
+
+/// The application's table: the generated one with 0x100A served by program control (module documentation).
+pub const APPLICATION_TABLE: Table = Table::new(&APPLICATION_ENTRIES, &OBJECTS);
+
+/// The stopped program's reduced table (module documentation).
+pub const BOOTLOADER_TABLE: Table = Table::new(&BOOTLOADER_ENTRIES, &BOOTLOADER_OBJECT_LIST);
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::od::abort::SdoAbort;
+
+    #[test]
+    fn the_bootloader_table_keeps_only_the_seed_objects_and_reports_cia302() {
+        let t = BOOTLOADER_TABLE;
+        assert_eq!(t.find(0x6040, 0).err(), Some(SdoAbort::ObjectDoesNotExist));
+        assert_eq!(t.find(0x1010, 1).err(), Some(SdoAbort::ObjectDoesNotExist));
+        assert_eq!(t.find(0x1000, 0).map(|e| e.storage), Ok(Storage::Const(&[0x2E, 0x01, 0, 0])));
+        for index in BOOTLOADER_OBJECTS {
+            assert!(!t.entries_of(index).is_empty(), "{index:#06x}");
+            let o = t.object(index).unwrap();
+            assert_eq!(t.entries().get(usize::from(o.first_entry)).map(|e| e.index), Some(index));
+        }
+    }
+
+    #[test]
+    fn the_application_table_differs_from_the_generated_one_only_in_0x100a() {
+        let (a, g) = (APPLICATION_TABLE.entries(), Table::GENERATED.entries());
+        assert_eq!(a.len(), g.len());
+        let differ: Vec<u16> = a.iter().zip(g).filter(|(x, y)| x != y).map(|(x, _)| x.index).collect();
+        assert_eq!(differ, vec![MANUFACTURER_SOFTWARE_VERSION]);
+    }
+}
