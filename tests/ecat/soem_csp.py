@@ -177,7 +177,7 @@ def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--iface", default="ecm0")
     p.add_argument("--cycles", type=int, default=1000)
-    p.add_argument("--wkc-timeout-us", type=int, default=20_000)
+    p.add_argument("--wkc-timeout-us", type=int, default=200_000, help="lock-step: a late answer is not a lost cycle, so wait long (a loaded 2-core CI host can take tens of ms)")
     p.add_argument("--sdo-timeout-us", type=int, default=500_000)
     p.add_argument("--dc", action="store_true", help="DC SYNC0 synchronisation instead of SM-synchronous")
     p.add_argument("--cycle-ns", type=int, default=1_000_000, help="SYNC0 cycle with --dc")

@@ -88,6 +88,14 @@ cat '{log}'
     )
 }
 
+/// Serialises real-master runs within one test binary: the tests of a file run on parallel threads, and a
+/// master plus a simulator per test, all at once, overload a 2-core CI host (a master then waits past its
+/// receive timeout). Held for the whole run; a test that panicked while holding it does not block the others.
+pub fn one_run_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    static RUNS: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    RUNS.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
 /// What one run printed: the master's figures (with `master_rc` and `sim_rc`), the simulator's figures, and the
 /// whole text for failure messages.
 #[derive(Debug)]
@@ -127,6 +135,7 @@ impl RunOutput {
 /// directories of tests that run at the same time (same process) apart.
 pub fn run_in_namespace(name: &str, sim_args: &str, master_command: &str) -> RunOutput {
     let drive_sim = build_drive_sim();
+    let _one_at_a_time = one_run_at_a_time();
     let dir = std::env::temp_dir().join(format!("ecat-real-masters-{}-{name}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("temp dir");
     let sim_log = dir.join("drive-sim.log");

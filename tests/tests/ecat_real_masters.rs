@@ -268,3 +268,131 @@ fn soem_takes_the_drive_to_op_in_dc_mode_and_runs_11000_cycles_without_a_missed_
     let short_us = cyclic * 1_000.0 - simulated_us;
     assert!((500.0..=3_000.0).contains(&short_us), "simulated {simulated_us} us for {cyclic} cyclic frames");
 }
+
+/// Runs `tests/ecat/soem_motion.py <master_args>` against `drive-sim ethercat <sim_args>` in a fresh namespace.
+fn run_motion(name: &str, sim_args: &str, master_args: &str) -> real_master::RunOutput {
+    let dir = root().join("tests/ecat");
+    let command = format!("sh -c \"cd '{}' && python3 soem_motion.py --iface ecm0 {master_args}\"", dir.display());
+    real_master::run_in_namespace(name, sim_args, &command)
+}
+
+/// CSP through SOEM (`soem_motion.py`): enable through the controlword in the RxPDO (0x06, 0x07, 0x0F), mode 8,
+/// 0x60C2 = the cycle, a 10-revolution minimum-jerk move with 2,449 rpm peak (the motion issue's CSP case:
+/// distance and peak speed) computed by the master, 10,000 cycles; `sync` is 0x1C32:01 (0 free run, 1
+/// SM-synchronous, 2 DC with the ESC's clock 100 ppm fast). The bounds are those of the in-process test
+/// (tests/tests/ecat_slave.rs, motion_cyclic.rs): following error 0x60F4 from the TxPDO peak <= 30 inc and RMS
+/// <= 8 inc during the move, statusword bit 13 never set, within +-1 inc of the target after it; every working
+/// counter right and 0x1C32:0B = 0x1C33:0B = 0 read over SDO at the end.
+///
+/// The drive starts from `Simulation::reference` (not commissioned): the controlword sequence runs the offset
+/// calibration and the Hall start, and the encoder index is found during the move; the bounds hold anyway.
+fn csp_move(name: &str, sync: u16, cycle_us: u64) {
+    if let Some(why) = cannot_run() {
+        eprintln!("SKIPPED csp {name}: {why}");
+        return;
+    }
+    let ppm = if sync == 2 { "--clock-error-ppm 100" } else { "" };
+    let out = run_motion(
+        name,
+        &format!("--lock-step --cycle-us {cycle_us} {ppm}"),
+        &format!("--sync {sync} --cycle-ns {} --cycles 10000", cycle_us * 1_000),
+    );
+    let text = &out.text;
+    println!(
+        "{name}: following error peak {} inc, RMS {} inc over {} cycles; {} s wall for 10,000 cycles",
+        out.master("fe_peak_inc"),
+        out.master("fe_rms_inc"),
+        out.master("fe_samples"),
+        out.master("cycles_s")
+    );
+    assert_eq!(out.master("verdict"), "pass", "\n{text}");
+    assert_eq!(out.master("sdo_sync_type"), sync.to_string());
+    assert_eq!(out.master("expected_wkc"), "3");
+    assert_eq!(out.master("wkc_errors"), "0");
+    assert_eq!(out.master("state_after_cycles"), "OP");
+    assert!(out.master_num("enabled_at_cycle") < 1_000.0, "enabled late\n{text}");
+    // The move lasts 1.875 x 40,960 inc / (2,449 rpm x 4,096 / 60) = 0.459 s: every cycle of it sampled.
+    let samples = out.master_num("fe_samples");
+    let expected = (0.4594 / (cycle_us as f64 * 1e-6)).floor();
+    assert!((samples - expected).abs() <= 2.0, "{samples} following-error samples, expected {expected}");
+    assert!(out.master_num("fe_peak_inc") <= 30.0, "peak following error\n{text}");
+    assert!(out.master_num("fe_rms_inc") <= 8.0, "RMS following error\n{text}");
+    assert_eq!(out.master("bit13_seen"), "0", "statusword bit 13 (following error)");
+    assert!(out.master_num("end_error_inc") <= 1.0, "at the target +-1 inc\n{text}");
+    assert_eq!(out.master("sdo_sm2_event_missed"), "0", "0x1C32:0B");
+    assert_eq!(out.master("sdo_sm3_event_missed"), "0", "0x1C33:0B");
+    assert_eq!(out.master("master_rc"), "0", "\n{text}");
+    assert_eq!(out.master("sim_rc"), "0", "\n{text}");
+    assert_eq!(out.sim("sm_event_missed"), "0");
+}
+
+#[test]
+fn soem_csp_move_free_run_1ms_within_the_motion_bounds() {
+    csp_move("csp-free-1ms", 0, 1_000);
+}
+
+#[test]
+fn soem_csp_move_sm_synchronous_1ms_within_the_motion_bounds() {
+    csp_move("csp-sm-1ms", 1, 1_000);
+}
+
+#[test]
+fn soem_csp_move_dc_1ms_clock_100ppm_fast_within_the_motion_bounds() {
+    csp_move("csp-dc-1ms", 2, 1_000);
+}
+
+#[test]
+fn soem_csp_move_free_run_200us_within_the_motion_bounds() {
+    csp_move("csp-free-200us", 0, 200);
+}
+
+#[test]
+fn soem_csp_move_sm_synchronous_200us_within_the_motion_bounds() {
+    csp_move("csp-sm-200us", 1, 200);
+}
+
+#[test]
+fn soem_csp_move_dc_200us_clock_100ppm_fast_within_the_motion_bounds() {
+    csp_move("csp-dc-200us", 2, 200);
+}
+
+/// The process-data watchdog with SOEM: after OP and a CSP move (SM-synchronous, 1 ms) the master stops the
+/// process data and only reads the AL status every 100 ms. `drive-sim --idle-cycle` runs one cycle of simulated
+/// time per idle poll, so the watchdog (0x0400/0x0420 as SOEM left them: 100 ms) expires in simulated time.
+/// Proves, in simulated time from the last SM2 write: the AL status shows SAFE-OP + error 0x001B no earlier than
+/// the watchdog time and within it plus one cycle; the drive leaves «Operation enabled» for the 0x6007 reaction
+/// (default 3: «Quick stop active») within the watchdog time plus one cycle; the master then reads 0x603F =
+/// the EthercatWatchdog error code, the fault's EMCY, and a quick-stop statusword over SDO.
+#[test]
+fn soem_going_quiet_trips_the_watchdog_and_the_drive_quick_stops_within_100ms_plus_one_cycle() {
+    if let Some(why) = cannot_run() {
+        eprintln!("SKIPPED watchdog: {why}");
+        return;
+    }
+    let out = run_motion("watchdog", "--lock-step --cycle-us 1000 --idle-cycle", "--sync 1 --cycles 1000 --watchdog");
+    let text = &out.text;
+    assert_eq!(out.master("verdict"), "pass", "\n{text}");
+    assert_eq!(out.master("wkc_errors"), "0", "no host hiccup inserted an idle cycle into the cyclic phase");
+    // SOEM left the watchdog at the SII/ESC defaults: divider 2498 (100 us), time 1000 (100 ms), SM2 triggers it.
+    assert_eq!(out.sim("sm2_control"), "0x64");
+    let period_ns = (out.sim_num("watchdog_divider") + 2.0) * 40.0;
+    let watchdog_ns = period_ns * out.sim_num("watchdog_time_pd");
+    assert_eq!(watchdog_ns, 100e6, "0x0420 default: 100 ms");
+    assert_eq!(out.sim("pd_watchdog_expirations"), "1");
+    let last = out.sim_num("last_sm2_write_ns");
+    let cycle_ns = 1e6;
+    let al_error = out.sim_num("al_error_ns") - last;
+    let reaction = out.sim_num("left_operation_enabled_ns") - last;
+    println!("after the last SM2 write: AL error at {al_error} ns, left «Operation enabled» at {reaction} ns");
+    assert!((watchdog_ns..=watchdog_ns + cycle_ns).contains(&al_error), "AL error at {al_error} ns\n{text}");
+    assert!((watchdog_ns..=watchdog_ns + cycle_ns).contains(&reaction), "reaction at {reaction} ns\n{text}");
+    assert_eq!(out.sim("left_operation_enabled_to"), "QuickStopActive", "0x6007 default 3: quick stop");
+    assert_eq!(out.master("al_state_after_quiet"), "SAFEOP+ERROR");
+    assert_eq!(out.master("al_status_code"), "0x001b", "SM watchdog");
+    let code = format!("0x{:04x}", firmware::fault::FaultId::EthercatWatchdog.info().code);
+    assert_eq!(out.master("sdo_error_code"), code, "0x603F");
+    assert_eq!(out.master("emcy_code"), code, "the fault's EMCY reached the master");
+    // Statusword «Quick stop active» (xxxx xxxx x00x 0111) or, once stopped, «Switch on disabled».
+    let sw = u16::from_str_radix(out.master("sdo_statusword").trim_start_matches("0x"), 16).expect("statusword");
+    assert!(matches!(sw & 0x6F, 0x07 | 0x40 | 0x60), "statusword 0x{sw:04x}");
+}

@@ -1,8 +1,10 @@
 //! Boots the target image in QEMU (`netduinoplus2`, `-icount shift=0`) and checks the instruction budgets: the
 //! current loop's (issue, part 4) — the FOC step (Clarke to SVPWM, with the voltage limit and bus compensation) at
 //! most 200 instructions, the whole fast tick at most 600 in the worst case exercised — and the motion issue's:
-//! one slow tick in CSP at most 4,000. Under `-icount shift=0` the counts are exact, so the test also checks that
-//! two runs agree to the instruction. What each figure covers is in `firmware/src/rt/bench.rs`.
+//! one slow tick in CSP at most 4,000; the EtherCAT issue's: one process-data cycle at most 1,500; and the CANopen
+//! issue's: one SYNC with its RPDO and TPDOs at most 1,500.
+//! Under `-icount shift=0` the counts are exact, so the test also checks that two runs agree to the instruction.
+//! What each figure covers is in `firmware/src/rt/bench.rs`.
 //!
 //! Needs `qemu-system-arm` (`scripts/setup.sh` installs it; CI runs setup first).
 
@@ -14,6 +16,10 @@ const FOC_STEP_BUDGET: u64 = 200;
 const FAST_TICK_BUDGET: u64 = 600;
 /// Slow-tick budget in CSP, instructions (motion issue).
 const SLOW_TICK_BUDGET: u64 = 4_000;
+/// One CANopen SYNC with its RPDO and TPDOs handled by the node, instructions (issue 8).
+const CAN_SYNC_BUDGET: u64 = 1_500;
+/// One EtherCAT process-data cycle (unpack outputs, pack inputs, sync handling), instructions (issue 6).
+const ECAT_CYCLE_BUDGET: u64 = 1_500;
 
 #[test]
 fn qemu_image_meets_the_instruction_budgets() {
@@ -33,6 +39,21 @@ fn qemu_image_meets_the_instruction_budgets() {
     let slow = first.insn("slow_tick_max").expect("the image reports insn.slow_tick_max");
     assert!(slow <= SLOW_TICK_BUDGET, "slow_tick in CSP takes up to {slow} instructions, budget {SLOW_TICK_BUDGET}");
     assert!(foc > 0 && fast > 0 && slow > 0, "a count of 0 means the measurement is broken");
+    // `CanopenNode::handle_frame` of an RPDO, then of the SYNC, as the CAN receive interrupt runs them: the default
+    // mappings made valid and synchronous (type 1), the node operational, so the SYNC packs and queues four TPDOs
+    // and applies the RPDO; the largest of 8 cycles over RPDO 1..4. The image checks that every SYNC queued four
+    // TPDOs (a failed check exits non-zero, caught above), so the count is not that of an idle node.
+    let can = first.insn("can_sync").expect("the image reports insn.can_sync");
+    assert!(can > 0 && can <= CAN_SYNC_BUDGET, "a CANopen SYNC takes {can} instructions, budget {CAN_SYNC_BUDGET}");
+
+    // The EtherCAT slave's process-data cycle as rt would run it per SM2/SYNC0 event: the SM2 window read and
+    // unpacked into the dictionary, the set-point handed to the drive, the inputs packed and written to SM3,
+    // and the sync counters (firmware/src/rt/bench.rs `ecat_cycle_max`).
+    let ecat = first.insn("ecat_cycle").expect("the image reports insn.ecat_cycle");
+    assert!(
+        ecat > 0 && ecat <= ECAT_CYCLE_BUDGET,
+        "an EtherCAT cycle takes {ecat} instructions, budget {ECAT_CYCLE_BUDGET}"
+    );
 
     let second = qemu::run_image(&elf).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(first.insns(), second.insns(), "instruction counts differ between two runs of the same image");

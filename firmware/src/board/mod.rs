@@ -16,17 +16,26 @@
 //! | encoder A/B, index          | PB6, PB7, PB8 (AF2)    | TIM4 CH1/CH2 (encoder), CH3    |
 //! | Halls H1/H2/H3              | PC6, PC7, PC8 (inputs) | GPIOC IDR                      |
 //! | digital inputs 1..4         | PC9..PC12 (inputs)     | GPIOC IDR                      |
+//! | SYNC0 from the ESC          | PB5 (AF2)              | TIM3 CH2 capture (sync_timer)  |
+//! | CAN RX/TX (transceiver)     | PA11, PA12 (AF9)       | CAN1 (can)                     |
+//! | ESC SPI SEL/CLK/DO/DI       | PA4 (out), PA5..7 (AF5)| SPI1 (esc_spi, `ethercat`)     |
+//! | ESC SPI_IRQ (AL event)      | PB0 (input)            | EXTI0 (esc_spi, `ethercat`)    |
 //!
 //! With the `qemu` feature (QEMU's `netduinoplus2`, which models neither the RCC nor these peripherals) [`init`]
 //! only starts the cost counter, and [`PowerStage`] is fed by a small built-in motor model (`plant`, present only in that build).
 
 pub mod adc;
+pub mod boot;
+pub mod can;
 pub mod clock;
 pub mod counter;
+#[cfg(feature = "ethercat")]
+pub mod esc_spi;
 pub mod feedback;
 pub mod flash;
 pub mod pwm;
 pub mod reg;
+pub mod sync_timer;
 pub mod vectors;
 
 #[cfg(feature = "qemu")]

@@ -7,8 +7,10 @@
 //! - Channels 1..3: PWM mode 1 (high side on while CNT < CCRx), preload on (OCxPE), so a duty written by tier 1
 //!   takes effect at the next update event. With RCR = 0 updates happen at both ends of the count; tier 1
 //!   writes shortly after the centre (CNT = ARR) and the new duties load at the following underflow.
-//! - Channel 4: compare at `ARR - 1` while counting down, i.e. just after the centre where all three low
-//!   switches conduct: its CC4 event starts the injected ADC conversions (JEXTSEL = TIM1_CC4).
+//! - Channel 4: compare at `ARR - 3` while counting down, i.e. just after the centre where all three low
+//!   switches conduct: its CC4 event starts the injected ADC conversions (JEXTSEL = TIM1_CC4). `- 3` rather
+//!   than `- 1`: the DC phase-locked loop trims ARR down to `3360 - 2` (`sync_timer`), and the compare must
+//!   stay below it so that every period triggers the conversions (at most 5 ticks, 30 ns, after the centre).
 //! - Dead time: `DEAD_TIME_TICKS` of t_DTS = 1/168 MHz (CKD = 00) = 0.5 us, `DTG[7] = 0` encoding.
 //! - Break: BKE = 1, polarity `BREAK_ACTIVE_HIGH`. A break clears MOE in hardware within a few ns; AOE = 0 so only
 //!   software re-enables the outputs. OSSI = OSSR = 1 with OISx = OISxN = 0: with MOE off every gate is driven to
@@ -36,8 +38,10 @@ pub const BDTR_MOE: u32 = 1 << 15;
 /// Break interrupt flag in SR (set by hardware when the break input trips).
 pub const SR_BIF: u32 = 1 << 7;
 
-/// Compare value of channel 4: one tick after the centre, counting down.
-pub const ADC_TRIGGER_COMPARE: u32 = PWM_PERIOD_TICKS as u32 - 1;
+/// Compare value of channel 4: just after the centre, counting down; below the shortest trimmed ARR
+/// (`sync_timer::ARR_RANGE`).
+pub const ADC_TRIGGER_COMPARE: u32 = PWM_PERIOD_TICKS as u32 - 3;
+const _: () = assert!(ADC_TRIGGER_COMPARE < super::sync_timer::ARR_RANGE.0 as u32, "a trimmed period still triggers");
 
 /// Configures TIM1 and starts its counter with the outputs off (MOE = 0). Needs the TIM1 clock and the pins
 /// already set up (`super::init`).

@@ -19,6 +19,10 @@ pub enum Interrupt {
     /// TIM8 update / TIM13 global: both timers are unused on the reference board, so this vector serves as the
     /// software interrupt of the tier-2 executor (pended through NVIC STIR, never by hardware).
     Tier2 = 44,
+    /// EXTI line 0: the ESC's SPI_IRQ on PB0 (`esc_spi`, feature `ethercat`). Tier-2 priority.
+    EscPdi = 6,
+    /// TIM3 global: the SYNC0 capture (`sync_timer`, feature `ethercat`). Tier-2 priority.
+    Sync0 = 29,
 }
 
 // SAFETY: the discriminants are valid device interrupt numbers of the STM32F405 (below `DEVICE_VECTORS`).
@@ -47,11 +51,17 @@ const fn table() -> [Vector; DEVICE_VECTORS] {
     let mut t = [Vector(DefaultHandler); DEVICE_VECTORS];
     t[Interrupt::Adc as usize] = Vector(crate::rt::tier1::on_adc);
     t[Interrupt::Tier2 as usize] = Vector(crate::rt::tier2::on_interrupt);
+    #[cfg(all(feature = "ethercat", not(feature = "qemu")))]
+    {
+        t[Interrupt::EscPdi as usize] = Vector(crate::rt::ethercat::on_pdi_irq);
+        t[Interrupt::Sync0 as usize] = Vector(crate::rt::ethercat::on_sync0);
+    }
     t
 }
 
-/// The device part of the vector table.
+/// The device part of the vector table. Kept in the application by cortex-m-rt's `link.x` (`EXTERN(__INTERRUPTS)`,
+/// `KEEP`), deliberately not `#[used]`: that would make the linker retain it, and with it the drive's tier
+/// handlers, in every binary of the crate, the bootloader included (`src/bin/bootloader.x` has no device vectors).
 #[link_section = ".vector_table.interrupts"]
 #[no_mangle]
-#[used]
 pub static __INTERRUPTS: [Vector; DEVICE_VECTORS] = table();

@@ -14,6 +14,9 @@
 //!   unpacked through the dictionary without searching.
 //! - [`slave`]: [`slave::EthercatSlave`], the drive as a slave: the above tied to [`crate::drive::Drive`].
 //! - [`sync`]: the synchronisation objects 0x1C32/0x1C33 (free run, SM-synchronous, DC SYNC0) and their checks.
+//! - [`sync_pll`]: the DC phase-locked loop that locks the PWM period to SYNC0.
+//! - [`spi_pdi`]: the ET1100/AX58100-class SPI PDI: the framing of an access and [`spi_pdi::SpiEsc`], the
+//!   [`esc::Esc`] over a board's SPI bus.
 
 pub mod coe;
 pub mod esc;
@@ -22,4 +25,6 @@ pub mod foe;
 pub mod mailbox;
 pub mod process_data;
 pub mod slave;
+pub mod spi_pdi;
 pub mod sync;
+pub mod sync_pll;

@@ -287,6 +287,10 @@ pub async fn bench() {
 
     // The EtherCAT process-data cycle on the drive as it is now (operation enabled): measured with tier 1 held off.
     let ecat = tier1::with_drive(ecat_cycle_max).flatten();
+    // One CANopen SYNC with its RPDO and TPDOs on a node of its own over the same drive, likewise.
+    let can = tier1::with_drive(can_sync_max).flatten();
+    // The DC phase-locked loop's work per SYNC0 pulse, and the refresh of its 64-period ARR pattern.
+    let (pll_pulse, pll_pattern) = sync_pll_max();
 
     let fast = tier1::FAST_TICKS.load(Ordering::Relaxed).wrapping_sub(fast_before);
     let slow = tier2::SLOW_TICKS.load(Ordering::Relaxed);
@@ -303,6 +307,21 @@ pub async fn bench() {
          SyncCounters::sm_event, pack_inputs, SM3 window write (default PDO mapping)\n"
     ));
     print(format_args!("insn.ecat_cycle={}\n", ecat.unwrap_or(0)));
+    print(format_args!(
+        "source.can_sync=canopen: CanopenNode::handle_frame of one RPDO (synchronous: buffered), then of the SYNC \
+         (4 TPDOs packed and queued, the RPDO unpacked, Drive::setpoint_received; default mappings, all valid, \
+         type 1, operational)\n"
+    ));
+    let can_parts = can.map_or((0, 0), |c| (c.rpdo, c.sync));
+    print(format_args!("insn.can_sync={}\n", can.map_or(0, |c| c.total)));
+    print(format_args!("count.can_sync_rpdo_part={}\ncount.can_sync_sync_part={}\n", can_parts.0, can_parts.1));
+    print(format_args!(
+        "source.sync_pll=ecat::sync_pll: SyncPll::on_sync0 (phase detector, PI filter, lock detection; 1 ms cycle, \
+         locked with a drifting phase)\n"
+    ));
+    print(format_args!("insn.sync_pll={pll_pulse}\n"));
+    print(format_args!("source.sync_pll_pattern=ecat::sync_pll: SyncPll::fill_pattern (64 ARR values)\n"));
+    print(format_args!("insn.sync_pll_pattern={pll_pattern}\n"));
     print(format_args!("count.fast_ticks={fast}\ncount.slow_ticks={slow}\n"));
     print(format_args!("count.csp_slow_ticks={csp_slow_ticks}\ncount.csp_setpoints={}\n", csp.setpoints));
     print(format_args!("csp.following_error_peak_inc={}\n", csp.following_error_peak));
@@ -328,7 +347,44 @@ pub async fn bench() {
     check(tier2::SLOW_MISSED.load(Ordering::Relaxed) == 0, "tier 2 missed no slow tick");
     check(!tier1::OVERRUN.load(Ordering::Relaxed), "no fast-tick overrun");
     check(ecat.is_some(), "the default PDO mapping compiles and the process-data cycle ran");
+    check(
+        can.is_some_and(|c| c.complete),
+        "CANopen: the node booted, went operational, took every RPDO, and every SYNC queued 4 TPDOs",
+    );
     exit(if ok { EXIT_OK } else { EXIT_CHECK_FAILED });
+}
+
+/// The largest cost of [`crate::ecat::sync_pll::SyncPll::on_sync0`] over 64 pulses of a 1 ms cycle whose phase
+/// drifts by one tick per pulse (the loop keeps correcting), and of one `fill_pattern` (counter units, overhead
+/// of the counter reads subtracted).
+fn sync_pll_max() -> (u32, u32) {
+    use crate::ecat::sync_pll::{Sync0Capture, SyncPll, DITHER_LEN};
+    let mut pll = SyncPll::new();
+    let _ = pll.start(1_000_000);
+    let overhead = {
+        let start = counter::now();
+        compiler_fence(Ordering::SeqCst);
+        counter::now().wrapping_sub(start)
+    };
+    let mut max = 0;
+    let mut period: u32 = 0;
+    for k in 0..64u16 {
+        let capture = Sync0Capture { period, ticks: 3_300u16.wrapping_add(k) };
+        let start = counter::now();
+        compiler_fence(Ordering::SeqCst);
+        black_box(pll.on_sync0(black_box(capture)));
+        compiler_fence(Ordering::SeqCst);
+        max = max.max(counter::now().wrapping_sub(start).saturating_sub(overhead));
+        period = period.wrapping_add(25);
+    }
+    let mut pattern = [0u16; DITHER_LEN];
+    let start = counter::now();
+    compiler_fence(Ordering::SeqCst);
+    pll.fill_pattern(black_box(&mut pattern));
+    compiler_fence(Ordering::SeqCst);
+    let fill = counter::now().wrapping_sub(start).saturating_sub(overhead);
+    black_box(&pattern);
+    (max, fill)
 }
 
 /// An ESC that is plain memory (registers and process RAM), for counting the process-data cycle's own work: the
@@ -398,4 +454,89 @@ fn ecat_cycle_max(drive: &mut FastState) -> Option<u32> {
     }
     black_box(&inputs);
     Some(max)
+}
+
+/// What [`can_sync_max`] measured (counter units, overhead subtracted): the largest SYNC cycle, and its two parts.
+#[derive(Clone, Copy)]
+struct CanSync {
+    /// `handle_frame` of the RPDO plus that of the SYNC, the largest over the cycles.
+    total: u32,
+    /// The RPDO's part of the largest cycle.
+    rpdo: u32,
+    /// The SYNC's part of the largest cycle.
+    sync: u32,
+    /// Every SYNC queued the four TPDOs, no RPDO was ignored, nothing was dropped.
+    complete: bool,
+}
+
+/// The CANopen SYNC path (issue 8, `insn.can_sync` <= 1,500) as the CAN receive interrupt would run it
+/// (`canopen` module documentation, tier 2): a node with node-ID 1 over the bench's drive, its default mappings
+/// made valid (the TPDOs 2..4 ship not valid) and synchronous (RPDO type 1: applied at the next SYNC; TPDO
+/// type 1: sent at every SYNC), written between the power-on reset and the boot as a runtime with stored
+/// communication parameters does; NMT start. Then 8 cycles, each one RPDO (RPDO 1..4 in turn, 8 bytes) and one
+/// SYNC without counter through `CanopenNode::handle_frame`; the frames queued are taken out between cycles
+/// (tier 3's work, not measured). `None` if the node did not reach operational.
+fn can_sync_max(drive: &mut FastState) -> Option<CanSync> {
+    use crate::canopen::frame::CanFrame;
+    use crate::canopen::nmt::NmtState;
+    use crate::canopen::pdo::{comm_index, COB_NO_RTR, PDO_COUNT};
+    use crate::canopen::{ids, CanopenNode, NodeEvent};
+    use crate::od::access::NoApplicationObjects;
+    use crate::od::pdo_map::Direction;
+    const NODE: u8 = 1;
+    let mut app = NoApplicationObjects;
+    let mut node = CanopenNode::new(NODE);
+    if !matches!(node.process(drive, &mut app, 0), Some(NodeEvent::Reset { .. })) {
+        return None;
+    }
+    let mut configured = true;
+    for (n, base) in ids::TPDO_BASE.iter().enumerate().take(PDO_COUNT) {
+        let d = drive.dictionary_mut();
+        configured &= ids::write(d, comm_index(Direction::Rx, n), 2, 1);
+        let cob = u64::from(ids::cob_id(*base, NODE)) | u64::from(COB_NO_RTR);
+        configured &= ids::write(d, comm_index(Direction::Tx, n), 1, cob);
+        configured &= ids::write(d, comm_index(Direction::Tx, n), 2, 1);
+    }
+    if !configured || node.process(drive, &mut app, 0) != Some(NodeEvent::Booted) {
+        return None;
+    }
+    node.handle_frame(&CanFrame::new(ids::NMT, &[0x01, NODE])?, drive, &mut app, 0);
+    if node.state() != NmtState::Operational {
+        return None;
+    }
+    while node.transmit().is_some() {}
+    let sync = CanFrame::new(ids::SYNC, &[])?;
+    let overhead = counter::read_overhead();
+    let mut best = CanSync { total: 0, rpdo: 0, sync: 0, complete: true };
+    for k in 0..8u32 {
+        let base = ids::RPDO_BASE.get(k as usize % PDO_COUNT).copied().unwrap_or(0x200);
+        let rpdo = CanFrame::new(ids::cob_id(base, NODE), &[0; 8])?;
+        let now_us = u64::from(k.wrapping_add(1)).wrapping_mul(1_000);
+        let before = node.counters();
+        let t0 = counter::now();
+        compiler_fence(Ordering::SeqCst);
+        node.handle_frame(black_box(&rpdo), drive, &mut app, now_us);
+        compiler_fence(Ordering::SeqCst);
+        let t1 = counter::now();
+        compiler_fence(Ordering::SeqCst);
+        node.handle_frame(black_box(&sync), drive, &mut app, now_us);
+        compiler_fence(Ordering::SeqCst);
+        let t2 = counter::now();
+        let rpdo_cost = t1.wrapping_sub(t0).saturating_sub(overhead);
+        let sync_cost = t2.wrapping_sub(t1).saturating_sub(overhead);
+        let total = rpdo_cost.saturating_add(sync_cost);
+        if total > best.total {
+            best = CanSync { total, rpdo: rpdo_cost, sync: sync_cost, complete: best.complete };
+        }
+        let mut tpdos = 0u32;
+        while let Some(frame) = node.transmit() {
+            tpdos = tpdos.wrapping_add(u32::from(ids::TPDO_BASE.iter().any(|b| frame.id() == ids::cob_id(*b, NODE))));
+        }
+        let counters = node.counters();
+        best.complete &= tpdos == 4
+            && counters.syncs == before.syncs.wrapping_add(1)
+            && counters.ignored == before.ignored
+            && counters.tx_dropped == 0;
+    }
+    Some(best)
 }

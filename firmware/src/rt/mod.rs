@@ -20,6 +20,7 @@
 //! | `tier2::BACKGROUND_MAX`     | `AtomicU32`                  | tier 2            | QEMU bench              |
 //! | `tier2::SLOW_MISSED`        | `AtomicU32`                  | tier 2            | tier 3, QEMU bench      |
 //! | `tier3::TICK`               | [`signal::TickSignal`]       | tier 2 (raise)    | tier-3 supervisor       |
+//! | `ethercat` state (SPI ESC, slave, PLL) | `interrupt::Mutex`, feature `ethercat` | tier 3 (poll), EXTI0/TIM3 and tier 2 (cycle), all inside `tier1::with_drive` | same |
 //! | TIM1 registers (duties, MOE)| peripheral                   | tier 1; the panic/fault handlers force MOE off | - |
 //! | parameter flash (FLASH_CR, PARAMS_A/B) | `board::flash::ParamFlash` in `app::Params`, owned | start-up reads it (`app::boot`); then tier 3 only, erasing and programming inside `tier1::with_drive` with the power stage off | start-up, tier 3 |
 //!
@@ -29,6 +30,8 @@
 //! start-up, tier 2 and tier 3, never in tier 1 ([`log`]).
 
 pub mod app;
+#[cfg(all(feature = "ethercat", not(feature = "qemu")))]
+pub mod ethercat;
 pub mod log;
 mod panic;
 pub mod signal;
@@ -66,11 +69,19 @@ pub fn run() -> ! {
     unsafe {
         peripherals.NVIC.set_priority(Interrupt::Adc, TIER1_PRIORITY);
         peripherals.NVIC.set_priority(Interrupt::Tier2, TIER2_PRIORITY);
+        // The EtherCAT cycle sources share tier 2's priority: serialised with the slow loop (`ethercat`).
+        #[cfg(all(feature = "ethercat", not(feature = "qemu")))]
+        {
+            peripherals.NVIC.set_priority(Interrupt::EscPdi, TIER2_PRIORITY);
+            peripherals.NVIC.set_priority(Interrupt::Sync0, TIER2_PRIORITY);
+        }
     }
     let boot = app::boot();
     if let Some(_report) = boot.report {
         crate::rt_info!("parameters: {}", defmt::Debug2Format(&_report));
     }
+    #[cfg(all(feature = "ethercat", not(feature = "qemu")))]
+    ethercat::start();
     let _ = tier2::start();
     tier1::start(board.power, boot.drive);
     crate::rt_info!("tiers 1 and 2 running");

@@ -69,6 +69,10 @@ async fn slow_loop() {
         if cost > SLOW_TICK_MAX.load(Ordering::Relaxed) {
             SLOW_TICK_MAX.store(cost, Ordering::Relaxed);
         }
+        // The free-run process-data cycle (EtherCAT, feature `ethercat`): after the slow tick, as the other cycle
+        // sources run between slow ticks.
+        #[cfg(all(feature = "ethercat", not(feature = "qemu")))]
+        super::ethercat::free_run_tick();
         SLOW_TICKS.store(SLOW_TICKS.load(Ordering::Relaxed).wrapping_add(1), Ordering::Relaxed);
         super::tier3::TICK.raise();
     }

@@ -1,5 +1,8 @@
 //! Tier 3: thread mode, the embassy thread executor. Sleeps (WFE) whenever nothing is ready.
 //!
+//! With the feature `ethercat` the supervisor also runs the EtherCAT slave's poll every tick and lends it the
+//! parameter store (`rt::ethercat`).
+//!
 //! On the board its supervisor task reports health once a second over defmt (when enabled); the
 //! mailbox/SDO, NMT, heartbeat, EMCY and parameter tasks join it as they are written. In the QEMU image the
 //! bench task runs here instead.
@@ -50,8 +53,19 @@ async fn supervisor(_params: &'static mut Option<app::Params>) {
     const REPORT_EVERY: u32 = 2_500;
     let mut seen = 0;
     let mut since_report = 0u32;
+    // Tier-3 ticks since start (400 us each): the EtherCAT slave's millisecond clock.
+    #[cfg(feature = "ethercat")]
+    let mut ticks_total = 0u64;
     loop {
-        since_report = since_report.wrapping_add(TICK.wait(&mut seen).await);
+        let new = TICK.wait(&mut seen).await;
+        since_report = since_report.wrapping_add(new);
+        // The EtherCAT slave's tier-3 work, every tick, with the parameter store (`super::ethercat`).
+        #[cfg(feature = "ethercat")]
+        {
+            ticks_total = ticks_total.wrapping_add(u64::from(new));
+            let now_ms = ticks_total.wrapping_mul(2).checked_div(5).unwrap_or(0) as u32;
+            super::ethercat::poll(_params, now_ms);
+        }
         if since_report >= REPORT_EVERY {
             since_report = 0;
             crate::rt_info!(

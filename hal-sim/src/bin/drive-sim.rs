@@ -12,7 +12,11 @@
 //! drive-sim bench        [--seconds S]                              host speed (build with --release)
 //! drive-sim ethercat --iface NAME [--lock-step] [--cycle-us N] [--clock-error-ppm X] [--seconds S]
 //!                        [--idle-exit-ms N] [--pcap FILE] [--seed N]  the drive as an EtherCAT slave on NAME;
-//!                                                                  --pcap records every frame in and out
+//!                        [--idle-cycle]                            --pcap records every frame in and out;
+//!                                                                  --idle-cycle: lock-step idle polls run a cycle
+//!                        [--drive-clock-error-ppm X]               the drive's oscillator X ppm off (DC PLL)
+//! drive-sim canopen --port N [--nodes K] [--bit-rate BPS] [--lock-step] [--sync-us N] [--seconds S]
+//!                   [--idle-exit-ms N] [--seed N]              K drives on a simulated CAN bus, socketcand on N
 //! ```
 //!
 //! Each scenario prints a human-readable report, the paths of the CSV traces and SVG plots it wrote (under
@@ -21,6 +25,9 @@
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+
+#[path = "drive-sim/canopen.rs"]
+mod canopen;
 
 use hal_sim::esc::pcap::PcapWriter;
 use hal_sim::esc::socket::Direction;
@@ -33,9 +40,10 @@ use hal_sim::sim::trace::Trace;
 use hal_sim::sim::{duty_cycle, faults, homing};
 
 const USAGE: &str =
-    "usage: drive-sim <current-step | spinning | csp | csv-sweep | ppm | homing | fault-matrix | duty-cycle | bench | ethercat> [--seed N] [--default-gains | --gains P,I] \
+    "usage: drive-sim <current-step | spinning | csp | csv-sweep | ppm | homing | fault-matrix | duty-cycle | bench | ethercat | canopen> [--seed N] [--default-gains | --gains P,I] \
                      [--out DIR] [--seconds S] [--only TEXT] \
-                     [--iface NAME --lock-step --cycle-us N --clock-error-ppm X --idle-exit-ms N --pcap FILE]";
+                     [--iface NAME --lock-step --cycle-us N --clock-error-ppm X --idle-exit-ms N --pcap FILE --idle-cycle \
+                     --drive-clock-error-ppm X]";
 
 struct Args {
     scenario: String,
@@ -62,6 +70,11 @@ struct EcatArgs {
     idle_exit_ms: Option<u64>,
     /// `--pcap FILE`: a capture (classic pcap) of every frame received and sent.
     pcap: Option<PathBuf>,
+    /// `--idle-cycle`: in lock-step, an idle poll runs one cycle (`EthercatConfig::idle_cycle`).
+    idle_cycle: bool,
+    /// `--drive-clock-error-ppm X`: the drive's oscillator against the master's time
+    /// (`EthercatConfig::drive_clock_error_ppb`).
+    drive_clock_error_ppm: f64,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -104,12 +117,17 @@ fn parse_args() -> Result<Args, String> {
             }
             "--iface" => args.ecat.iface = Some(value("--iface")?),
             "--lock-step" => args.ecat.lock_step = true,
+            "--idle-cycle" => args.ecat.idle_cycle = true,
             "--cycle-us" => {
                 args.ecat.cycle_us = Some(value("--cycle-us")?.parse().map_err(|e| format!("--cycle-us: {e}"))?);
             }
             "--clock-error-ppm" => {
                 args.ecat.clock_error_ppm =
                     value("--clock-error-ppm")?.parse().map_err(|e| format!("--clock-error-ppm: {e}"))?;
+            }
+            "--drive-clock-error-ppm" => {
+                args.ecat.drive_clock_error_ppm =
+                    value("--drive-clock-error-ppm")?.parse().map_err(|e| format!("--drive-clock-error-ppm: {e}"))?;
             }
             "--idle-exit-ms" => {
                 args.ecat.idle_exit_ms =
@@ -521,11 +539,16 @@ fn ethercat(args: &Args) -> Result<(), String> {
     if !e.clock_error_ppm.is_finite() || e.clock_error_ppm.abs() > 1_000.0 {
         return Err(format!("--clock-error-ppm {} out of range (-1000..=1000)", e.clock_error_ppm));
     }
+    if !e.drive_clock_error_ppm.is_finite() || e.drive_clock_error_ppm.abs() > 1_000.0 {
+        return Err(format!("--drive-clock-error-ppm {} out of range (-1000..=1000)", e.drive_clock_error_ppm));
+    }
     let config = EthercatConfig {
         clock: if e.lock_step { ClockMode::LockStep } else { ClockMode::RealTime },
         cycle_ns: cycle_us.saturating_mul(1_000),
         clock_error_ppb: (e.clock_error_ppm * 1_000.0).round() as i64,
         seed: args.seed,
+        idle_cycle: e.idle_cycle,
+        drive_clock_error_ppb: (e.drive_clock_error_ppm * 1_000.0).round() as i64,
     };
     if cfg!(debug_assertions) {
         println!("note: a debug build; real masters' timeouts want `cargo run --release`");
@@ -539,9 +562,10 @@ fn ethercat(args: &Args) -> Result<(), String> {
         ClockMode::RealTime => println!("ethercat: serving the simulated drive on {iface}, real time"),
     }
     println!(
-        "  reference plant (seed {}), ESC local clock {:+} ppm against the master, stop: {}",
+        "  reference plant (seed {}), ESC local clock {:+} ppm and drive clock {:+} ppm against the master, stop: {}",
         args.seed,
         e.clock_error_ppm,
+        e.drive_clock_error_ppm,
         match (e.seconds, e.idle_exit_ms) {
             (Some(s), Some(ms)) => format!("after {s} s or {ms} ms without frames"),
             (Some(s), None) => format!("after {s} s"),
@@ -599,6 +623,20 @@ fn ethercat(args: &Args) -> Result<(), String> {
         runner.simulated_ns() as f64 * 1e-9,
         s.cycles
     );
+    // The DC phase-locked loop (firmware::ecat::sync_pll): state, applied trim, frequency estimate, phase error at
+    // the last SYNC0 pulse.
+    let pll = runner.sync_pll();
+    println!(
+        "  DC PLL: {:?}, trim {:+.1} ppm, drive clock estimated {:+.1} ppm off SYNC0, phase error {:+} ns \
+         ({} pulses, {} missing, {} jumps)",
+        pll.state,
+        f64::from(pll.trim_ppb) / 1_000.0,
+        f64::from(pll.frequency_ppb) / 1_000.0,
+        pll.phase_error_ns,
+        pll.pulses,
+        pll.missed,
+        pll.jumps
+    );
     println!();
     println!("frames={}", s.frames);
     if let Some(n) = pcap_packets {
@@ -615,6 +653,31 @@ fn ethercat(args: &Args) -> Result<(), String> {
     println!("state_final={:?}", runner.state());
     println!("sm_event_missed={}", runner.sm_event_missed());
     println!("simulated_s={:.6}", runner.simulated_ns() as f64 * 1e-9);
+    // The watchdog's timing in simulated time (`--idle-cycle`): the last outputs, the AL error, the CiA 402
+    // reaction.
+    println!("idle_polls={}", s.idle);
+    println!("last_sm2_write_ns={}", s.last_sm2_write_ns);
+    if let Some(t) = s.al_error_ns {
+        println!("al_error_ns={t}");
+    }
+    if let Some((t, state)) = s.left_operation_enabled {
+        println!("left_operation_enabled_ns={t}");
+        println!("left_operation_enabled_to={state:?}");
+    }
+    println!("cia402_state_final={:?}", runner.node.sim.cia402_state());
+    // The process-data watchdog as the master configured it: SM2's control byte (bit 6 = the ESC retriggers the
+    // watchdog with every SM2 write), 0x0400 divider and 0x0420 time, and how often it expired.
+    println!("sm2_control=0x{:02x}", runner.esc.register(0x0814));
+    let reg16 = |a: u16| u16::from_le_bytes([runner.esc.register(a), runner.esc.register(a + 1)]);
+    println!("watchdog_divider={}", reg16(0x0400));
+    println!("watchdog_time_pd={}", reg16(0x0420));
+    println!("pd_watchdog_expirations={}", runner.esc.pd_watchdog().expirations);
+    // The DC phase-locked loop (firmware::ecat::sync_pll).
+    println!("pll_state={:?}", pll.state);
+    println!("pll_trim_ppm={:.3}", f64::from(pll.trim_ppb) / 1_000.0);
+    println!("pll_frequency_ppm={:.3}", f64::from(pll.frequency_ppb) / 1_000.0);
+    println!("pll_phase_error_ns={}", pll.phase_error_ns);
+    println!("pll_pulses={}", pll.pulses);
     // The DC registers as the master left them (0x0981 SYNC activation, 0x09A0 SYNC0 cycle).
     println!("dc_activation=0x{:02x}", runner.esc.register(0x0981));
     println!(
@@ -637,6 +700,17 @@ fn al_state_name(code: u16) -> &'static str {
 }
 
 fn main() -> ExitCode {
+    // `canopen` has options of its own (drive-sim/canopen.rs).
+    let raw: Vec<String> = std::env::args().skip(1).collect();
+    if raw.first().map(String::as_str) == Some("canopen") {
+        return match canopen::run(&raw[1..]) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("drive-sim canopen: {e}");
+                ExitCode::FAILURE
+            }
+        };
+    }
     let args = match parse_args() {
         Ok(a) => a,
         Err(e) => {

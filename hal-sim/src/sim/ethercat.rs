@@ -25,22 +25,42 @@
 //! that wrote SM2 (SM-synchronous, ETG.1020 "SM2 event"), at each SYNC0 pulse ([`Esc::take_sync0`]; DC), or at
 //! every slow tick (free run). The plant and the ESC's time advance in whole 40 us PWM periods; the rest of a
 //! cycle that is not a whole number of periods is carried to the next one, so no time is lost.
+//!
+//! **The drive's oscillator** ([`DriveClock`], issue 6 item 2): the drive's PWM periods are `2 x ARR` ticks of
+//! its own 168 MHz clock, which runs [`EthercatConfig::drive_clock_error_ppb`] off simulated (master) time (`drive-sim
+//! ethercat --drive-clock-error-ppm`), so each period lasts `40 us / (1 + error)` of simulated time, lengthened or
+//! shortened by the trim of the DC phase-locked loop ([`firmware::ecat::sync_pll`]). In DC mode every SYNC0 pulse
+//! is captured where it fell in the drive's period (ticks from the period's start, as the board's capture timer
+//! sees it) and fed to the loop, whose ARR applies from the next period on; without the loop
+//! ([`EthercatRunner::set_sync_pll`]) the slow tick drifts through the bus cycle. The plant keeps stepping the
+//! nominal 40 us: a few hundred ppm of step length changes the motor's motion by as little (the current
+//! loop's and the plant's dynamics are not resolved to 0.05 %), and only the timing of the periods against SYNC0
+//! is under test.
 
+use std::cell::RefCell;
 use std::io;
 use std::ops::ControlFlow;
 use std::time::{Duration, Instant};
 
+use firmware::boot::loader::Outcome;
+use firmware::boot::program::{Interface, Request, SharedPort};
+use firmware::boot::tables::{APPLICATION_TABLE, BOOTLOADER_TABLE};
+use firmware::cia402::State;
+use firmware::drive::objects::DriveObjects;
 use firmware::ecat::esm::AlState;
 use firmware::ecat::slave::EthercatSlave;
 use firmware::ecat::sync::sync_type;
+use firmware::ecat::sync_pll::{PllStatus, Sync0Capture, SyncPll};
 use firmware::hal::power::{PWM_FREQUENCY_HZ, SLOW_TICK_DIVIDER};
-use firmware::od::access::NoApplicationObjects;
 use firmware::od::generated::handles as h;
+use firmware::od::store::ParamStore;
 
+use super::update::{self, SimProgram};
 use super::Simulation;
 use crate::esc::datagram::{Command, FrameReport};
 use crate::esc::socket::{serve_socket_tapped, Direction, RawSocket, ServeEvent};
 use crate::esc::Esc;
+use crate::flash::SimFlash;
 
 /// One PWM period (the current-loop period and the simulation step), ns.
 pub const PERIOD_NS: u64 = 1_000_000_000 / PWM_FREQUENCY_HZ as u64;
@@ -73,11 +93,28 @@ pub struct EthercatConfig {
     pub clock_error_ppb: i64,
     /// Seed of the plant's noise.
     pub seed: u64,
+    /// Lock-step only (`drive-sim ethercat --idle-cycle`): an idle poll (no frame within the poll interval) also
+    /// runs one master cycle of simulated time, so that a master that goes quiet lets the ESC's process-data
+    /// watchdog expire in simulated time (issue 6: the watchdog with a real master). Opt-in because it makes the
+    /// wall clock part of the simulation again: a host hiccup longer than the poll interval between two cyclic
+    /// frames inserts a cycle without outputs, which in DC mode counts an SM event missed (0x1C32:0B) and moves
+    /// a CSP set-point one cycle late. Idle cycles run the master's cycle, not up to SYNC0.
+    pub idle_cycle: bool,
+    /// Rate error of the drive's oscillator (its PWM timebase) against simulated time, parts per billion, positive
+    /// = fast = shorter periods (`--drive-clock-error-ppm` x 1000). See [`DriveClock`].
+    pub drive_clock_error_ppb: i64,
 }
 
 impl Default for EthercatConfig {
     fn default() -> Self {
-        Self { clock: ClockMode::RealTime, cycle_ns: 1_000_000, clock_error_ppb: 0, seed: 1 }
+        Self {
+            clock: ClockMode::RealTime,
+            cycle_ns: 1_000_000,
+            clock_error_ppb: 0,
+            seed: 1,
+            idle_cycle: false,
+            drive_clock_error_ppb: 0,
+        }
     }
 }
 
@@ -106,6 +143,17 @@ pub struct RunnerStats {
     /// The highest AL state the ESC's AL status register showed (0x0130 bits 3..0; OP 8 > SAFE-OP 4 > BOOT 3 >
     /// PRE-OP 2 > INIT 1).
     pub highest_al_state: u16,
+    /// Simulated time of the last completed SM2 (outputs) write, ns: what the process-data watchdog counts from.
+    pub last_sm2_write_ns: u64,
+    /// Whether the AL status register (0x0130) shows the error flag (bit 4) now.
+    pub al_error_shown: bool,
+    /// Simulated time the AL status last raised its error flag, ns.
+    pub al_error_ns: Option<u64>,
+    /// Whether the drive's CiA 402 state is «Operation enabled» now.
+    pub operation_enabled: bool,
+    /// Simulated time the CiA 402 state last left «Operation enabled», ns, and the state it went to (the
+    /// reaction of a fault such as 0x6007 on a communication loss).
+    pub left_operation_enabled: Option<(u64, State)>,
 }
 
 /// The drive as an EtherCAT slave on the simulated plant. See the module documentation.
@@ -126,7 +174,18 @@ pub struct SlaveNode {
     /// The firmware's EtherCAT application layer.
     pub slave: EthercatSlave,
     config: EthercatConfig,
-    app: NoApplicationObjects,
+    /// The drive's parameter store (0x1010 save / 0x1011 load over CoE, and what a reset loads).
+    pub store: ParamStore<SimFlash>,
+    /// Program control over the simulated update regions (0x1F50..0x1F57 over CoE, FoE in BOOT; issue 7). In a
+    /// cell because the mailbox takes the CoE objects and the FoE sink at once ([`SharedPort`]).
+    pub program: RefCell<SimProgram>,
+    /// What the bootloader decided at the last simulated reset ([`update::reset`]).
+    pub last_boot: Outcome,
+    /// Simulated resets since power-on (an update's start or reset program).
+    pub resets: u32,
+    /// Whether an image on trial confirms itself once the slave reaches PRE-OP after its start (default on; off
+    /// for the test that an image that never confirms is reverted).
+    pub auto_confirm: bool,
     stats: RunnerStats,
     /// Simulated time not yet run because it is less than one PWM period, ns.
     owed_ns: u64,
@@ -134,6 +193,8 @@ pub struct SlaveNode {
     origin: Option<Instant>,
     /// SM2 buffer completions seen so far (the ESC's counter).
     sm2_seen: u64,
+    /// The drive's oscillator, PWM timebase and DC phase-locked loop.
+    drive_clock: DriveClock,
 }
 
 impl EthercatRunner {
@@ -142,15 +203,24 @@ impl EthercatRunner {
     pub fn new(config: EthercatConfig) -> Result<Self, String> {
         let mut esc = Esc::with_drive_sii()?;
         esc.set_clock_error_ppb(config.clock_error_ppb);
+        let mut program = update::factory_program();
+        let last_boot = update::reset(&mut program);
+        let mut sim = Simulation::reference(config.seed);
+        update::use_table(&mut sim.drive, update::table_for(program.mode()));
         let node = SlaveNode {
-            sim: Simulation::reference(config.seed),
+            sim,
             slave: EthercatSlave::new(),
             config,
-            app: NoApplicationObjects,
+            store: ParamStore::new(SimFlash::params()),
+            program: RefCell::new(program),
+            last_boot,
+            resets: 0,
+            auto_confirm: true,
             stats: RunnerStats::default(),
             owed_ns: 0,
             origin: None,
             sm2_seen: 0,
+            drive_clock: DriveClock::new(config.drive_clock_error_ppb, config.clock_error_ppb),
         };
         Ok(Self { esc, node })
     }
@@ -226,6 +296,23 @@ impl EthercatRunner {
     pub fn simulated_ns(&self) -> u64 {
         self.esc.elapsed()
     }
+
+    /// Switches the DC phase-locked loop on (the default) or off (the PWM periods then keep the drive's own
+    /// clock: the test that the loop is what holds the phase).
+    pub fn set_sync_pll(&mut self, on: bool) {
+        self.node.drive_clock.pll_enabled = on;
+    }
+
+    /// The DC phase-locked loop's figures.
+    pub fn sync_pll(&self) -> PllStatus {
+        self.node.drive_clock.pll.status()
+    }
+
+    /// Where the last SYNC0 pulse fell in the drive's PWM timebase (its period index counts as
+    /// [`Simulation::ticks`] does, from 0, so `period % 10` is the slow-tick phase).
+    pub fn last_sync0_capture(&self) -> Option<Sync0Capture> {
+        self.node.drive_clock.last_capture
+    }
 }
 
 impl SlaveNode {
@@ -269,8 +356,11 @@ impl SlaveNode {
     fn on_idle(&mut self, esc: &mut Esc) {
         self.stats.idle = self.stats.idle.saturating_add(1);
         self.poll(esc);
-        if self.config.clock == ClockMode::RealTime {
-            self.catch_up(esc);
+        match self.config.clock {
+            // `EthercatConfig::idle_cycle`: a quiet master still lets simulated time run, one cycle per poll.
+            ClockMode::LockStep if self.config.idle_cycle => self.run_for(esc, self.config.cycle_ns),
+            ClockMode::LockStep => {}
+            ClockMode::RealTime => self.catch_up(esc),
         }
     }
 
@@ -282,6 +372,7 @@ impl SlaveNode {
         self.sm2_seen = writes;
         if written {
             self.stats.sm2_writes = self.stats.sm2_writes.saturating_add(1);
+            self.stats.last_sm2_write_ns = esc.elapsed();
         }
         written
     }
@@ -293,11 +384,55 @@ impl SlaveNode {
 
     fn poll(&mut self, esc: &mut Esc) {
         let now_ms = u32::try_from(esc.elapsed() / 1_000_000).unwrap_or(u32::MAX);
-        self.slave.poll(esc, &mut self.sim.drive, &mut self.app, now_ms);
-        let state = esc.register_u16(AL_STATUS) & 0x0F;
+        let before = self.slave.state();
+        let on = self.sim.drive.power_stage_enabled();
+        let mut app = DriveObjects::new(&mut self.store, on).with_program_control(SharedPort::new(
+            &self.program,
+            Interface::Ethercat,
+            on,
+        ));
+        let mut foe = SharedPort::new(&self.program, Interface::Ethercat, on);
+        self.slave.poll_with_foe(esc, &mut self.sim.drive, &mut app, &mut foe, now_ms);
+        self.follow_program(before);
+        let status = esc.register_u16(AL_STATUS);
+        let error = status & 0x10 != 0;
+        if error && !self.stats.al_error_shown {
+            self.stats.al_error_ns = Some(esc.elapsed());
+        }
+        self.stats.al_error_shown = error;
+        let state = status & 0x0F;
         if state > self.stats.highest_al_state {
             self.stats.highest_al_state = state;
         }
+    }
+
+    /// Acts on program control after a poll (issue 7): leaving BOOT ends an FoE download, an image on trial
+    /// confirms itself in PRE-OP (the fieldbus is up: a successful start), and a stop, start or reset changes
+    /// the dictionary or restarts the drive.
+    fn follow_program(&mut self, before: AlState) {
+        let after = self.slave.state();
+        let program = self.program.get_mut();
+        if before == AlState::Boot && after != AlState::Boot {
+            program.leave_bootstrap();
+        }
+        if after == AlState::PreOp && self.auto_confirm && program.on_trial() {
+            let _ = program.confirm();
+        }
+        match program.take_request() {
+            Some(Request::Stop) => update::use_table(&mut self.sim.drive, BOOTLOADER_TABLE),
+            Some(Request::Start) => update::use_table(&mut self.sim.drive, APPLICATION_TABLE),
+            Some(Request::Reset) => self.reset(),
+            None => {}
+        }
+    }
+
+    /// A simulated reset of the drive's microcontroller: the bootloader runs over the update regions, then the
+    /// drive starts from its parameter store and the slave from INIT (the ESC and the plant keep running).
+    pub fn reset(&mut self) {
+        self.last_boot = update::reset(self.program.get_mut());
+        self.sim.drive = update::boot_drive(&mut self.store, self.program.get_mut());
+        self.slave = EthercatSlave::new();
+        self.resets = self.resets.saturating_add(1);
     }
 
     fn cycle(&mut self, esc: &mut Esc) {
@@ -367,17 +502,117 @@ impl SlaveNode {
     /// starts.
     fn step(&mut self, esc: &mut Esc) {
         self.sim.step();
-        esc.advance(PERIOD_NS);
+        let state = self.sim.cia402_state();
+        let enabled = state == State::OperationEnabled;
+        if self.stats.operation_enabled && !enabled {
+            self.stats.left_operation_enabled = Some((esc.elapsed(), state));
+        }
+        self.stats.operation_enabled = enabled;
+        esc.advance(self.drive_clock.next_period_ns());
         let sync = self.sync_type();
+        self.drive_clock.follow_dc_mode(esc, sync == sync_type::DC_SYNC0);
         if let Some(pulse) = esc.take_sync0() {
             self.stats.sync0_pulses = self.stats.sync0_pulses.saturating_add(u64::from(pulse.count));
             self.stats.sync0_missed = self.stats.sync0_missed.saturating_add(u64::from(pulse.count.saturating_sub(1)));
             if sync == sync_type::DC_SYNC0 {
+                self.drive_clock.on_sync0(esc, pulse.system_time);
                 self.cycle(esc);
             }
         }
         if sync == sync_type::FREE_RUN && self.sim.ticks().is_multiple_of(u64::from(SLOW_TICK_DIVIDER)) {
             self.cycle(esc);
+        }
+    }
+}
+
+/// The drive's oscillator and PWM timebase in the runner, and the DC phase-locked loop that trims it (see the
+/// module documentation). Period boundaries are kept as the drive's tick count since the start and converted to
+/// simulated ns from there, so no rounding accumulates.
+#[derive(Debug)]
+pub struct DriveClock {
+    /// Rate error of the drive's oscillator, ppb.
+    error_ppb: i64,
+    /// Rate error of the ESC's clock, ppb (to place a SYNC0 pulse in simulated time).
+    esc_error_ppb: i64,
+    /// The firmware's loop.
+    pll: SyncPll,
+    /// Whether the loop may run (DC mode decides when it does).
+    pll_enabled: bool,
+    /// Index of the period in progress (`u64::MAX` before the first).
+    period: u64,
+    /// Drive ticks from the start to the start of the period in progress.
+    start_ticks: u128,
+    /// ARR of the period in progress.
+    arr: u16,
+    /// The last capture fed to the loop.
+    last_capture: Option<Sync0Capture>,
+}
+
+impl DriveClock {
+    /// The drive's clock `error_ppb` off, the ESC's `esc_error_ppb`; the loop enabled, off until DC mode.
+    pub fn new(error_ppb: i64, esc_error_ppb: i64) -> Self {
+        Self {
+            error_ppb,
+            esc_error_ppb,
+            pll: SyncPll::new(),
+            pll_enabled: true,
+            period: u64::MAX,
+            start_ticks: 0,
+            arr: firmware::hal::power::PWM_PERIOD_TICKS,
+            last_capture: None,
+        }
+    }
+
+    /// Simulated ns from the start to `ticks` of the drive's clock: `ticks / (168 MHz x (1 + error))`.
+    fn ns_at(&self, ticks: u128) -> u64 {
+        let hz_ppb = 168 * (1_000_000_000 + i128::from(self.error_ppb)).max(1);
+        u64::try_from(i128::try_from(ticks).unwrap_or(i128::MAX) * 1_000_000_000_000 / hz_ppb).unwrap_or(u64::MAX)
+    }
+
+    /// Starts the next PWM period (its ARR from the loop when it runs, else nominal) and returns its length in
+    /// simulated ns.
+    fn next_period_ns(&mut self) -> u64 {
+        if self.period != u64::MAX {
+            self.start_ticks += 2 * u128::from(self.arr);
+        }
+        self.period = self.period.wrapping_add(1);
+        self.arr = self.pll.arr(self.period as u32);
+        let end = self.start_ticks + 2 * u128::from(self.arr);
+        self.ns_at(end) - self.ns_at(self.start_ticks)
+    }
+
+    /// Runs the loop while DC mode is on with a supported SYNC0 cycle (0x09A0) and it is enabled; stops it
+    /// otherwise. Also the loop's holdover supervision (on the target: the slow tier).
+    fn follow_dc_mode(&mut self, esc: &Esc, dc: bool) {
+        match esc.sync0_cycle() {
+            Some(cycle) if dc && self.pll_enabled => {
+                let per = firmware::ecat::sync::CURRENT_PERIOD_NS;
+                if self.pll.periods_per_cycle().saturating_mul(per) != cycle {
+                    // An unsupported cycle leaves the loop off (nominal periods).
+                    let _ = self.pll.start(cycle);
+                }
+            }
+            _ => self.pll.stop(),
+        }
+        self.pll.supervise(self.period as u32);
+    }
+
+    /// A SYNC0 pulse at ESC system time `pulse_system_time` fell in the period just run: where, in the drive's
+    /// ticks (even, as the 84 MHz capture timer counts), goes to the loop.
+    fn on_sync0(&mut self, esc: &Esc, pulse_system_time: u64) {
+        // How long ago the pulse was, in ESC (local) ns, then in simulated ns.
+        let ago_local = i128::from(esc.system_time().wrapping_sub(pulse_system_time));
+        let ago = ago_local * 1_000_000_000 / (1_000_000_000 + i128::from(self.esc_error_ppb)).max(1);
+        let end = self.start_ticks + 2 * u128::from(self.arr);
+        let length = i128::from(self.ns_at(end)) - i128::from(self.ns_at(self.start_ticks));
+        let into_ns = (length - ago).max(0);
+        let ticks = into_ns * 168 * (1_000_000_000 + i128::from(self.error_ppb)) / 1_000_000_000_000;
+        let last = 2 * i128::from(self.arr) - 1;
+        let ticks = u16::try_from(ticks.min(last)).unwrap_or(0) & !1;
+        let capture = Sync0Capture { period: self.period as u32, ticks };
+        self.last_capture = Some(capture);
+        if self.pll_enabled {
+            self.pll.on_sync0(capture);
         }
     }
 }
@@ -388,7 +623,8 @@ mod tests {
     use crate::esc::datagram::FrameBuilder;
 
     fn lock_step(cycle_ns: u64, clock_error_ppb: i64) -> EthercatRunner {
-        let config = EthercatConfig { clock: ClockMode::LockStep, cycle_ns, clock_error_ppb, seed: 1 };
+        let config =
+            EthercatConfig { clock: ClockMode::LockStep, cycle_ns, clock_error_ppb, ..EthercatConfig::default() };
         EthercatRunner::new(config).expect("drive SII")
     }
 
