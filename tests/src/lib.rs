@@ -1,5 +1,6 @@
 //! Shared helpers of the host-run firmware tests.
 
+pub mod can_master;
 pub mod ecat_master;
 pub mod qemu;
 pub mod real_master;

@@ -6,6 +6,7 @@
 //! next period; when it reports a slow tick due, `drive.slow_tick()` runs before the next period (on the target tier
 //! 2 runs after tier 1 returns, well inside the same period).
 
+pub mod canopen;
 pub mod duty_cycle;
 pub mod ethercat;
 pub mod faults;
@@ -15,6 +16,7 @@ pub mod plot;
 pub mod profile;
 pub mod scenarios;
 pub mod trace;
+pub mod update;
 
 use firmware::cia402::State;
 use firmware::drive::commutation::CommutationStage;

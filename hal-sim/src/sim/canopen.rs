@@ -1,0 +1,529 @@
+//! Simulated drives as CANopen nodes on one simulated CAN bus (issue 8, item 2): each drive is the reference plant
+//! with the firmware's drive ([`Simulation`]) and its [`CanopenNode`]; the bus ([`CanBus`]) gives every frame its
+//! time at the bit rate and arbitrates; one more bus port stands for the master (the socketcand clients of
+//! `drive-sim canopen`, or a test in-process). This is what `drive-sim canopen --port N --nodes K` runs.
+//!
+//! Per PWM period (40 us of simulated time) the bus runs up to the period's end, each node receives the frames
+//! that ended in it ([`CanopenNode::handle_frame`]: the SYNC path as the CAN receive interrupt would run it, the
+//! rest as tier 3 would shortly after) and the frames it queued (the synchronous TPDOs) go onto the bus at once,
+//! the plant and drive step, and every slow tick (400 us) each node runs the rest of its tier 3
+//! ([`CanopenNode::process`]: SDO, EMCY, heartbeat, event-driven PDOs) and queues its frames on the bus.
+//!
+//! Two clocks, as for EtherCAT ([`super::ethercat`]):
+//! - [`CanClock::RealTime`]: simulated time follows the wall clock (for a person at a CANopen tool).
+//! - [`CanClock::LockStep`]: simulated time advances only for the master's frames: a SYNC (COB-ID
+//!   [`SYNC_COB_ID`]) runs exactly one SYNC period ([`CanopenConfig::sync_period_ns`]); any other frame runs until
+//!   the bus and every node are quiet again (the answer is out), at most [`QUIET_LIMIT_NS`]; RPDOs and the
+//!   master's heartbeat, which nobody answers, run no time and cross the bus with the next frame that runs time
+//!   (`CanopenRunner::lock_step`). The master's pace is
+//!   the simulation's pace, so a tool on a busy 2-core machine gets the same verdict every run; time without
+//!   SYNCs does not pass, so SYNC-driven tests measure supervision (heartbeat, SYNC loss) in SYNC periods.
+
+use std::collections::VecDeque;
+use std::io;
+use std::time::{Duration, Instant};
+
+use firmware::boot::loader::Outcome;
+use firmware::boot::program::{Interface, Request};
+use firmware::boot::tables::{APPLICATION_TABLE, BOOTLOADER_TABLE};
+use firmware::canopen::frame::CanFrame;
+use firmware::canopen::nmt::{NmtState, ResetKind};
+use firmware::canopen::{CanopenNode, NodeEvent};
+use firmware::cia402::State;
+use firmware::drive::objects::DriveObjects;
+use firmware::hal::power::SLOW_TICK_DIVIDER;
+use firmware::od::generated::handles as h;
+use firmware::od::store::ParamStore;
+
+use super::ethercat::PERIOD_NS;
+use super::update::{self, SimProgram};
+use super::Simulation;
+use crate::can::bus::{CanBus, Delivery, NodeIndex};
+use crate::can::socketcand::SocketcandServer;
+use crate::flash::SimFlash;
+
+/// The default SYNC COB-ID (0x1005 = 0x80, CiA 301 §7.5.2.5): the frame lock-step mode counts as a cycle.
+pub const SYNC_COB_ID: u16 = 0x080;
+
+/// Longest a non-SYNC frame may run simulated time in lock-step mode before the runner stops waiting for quiet
+/// (20 ms: a 127-segment block upload at 125 kbit/s takes about 14 ms).
+pub const QUIET_LIMIT_NS: u64 = 20_000_000;
+
+/// Most PWM periods one real-time catch-up runs (100 ms), as for EtherCAT.
+pub const MAX_CATCH_UP_PERIODS: u64 = 2_500;
+
+/// How simulated time advances.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CanClock {
+    /// Simulated time follows the wall clock.
+    RealTime,
+    /// Simulated time advances with the master's frames (see the module documentation).
+    LockStep,
+}
+
+/// The runner's settings (the `drive-sim canopen` options).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct CanopenConfig {
+    /// How simulated time advances.
+    pub clock: CanClock,
+    /// Simulated time one SYNC from the master runs in lock-step mode, ns.
+    pub sync_period_ns: u64,
+    /// Bus bit rate, bit/s.
+    pub bit_rate: u32,
+    /// Drives on the bus, node-IDs 1..=nodes.
+    pub nodes: u8,
+    /// Seed of the plants' noise (drive k uses seed + k).
+    pub seed: u64,
+}
+
+impl Default for CanopenConfig {
+    fn default() -> Self {
+        Self { clock: CanClock::RealTime, sync_period_ns: 1_000_000, bit_rate: 1_000_000, nodes: 1, seed: 1 }
+    }
+}
+
+/// Following error of one drive while it runs CSP enabled, from 0x60F4 at every slow tick.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct FollowingError {
+    /// Slow ticks sampled.
+    pub samples: u64,
+    /// Largest magnitude, increments.
+    pub peak_inc: i64,
+    /// Sum of squares, for the RMS.
+    sum_sq: f64,
+}
+
+impl FollowingError {
+    /// RMS over the samples, increments.
+    pub fn rms_inc(&self) -> f64 {
+        if self.samples == 0 {
+            0.0
+        } else {
+            (self.sum_sq / self.samples as f64).sqrt()
+        }
+    }
+
+    fn sample(&mut self, fe: i32) {
+        self.samples += 1;
+        self.peak_inc = self.peak_inc.max(i64::from(fe).abs());
+        self.sum_sq += f64::from(fe) * f64::from(fe);
+    }
+}
+
+/// One drive on the bus.
+#[derive(Debug)]
+pub struct CanDrive {
+    /// The plant and the firmware's drive.
+    pub sim: Simulation,
+    /// The firmware's CANopen node.
+    pub node: CanopenNode,
+    /// Its bus port.
+    pub port: NodeIndex,
+    inbox: VecDeque<CanFrame>,
+    /// The drive's parameter store (0x1010 save / 0x1011 load, and what a restart loads).
+    pub store: ParamStore<SimFlash>,
+    /// Following error while enabled in CSP.
+    pub following_error: FollowingError,
+    /// Node events (resets, boots) seen.
+    pub events: Vec<NodeEvent>,
+    /// Between power-on (or a restart) and the boot: the node's own power-on reset is not a restart request.
+    powering_up: bool,
+    /// Program control over the simulated update regions (0x1F50..0x1F57; issue 7).
+    pub program: SimProgram,
+    /// What the bootloader decided at the last (simulated) reset ([`update::reset`]).
+    pub last_boot: Outcome,
+    /// Whether an image on trial confirms itself when the node has booted (default on).
+    pub auto_confirm: bool,
+}
+
+impl CanDrive {
+    /// Acts on program control after a request (issue 7): a stop or start changes the dictionary, a reset
+    /// restarts the microcontroller (bootloader, then the drive and the node from scratch).
+    fn follow_program(&mut self) {
+        match self.program.take_request() {
+            Some(Request::Stop) => update::use_table(&mut self.sim.drive, BOOTLOADER_TABLE),
+            Some(Request::Start) => update::use_table(&mut self.sim.drive, APPLICATION_TABLE),
+            Some(Request::Reset) => {
+                self.last_boot = update::reset(&mut self.program);
+                self.sim.drive = update::boot_drive(&mut self.store, &self.program);
+                self.node = CanopenNode::new(self.node.node_id());
+                self.inbox.clear();
+                self.powering_up = true;
+            }
+            None => {}
+        }
+    }
+}
+
+/// What the runner counted.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct CanRunnerStats {
+    /// Frames the master sent.
+    pub master_frames: u64,
+    /// SYNCs the master sent.
+    pub master_syncs: u64,
+    /// Frames delivered to the master (sent by the nodes).
+    pub frames_to_master: u64,
+    /// Lock-step waits for quiet that hit [`QUIET_LIMIT_NS`].
+    pub quiet_limit_hits: u64,
+    /// Real-time catch-ups cut short.
+    pub lag_events: u64,
+}
+
+/// Simulated drives on a CAN bus. See the module documentation.
+#[derive(Debug)]
+pub struct CanopenRunner {
+    /// The bus.
+    pub bus: CanBus,
+    /// The drives, node-ID k at index k - 1.
+    pub drives: Vec<CanDrive>,
+    master: NodeIndex,
+    config: CanopenConfig,
+    now_ns: u64,
+    ticks: u64,
+    stats: CanRunnerStats,
+    origin: Option<Instant>,
+}
+
+impl CanopenRunner {
+    /// `config.nodes` reference drives (at least one), node-IDs 1.., booted (their boot-up messages are on the bus
+    /// after the first period).
+    pub fn new(config: CanopenConfig) -> Self {
+        let mut bus = CanBus::new(config.bit_rate);
+        let master = bus.attach();
+        let drives = (1..=config.nodes.max(1))
+            .map(|id| {
+                let mut store = ParamStore::new(SimFlash::params());
+                let mut sim = Simulation::reference(config.seed.wrapping_add(u64::from(id)));
+                // Power-on as on the target: the bootloader starts the factory image, which builds the dictionary
+                // from the parameter store (empty here: defaults).
+                let mut program = update::factory_program();
+                let last_boot = update::reset(&mut program);
+                sim.drive = update::boot_drive(&mut store, &program);
+                (id, sim, store, program, last_boot)
+            })
+            .map(|(id, sim, store, program, last_boot)| CanDrive {
+                program,
+                last_boot,
+                auto_confirm: true,
+                sim,
+                node: CanopenNode::new(id),
+                port: bus.attach(),
+                inbox: VecDeque::new(),
+                store,
+                following_error: FollowingError::default(),
+                events: Vec::new(),
+                powering_up: true,
+            })
+            .collect();
+        Self { bus, drives, master, config, now_ns: 0, ticks: 0, stats: CanRunnerStats::default(), origin: None }
+    }
+
+    /// The settings.
+    pub fn config(&self) -> &CanopenConfig {
+        &self.config
+    }
+
+    /// Simulated time, ns.
+    pub fn now_ns(&self) -> u64 {
+        self.now_ns
+    }
+
+    /// The counters.
+    pub fn stats(&self) -> CanRunnerStats {
+        self.stats
+    }
+
+    /// The master's bus port.
+    pub fn master_port(&self) -> NodeIndex {
+        self.master
+    }
+
+    /// The drive with node-ID `id`.
+    pub fn drive(&self, id: u8) -> Option<&CanDrive> {
+        self.drives.get(usize::from(id).checked_sub(1)?)
+    }
+
+    /// Queues a frame from the master now (it crosses the bus as time runs).
+    pub fn send(&mut self, frame: CanFrame) {
+        self.stats.master_frames += 1;
+        if frame.id() == SYNC_COB_ID {
+            self.stats.master_syncs += 1;
+        }
+        self.bus.send(self.master, self.now_ns, frame);
+    }
+
+    /// Runs `ns` of simulated time (whole PWM periods, rounded up); returns the frames the nodes sent that
+    /// reached the master.
+    pub fn run_for(&mut self, ns: u64) -> Vec<Delivery> {
+        let mut out = Vec::new();
+        for _ in 0..ns.div_ceil(PERIOD_NS) {
+            self.step(&mut out);
+        }
+        out
+    }
+
+    /// Runs until the bus is idle, no node has a frame to send and no SDO transfer sends on its own (at least one
+    /// slow tick, at most `limit_ns`); returns the frames for the master. Quiet is checked right after a slow
+    /// tick, whose frames (a block-upload burst goes out slow tick by slow tick) are then on the bus: so a slow tick
+    /// that sent nothing and an idle bus mean the node waits for the master. A transfer in progress that waits for
+    /// the client (a segmented one between segments, a block upload after its sub-block) is quiet: waiting for
+    /// its server timeout would run 20 ms of simulated time after every segment.
+    pub fn run_until_quiet(&mut self, limit_ns: u64) -> Vec<Delivery> {
+        let mut out = Vec::new();
+        let start = self.now_ns;
+        loop {
+            self.step(&mut out);
+            let slow_tick_done = self.ticks.is_multiple_of(u64::from(SLOW_TICK_DIVIDER));
+            if slow_tick_done && self.now_ns - start >= PERIOD_NS * u64::from(SLOW_TICK_DIVIDER) && self.quiet() {
+                break;
+            }
+            if self.now_ns - start >= limit_ns {
+                self.stats.quiet_limit_hits += 1;
+                break;
+            }
+        }
+        out
+    }
+
+    /// In lock-step mode: the master's frame `frame`, and the time it runs (see the module documentation).
+    pub fn lock_step(&mut self, frame: CanFrame) -> Vec<Delivery> {
+        let sync = frame.id() == SYNC_COB_ID;
+        let carried = self.carried_by_next(&frame);
+        self.send(frame);
+        if sync {
+            self.run_for(self.config.sync_period_ns)
+        } else if carried {
+            Vec::new()
+        } else {
+            self.run_until_quiet(QUIET_LIMIT_NS)
+        }
+    }
+
+    /// Whether a master frame runs no time in lock-step mode and crosses the bus with the next frame that does:
+    /// an RPDO of some drive or a heartbeat (COB-ID 0x701..=0x77F, one byte). Nobody answers either, and a master
+    /// sends them every cycle before its SYNC (CiA 301 §7.2.2.2.2: RPDOs received before a SYNC are taken at it);
+    /// waiting for quiet after each would stretch the master's cycle by a slow tick or more, so a SYNC period of
+    /// 1 ms would last 1.4 ms of simulated time. The master's frames keep their order on the bus (one transmit
+    /// queue per node), so the RPDO still precedes the SYNC.
+    fn carried_by_next(&self, frame: &CanFrame) -> bool {
+        if frame.is_remote() || frame.id() == SYNC_COB_ID {
+            return false;
+        }
+        let heartbeat = (0x701..=0x77F).contains(&frame.id()) && frame.data().len() == 1;
+        heartbeat || self.drives.iter().any(|d| d.node.is_realtime(frame))
+    }
+
+    fn quiet(&self) -> bool {
+        (0..self.bus.nodes()).all(|p| self.bus.pending(p) == 0)
+            && self.drives.iter().all(|d| {
+                d.node.pending_frames() == 0 && d.inbox.is_empty() && d.node.state() != NmtState::Initialisation
+            })
+    }
+
+    /// One PWM period of every drive and the bus.
+    fn step(&mut self, to_master: &mut Vec<Delivery>) {
+        self.now_ns += PERIOD_NS;
+        self.ticks += 1;
+        for delivery in self.bus.run_until(self.now_ns) {
+            for d in &mut self.drives {
+                if d.port != delivery.from && delivery.lost_at != Some(d.port) {
+                    d.inbox.push_back(delivery.frame);
+                }
+            }
+            if delivery.from != self.master && delivery.lost_at != Some(self.master) {
+                self.stats.frames_to_master += 1;
+                to_master.push(delivery);
+            }
+        }
+        let now_us = self.now_ns / 1_000;
+        let slow = self.ticks.is_multiple_of(u64::from(SLOW_TICK_DIVIDER));
+        for d in &mut self.drives {
+            while let Some(frame) = d.inbox.pop_front() {
+                let on = d.sim.drive.power_stage_enabled();
+                let mut app =
+                    DriveObjects::new(&mut d.store, on).with_program_control(d.program.port(Interface::Canopen, on));
+                d.node.handle_frame(&frame, &mut d.sim.drive, &mut app, now_us);
+                d.follow_program();
+            }
+            // The SYNC path queued its TPDOs; the target's background (tier 3) hands them to the controller's
+            // transmit mailboxes within microseconds, not at the next slow tick.
+            while let Some(frame) = d.node.transmit() {
+                self.bus.send(d.port, self.now_ns, frame);
+            }
+            d.sim.step();
+            if slow {
+                let on = d.sim.drive.power_stage_enabled();
+                let mut app =
+                    DriveObjects::new(&mut d.store, on).with_program_control(d.program.port(Interface::Canopen, on));
+                if let Some(event) = d.node.process(&mut d.sim.drive, &mut app, now_us) {
+                    d.events.push(event);
+                    if event == NodeEvent::Booted {
+                        d.powering_up = false;
+                        // The node is up after a start: an image on trial confirms itself (issue 7).
+                        if d.auto_confirm && d.program.on_trial() {
+                            let _ = d.program.confirm();
+                        }
+                    }
+                    if let (NodeEvent::Reset { kind: ResetKind::Node, node_id, .. }, false) = (event, d.powering_up) {
+                        // What the target does at a reset node: the microcontroller restarts, so the drive comes
+                        // back with the values in its parameter store and the node boots anew (the node has
+                        // already put the power stage in a safe state). The plant keeps turning meanwhile. The
+                        // bootloader runs first (issue 7: it activates a pending image, reverts an unconfirmed one).
+                        d.last_boot = update::reset(&mut d.program);
+                        d.sim.drive = update::boot_drive(&mut d.store, &d.program);
+                        d.node = CanopenNode::new(node_id);
+                        d.powering_up = true;
+                    }
+                }
+                while let Some(frame) = d.node.transmit() {
+                    self.bus.send(d.port, self.now_ns, frame);
+                }
+                let dict = d.sim.drive.dictionary();
+                let csp = dict.get(h::MODES_OF_OPERATION_DISPLAY) == 8i8;
+                if csp && d.sim.cia402_state() == State::OperationEnabled {
+                    d.following_error.sample(dict.get(h::FOLLOWING_ERROR_ACTUAL_VALUE));
+                }
+            }
+        }
+    }
+
+    /// Real-time mode: runs up to the wall clock (at most [`MAX_CATCH_UP_PERIODS`] at once).
+    fn catch_up(&mut self, to_master: &mut Vec<Delivery>) {
+        let origin = *self.origin.get_or_insert_with(Instant::now);
+        let wall_ns = u64::try_from(origin.elapsed().as_nanos()).unwrap_or(u64::MAX);
+        let mut periods = wall_ns.saturating_sub(self.now_ns) / PERIOD_NS;
+        if periods > MAX_CATCH_UP_PERIODS {
+            self.stats.lag_events += 1;
+            let skipped = (periods - MAX_CATCH_UP_PERIODS) * PERIOD_NS;
+            self.origin = Some(origin + Duration::from_nanos(skipped));
+            periods = MAX_CATCH_UP_PERIODS;
+        }
+        for _ in 0..periods {
+            self.step(to_master);
+        }
+    }
+
+    /// Serves the bus to socketcand clients on `server` until `stop` says so (asked after every round with the
+    /// counters). Frames from clients go onto the bus (and, by the server, to the other clients); frames from the
+    /// nodes go to every client.
+    pub fn serve(
+        &mut self,
+        server: &mut SocketcandServer,
+        poll: Duration,
+        mut stop: impl FnMut(&Self) -> bool,
+    ) -> io::Result<()> {
+        loop {
+            let mut out = Vec::new();
+            let frames = server.poll(self.now_ns / 1_000);
+            let busy = !frames.is_empty();
+            for frame in frames {
+                match self.config.clock {
+                    CanClock::LockStep => out.extend(self.lock_step(frame)),
+                    CanClock::RealTime => self.send(frame),
+                }
+            }
+            if self.config.clock == CanClock::RealTime {
+                self.catch_up(&mut out);
+            }
+            for d in &out {
+                server.broadcast(&d.frame, d.end_ns / 1_000);
+            }
+            if stop(self) {
+                return Ok(());
+            }
+            if !busy && out.is_empty() {
+                std::thread::sleep(poll);
+            }
+        }
+    }
+
+    /// Whether every drive is in NMT state `state`.
+    pub fn all_in(&self, state: NmtState) -> bool {
+        self.drives.iter().all(|d| d.node.state() == state)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lock_step(nodes: u8) -> CanopenRunner {
+        CanopenRunner::new(CanopenConfig { clock: CanClock::LockStep, nodes, ..CanopenConfig::default() })
+    }
+
+    #[test]
+    fn the_nodes_boot_and_their_boot_up_messages_reach_the_master() {
+        let mut r = lock_step(3);
+        let got = r.run_for(2_000_000);
+        let mut ids: Vec<_> = got.iter().map(|d| (d.frame.id(), d.frame.data().to_vec())).collect();
+        ids.sort();
+        assert_eq!(ids, [(0x701, vec![0]), (0x702, vec![0]), (0x703, vec![0])]);
+        assert!(r.all_in(NmtState::PreOperational));
+    }
+
+    #[test]
+    fn an_sdo_request_in_lock_step_runs_until_the_answer_is_out() {
+        let mut r = lock_step(1);
+        r.run_for(1_000_000);
+        let t0 = r.now_ns();
+        let got = r.lock_step(CanFrame::new(0x601, &[0x40, 0x00, 0x10, 0, 0, 0, 0, 0]).unwrap());
+        assert_eq!(got.len(), 1, "{got:?}");
+        assert_eq!(got[0].frame.id(), 0x581);
+        assert_eq!(got[0].frame.data()[0], 0x43, "expedited upload of 0x1000");
+        assert!(r.now_ns() - t0 < 2_000_000, "quiet within 2 ms: {} ns", r.now_ns() - t0);
+        assert_eq!(r.stats().quiet_limit_hits, 0);
+    }
+
+    #[test]
+    fn a_sync_in_lock_step_runs_exactly_one_period() {
+        let mut r = lock_step(1);
+        r.run_for(1_000_000);
+        let t0 = r.now_ns();
+        r.lock_step(CanFrame::new(SYNC_COB_ID, &[]).unwrap());
+        assert_eq!(r.now_ns() - t0, 1_000_000);
+        assert_eq!(r.stats().master_syncs, 1);
+    }
+}
+
+#[cfg(test)]
+mod reset_tests {
+    use super::*;
+
+    #[test]
+    fn a_node_reset_by_nmt_boots_again_and_says_so() {
+        let mut r =
+            CanopenRunner::new(CanopenConfig { clock: CanClock::LockStep, nodes: 2, ..CanopenConfig::default() });
+        r.run_for(2_000_000);
+        let got = r.lock_step(CanFrame::new(0x000, &[0x81, 2]).unwrap());
+        let ids: Vec<_> = got.iter().map(|d| (d.frame.id(), d.frame.data().to_vec())).collect();
+        assert_eq!(ids, [(0x702, vec![0])], "{:?}", r.drives[1].events);
+        assert_eq!(r.stats().quiet_limit_hits, 0);
+    }
+
+    fn sdo(r: &mut CanopenRunner, request: [u8; 8]) -> [u8; 8] {
+        let got = r.lock_step(CanFrame::new(0x601, &request).unwrap());
+        let reply = got.iter().find(|d| d.frame.id() == 0x581).expect("an SDO answer");
+        reply.frame.data().try_into().unwrap()
+    }
+
+    /// 0x1010 "save" reaches the parameter store, and a reset node restarts the drive from it, as the target does.
+    #[test]
+    fn a_saved_parameter_survives_a_reset_node() {
+        let mut r = CanopenRunner::new(CanopenConfig { clock: CanClock::LockStep, ..CanopenConfig::default() });
+        r.run_for(2_000_000);
+        // 0x6065 following error window := 12345.
+        let v = 12_345u32.to_le_bytes();
+        assert_eq!(sdo(&mut r, [0x23, 0x65, 0x60, 0, v[0], v[1], v[2], v[3]])[0], 0x60);
+        let save = u32::from_le_bytes(*b"save").to_le_bytes();
+        assert_eq!(sdo(&mut r, [0x23, 0x10, 0x10, 1, save[0], save[1], save[2], save[3]])[0], 0x60, "saved");
+        // Changed again without saving: the restart must bring back the saved value, not this one.
+        let w = 777u32.to_le_bytes();
+        assert_eq!(sdo(&mut r, [0x23, 0x65, 0x60, 0, w[0], w[1], w[2], w[3]])[0], 0x60);
+        let boot = r.lock_step(CanFrame::new(0x000, &[0x81, 1]).unwrap());
+        assert!(boot.iter().any(|d| d.frame.id() == 0x701), "boot-up after the reset");
+        let reply = sdo(&mut r, [0x40, 0x65, 0x60, 0, 0, 0, 0, 0]);
+        assert_eq!(reply[..4], [0x43, 0x65, 0x60, 0]);
+        assert_eq!(u32::from_le_bytes(reply[4..].try_into().unwrap()), 12_345);
+    }
+}

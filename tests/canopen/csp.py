@@ -1,0 +1,244 @@
+"""CSP over CAN with PyPI canopen against `drive-sim canopen --lock-step --sync-us N` (issue 8, "What it must
+show"): PDO configuration through canopen's PDO API, then the drives enabled through the controlword in their
+RPDO and moved along a set-point table, SYNC by SYNC; optionally the master's heartbeat stops afterwards.
+
+Per node (canopen's PDO API: `read`, `clear`, `add_variable`, `trans_type`, `enabled`, `save`): RPDO 1 =
+controlword 0x6040 + target position 0x607A, synchronous (type 1); TPDO 1 = statusword 0x6041 + position actual
+0x6064, synchronous every SYNC; with --tpdo-fe TPDO 2 = following error actual 0x60F4, synchronous; every other
+PDO disabled. Then 0x6060 = 8 (CSP), 0x60C2 the interpolation period, 0x1006 the SYNC period, NMT start.
+
+Each cycle the master sends every node's RPDO (set-point for the coming SYNC, CiA 301 §7.2.2.2.2), its own
+heartbeat every --hb-every cycles when asked, then the SYNC, and waits for every node's TPDOs of that SYNC
+(decoded by canopen's PdoMap). A TPDO that has not arrived within --tpdo-wait-s of wall time is late (under
+lock-step it can only be late because the bus had no room in the SYNC period: the server answers after the
+whole period ran); more than --max-late late cycles end the run early (an overloaded period).
+
+--setpoints: one line per cycle of the move, one column per node: the set-point offset from where the node
+stood when it became «Operation enabled» (written by tests/tests/canopen_real_master.rs from hal-sim's
+JerkLimitedMove). The table's last line is held afterwards for --settle cycles.
+
+Figures per node id: enabled_at_<id>, fe_peak_<id> / fe_rms_<id> / fe_samples_<id> (from TPDO 2 over the move),
+bit13_<id>, final_error_<id> (position actual minus the final set-point after settling), tpdo1_map_<id> (read
+back through `tpdo.read()` after the save); overall cycles, late_cycles.
+
+--hb-loss: 0x1016:01 = node 127 at --hb-consumer-ms, 0x1017 = --hb-producer-ms; after the move the master's
+heartbeat stops while SYNC and set-points go on; figures hb_loss_reaction_syncs_after_last_hb (SYNC periods from the
+last heartbeat to the TPDO statusword «Quick stop active»), emcy_<code> frames seen, error_code_603f, the drive's heartbeat states.
+"""
+
+import struct
+
+from can_common import Fail, connect, emit, main, parser
+
+MASTER_HB_ID = 127
+
+
+def configure(node, tpdo_fe, period_us):
+    node.rpdo.read()
+    node.tpdo.read()
+    for pdo in (node.rpdo, node.tpdo):
+        for n in range(1, 5):
+            pdo[n].enabled = False
+    r = node.rpdo[1]
+    r.clear()
+    r.add_variable(0x6040)
+    r.add_variable(0x607A)
+    r.trans_type = 1
+    r.enabled = True
+    t = node.tpdo[1]
+    t.clear()
+    t.add_variable(0x6041)
+    t.add_variable(0x6064)
+    t.trans_type = 1
+    t.enabled = True
+    if tpdo_fe:
+        t2 = node.tpdo[2]
+        t2.clear()
+        t2.add_variable(0x60F4)
+        t2.trans_type = 1
+        t2.enabled = True
+    node.rpdo.save()
+    node.tpdo.save()
+    # Read back what the node holds now.
+    node.tpdo.read()
+    node.rpdo.read()
+    emit(f"tpdo1_map_{node.id}", " ".join(f"{v.index:04x}:{v.subindex:02x}/{v.length}" for v in node.tpdo[1].map))
+    emit(f"rpdo1_map_{node.id}", " ".join(f"{v.index:04x}:{v.subindex:02x}/{v.length}" for v in node.rpdo[1].map))
+    emit(f"tpdo1_type_{node.id}", node.tpdo[1].trans_type)
+    emit(f"tpdo2_enabled_{node.id}", int(bool(node.tpdo[2].enabled)))
+    node.sdo.download(0x6060, 0, b"\x08")
+    if period_us % 1000 == 0:
+        value, exponent = period_us // 1000, -3
+    else:
+        value, exponent = period_us // 100, -4
+    node.sdo.download(0x60C2, 1, struct.pack("<B", value))
+    node.sdo.download(0x60C2, 2, struct.pack("<b", exponent))
+    node.sdo.download(0x1006, 0, struct.pack("<I", period_us))
+
+
+class Axis:
+    def __init__(self, node, column, tpdo_fe):
+        self.node = node
+        self.column = column
+        self.tpdo_fe = tpdo_fe
+        self.count1 = self.count2 = 0
+        self.statusword = 0
+        self.actual = 0
+        self.fe = 0
+        self.enabled_at = None
+        self.start = None
+        self.fe_peak = 0
+        self.fe_sq = 0.0
+        self.fe_n = 0
+        self.bit13 = False
+        self.final_setpoint = None
+        node.tpdo[1].add_callback(self.on_tpdo1)
+        if tpdo_fe:
+            node.tpdo[2].add_callback(self.on_tpdo2)
+
+    def on_tpdo1(self, m):
+        self.statusword = m[0x6041].raw
+        self.actual = m[0x6064].raw
+        self.count1 += 1
+
+    def on_tpdo2(self, m):
+        self.fe = m[0x60F4].raw
+        self.count2 += 1
+
+    def arrived(self, cycles):
+        return self.count1 >= cycles and (not self.tpdo_fe or self.count2 >= cycles)
+
+    def controlword(self):
+        s = self.statusword & 0x6F
+        if self.statusword & 0x08:
+            return 0x0080 if self.count1 % 2 else 0x0000
+        return {0x21: 0x0007, 0x23: 0x000F, 0x27: 0x000F}.get(s, 0x0006)
+
+
+def run(args):
+    ids = [int(x) for x in args.nodes.split(",")]
+    with open(args.setpoints) as f:
+        table = [[int(x) for x in line.split()] for line in f if line.strip()]
+    network, nodes, recorder = connect(args.port, args.eds, ids)
+    try:
+        for i in ids:
+            configure(nodes[i], args.tpdo_fe, args.sync_us)
+        if args.hb_loss:
+            nodes[ids[0]].sdo.download(0x1016, 1, struct.pack("<I", MASTER_HB_ID << 16 | args.hb_consumer_ms))
+            nodes[ids[0]].sdo.download(0x1017, 0, struct.pack("<H", args.hb_producer_ms))
+        axes = [Axis(nodes[i], k, args.tpdo_fe) for k, i in enumerate(ids)]
+        for i in ids:
+            nodes[i].nmt.state = "OPERATIONAL"
+        # The NMT frames run until quiet; an SDO answered after them is the barrier.
+        nodes[ids[0]].sdo.upload(0x1000, 0)
+        mark = recorder.mark()
+        late, cycles, last_hb = 0, 0, None
+        move_len = len(table)
+        total = args.enable_cycles + move_len + args.settle
+        for k in range(total):
+            for a in axes:
+                if a.enabled_at is None and a.statusword & 0x6F == 0x27:
+                    a.enabled_at = k
+                    a.start = a.actual
+                step = k - a.enabled_at if a.enabled_at is not None else None
+                if step is None:
+                    target = a.actual
+                else:
+                    target = a.start + table[min(step, move_len - 1)][a.column]
+                    a.final_setpoint = a.start + table[-1][a.column]
+                    if 2 < step < move_len and a.tpdo_fe:
+                        a.fe_peak = max(a.fe_peak, abs(a.fe))
+                        a.fe_sq += a.fe * a.fe
+                        a.fe_n += 1
+                    a.bit13 |= bool(a.statusword & (1 << 13))
+                m = a.node.rpdo[1]
+                m[0x6040].raw = a.controlword()
+                m[0x607A].raw = target
+                m.transmit()
+            if args.hb_every and k % args.hb_every == 0:
+                network.send_message(0x700 + MASTER_HB_ID, b"\x05")
+                last_hb = cycles + 1
+            network.send_message(0x080, b"")
+            cycles += 1
+            got = recorder.wait(mark, lambda fs: all(a.arrived(cycles) for a in axes), args.tpdo_wait_s)
+            if got is None:
+                late += 1
+                if late > args.max_late:
+                    break
+            if k == args.enable_cycles - 1 and any(a.enabled_at is None for a in axes):
+                raise Fail("not all drives «Operation enabled»: statuswords "
+                           + " ".join(f"0x{a.statusword:04x}" for a in axes))
+        emit("cycles", cycles)
+        emit("late_cycles", late)
+        for a in axes:
+            i = a.node.id
+            emit(f"enabled_at_{i}", a.enabled_at)
+            emit(f"statusword_{i}", f"0x{a.statusword:04x}")
+            emit(f"bit13_{i}", int(a.bit13))
+            if a.final_setpoint is not None:
+                emit(f"final_error_{i}", a.actual - a.final_setpoint)
+                emit(f"distance_{i}", a.final_setpoint - a.start)
+            if a.tpdo_fe:
+                emit(f"fe_samples_{i}", a.fe_n)
+                emit(f"fe_peak_{i}", a.fe_peak)
+                emit(f"fe_rms_{i}", f"{(a.fe_sq / a.fe_n) ** 0.5 if a.fe_n else 0:.3f}")
+        if args.hb_loss:
+            heartbeat_loss(args, network, recorder, axes[0], cycles, last_hb)
+    finally:
+        network.disconnect()
+
+
+def heartbeat_loss(args, network, recorder, a, cycles, last_hb):
+    """The master's heartbeat stops; SYNC and set-points go on until the drive shows «Quick stop active».
+    `last_hb` is the number of the SYNC the last heartbeat went with (it crossed the bus just before it)."""
+    node = a.node
+    mark = recorder.mark()
+    hold = a.final_setpoint if a.final_setpoint is not None else a.actual
+    reaction = None
+    for k in range(args.hb_loss_cycles):
+        m = node.rpdo[1]
+        m[0x6040].raw = 0x000F
+        m[0x607A].raw = hold
+        m.transmit()
+        network.send_message(0x080, b"")
+        cycles += 1
+        recorder.wait(mark, lambda fs: a.arrived(cycles), args.tpdo_wait_s)
+        if reaction is None and a.statusword & 0x6F == 0x07:
+            # The TPDO of SYNC number `cycles` shows it: sampled at that SYNC.
+            reaction = cycles
+        # 60 more SYNCs for the EMCY and the drive's heartbeats (0x1017) to leave.
+        if reaction is not None and cycles >= reaction + 60:
+            break
+    emit("hb_last_sync", last_hb)
+    emit("hb_loss_reaction_sync", reaction)
+    emit("hb_loss_reaction_syncs_after_last_hb", reaction - last_hb if reaction and last_hb else None)
+    emit("hb_loss_statusword", f"0x{a.statusword:04x}")
+    frames = recorder.since(mark)
+    emcys = [d for c, d in frames if c == 0x80 + node.id]
+    for d in emcys:
+        emit(f"emcy_{struct.unpack_from('<H', d, 0)[0]:04x}", d.hex())
+    emit("emcy_count", len(emcys))
+    states = sorted({d[0] for c, d in frames if c == 0x700 + node.id and len(d) == 1})
+    emit("drive_heartbeat_states", " ".join(f"{s:02x}" for s in states))
+    emit("drive_heartbeats", sum(1 for c, d in frames if c == 0x700 + node.id))
+    emit("error_code_603f", f"0x{struct.unpack('<H', node.sdo.upload(0x603F, 0))[0]:04x}")
+
+
+if __name__ == "__main__":
+    p = parser(__doc__)
+    p.add_argument("--nodes", default="1")
+    p.add_argument("--setpoints", required=True)
+    p.add_argument("--sync-us", type=int, default=1000)
+    p.add_argument("--tpdo-fe", action="store_true")
+    p.add_argument("--enable-cycles", type=int, default=400)
+    p.add_argument("--settle", type=int, default=200)
+    p.add_argument("--tpdo-wait-s", type=float, default=1.0)
+    p.add_argument("--max-late", type=int, default=20)
+    p.add_argument("--hb-every", type=int, default=0)
+    p.add_argument("--hb-loss", action="store_true")
+    p.add_argument("--hb-consumer-ms", type=int, default=50)
+    p.add_argument("--hb-producer-ms", type=int, default=20)
+    p.add_argument("--hb-loss-cycles", type=int, default=300)
+    import sys
+
+    sys.exit(main(run, p))
