@@ -15,14 +15,16 @@ cargo fmt --all -- --check
 step "clippy (host, all targets, warnings denied)"
 cargo clippy --workspace --all-targets -- -D warnings
 
-step "clippy (thumbv7em-none-eabihf firmware, with and without defmt, QEMU image)"
+step "clippy (thumbv7em-none-eabihf firmware, with and without defmt, QEMU image, EtherCAT on SPI)"
 cargo clippy -p firmware --target thumbv7em-none-eabihf --lib --bins -- -D warnings
 cargo clippy -p firmware --target thumbv7em-none-eabihf --lib --bins --features defmt -- -D warnings
 cargo clippy -p firmware --target thumbv7em-none-eabihf --lib --bins --features qemu -- -D warnings
+cargo clippy -p firmware --target thumbv7em-none-eabihf --lib --bins --features ethercat -- -D warnings
 
-step "target build (release, LTO) with and without defmt"
+step "target build (release, LTO) with and without defmt, with the EtherCAT slave on SPI"
 cargo build -p firmware --release --target thumbv7em-none-eabihf
 cargo build -p firmware --release --target thumbv7em-none-eabihf --features defmt
+cargo build -p firmware --release --target thumbv7em-none-eabihf --features ethercat
 
 step "docs (warnings denied)"
 RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps
