@@ -478,3 +478,45 @@ fn bad_frames_through_socketcand_get_no_answer_or_the_right_abort_and_the_node_a
         out.master("script_s")
     );
 }
+
+/// Proves (issue 8: "a block download of at least 64 KiB to a domain object with its CRC checked"; issue 7: the
+/// update over CANopen): PyPI canopen stops and clears the program (0x1F51:01 = 0, 3), writes a 96 KiB signed
+/// image into the program-data domain 0x1F50:01 by SDO block download (canopen sends the block CRC, the drive's
+/// server checks it: a mismatch would abort with 0x0504_0004 and the transfer would fail), starts it (0x1F51:01 =
+/// 1: the drive resets without answering); the boot-up follows and 0x1F56:01 and 0x100A report the new image,
+/// the program runs (0x1F51:01 = 1) and the flash status 0x1F57:01 is 0 (no error).
+#[test]
+fn a_96_kib_signed_image_goes_in_by_block_download_with_its_crc_and_runs_after_the_start() {
+    skip_unless_runnable!("a_96_kib_signed_image...");
+    use firmware::boot::program::BOOTLOADER_ID;
+    use hal_sim::sim::update::{dev_seed, payload, signed_image, FACTORY_VERSION};
+    let dir = WorkDir::new("update");
+    let eds = write_eds(&dir);
+    let version = 0x0002_0000;
+    let image =
+        signed_image(&payload(96 * 1024, version), version, "0.2.0", firmware::boot::image::HARDWARE_ID, &dev_seed());
+    let file = dir.join("image.bin");
+    std::fs::write(&file, &image).expect("write the image");
+    let out = run("update.py", &["--lock-step"], &eds, &["--image".into(), path(&file)]);
+    pass(&out);
+    assert!(out.master_num("image_bytes") >= 65_536.0, "at least 64 KiB");
+    // 0x1F56:01 (IDX L3382-3412): the application's software id in the high word, the bootloader's in the low.
+    let sw_id = |version: u32| format!("0x{:08x}", version & 0xFFFF_0000 | u32::from(BOOTLOADER_ID));
+    assert_eq!(out.master("sw_id_before"), sw_id(FACTORY_VERSION));
+    assert_eq!(out.master("program_state_stopped"), "0", "stopped before the download");
+    assert_eq!(out.master("flash_status_after_download"), "0", "the image was accepted");
+    assert_eq!(out.master("start_answered"), "0", "the start resets the drive without an answer");
+    assert_eq!(out.master("bootup_after_start"), "1");
+    assert_eq!(out.master("sw_id_after"), sw_id(version));
+    assert_eq!(out.master("version_after"), "0.2.0");
+    assert_eq!(out.master("program_state_after"), "1", "the new program runs");
+    assert_eq!(out.master("flash_status_after"), "0");
+    println!(
+        "canopen block download of {} bytes: {} s wall, simulated {} s in all; 0x1F56 {} -> {}",
+        out.master("image_bytes"),
+        out.master("block_download_s"),
+        out.sim("simulated_s"),
+        out.master("sw_id_before"),
+        out.master("sw_id_after")
+    );
+}
