@@ -29,6 +29,22 @@ pub fn cannot_make_namespace() -> Option<String> {
     }
 }
 
+/// Why the machine cannot run a SOEM (PyPI pysoem) test, if it cannot: no namespaces, or python3 cannot import
+/// pysoem although `scripts/setup.sh` installs it.
+pub fn cannot_run_soem() -> Option<String> {
+    if let Some(why) = cannot_make_namespace() {
+        return Some(why);
+    }
+    match Command::new("python3").args(["-c", "import pysoem"]).output() {
+        Ok(o) if o.status.success() => None,
+        Ok(o) => Some(format!(
+            "python3 cannot import pysoem (scripts/setup.sh installs tests/python/requirements.txt): {}",
+            String::from_utf8_lossy(&o.stderr).trim()
+        )),
+        Err(e) => Some(format!("cannot run python3 ({e}); run scripts/setup.sh")),
+    }
+}
+
 /// Builds a binary or example target of the workspace in the dev profile (the artifacts `cargo test` already
 /// built) and returns the path of its executable. `target` is cargo's selection, e.g.
 /// `["-p", "hal-sim", "--bin", "drive-sim"]`; `name` is the executable's name.

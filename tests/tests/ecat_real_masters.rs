@@ -19,23 +19,8 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use drive_tests::real_master::{self, cannot_make_namespace, default_image_bytes, default_u32, root};
+use drive_tests::real_master::{self, cannot_run_soem as cannot_run, default_image_bytes, default_u32, root};
 use firmware::od::access::{Dictionary, NoApplicationObjects};
-
-/// Why the machine cannot run a SOEM test, if it cannot.
-fn cannot_run() -> Option<String> {
-    if let Some(why) = cannot_make_namespace() {
-        return Some(why);
-    }
-    match Command::new("python3").args(["-c", "import pysoem"]).output() {
-        Ok(o) if o.status.success() => None,
-        Ok(o) => Some(format!(
-            "python3 cannot import pysoem (scripts/setup.sh installs tests/python/requirements.txt): {}",
-            String::from_utf8_lossy(&o.stderr).trim()
-        )),
-        Err(e) => Some(format!("cannot run python3 ({e}); run scripts/setup.sh")),
-    }
-}
 
 /// A world-readable temporary directory for a capture (tshark may have to read it as another user).
 fn capture_dir(name: &str) -> PathBuf {

@@ -12,30 +12,16 @@
 
 use std::fmt::Write as _;
 use std::path::PathBuf;
-use std::process::Command;
 
-use drive_tests::real_master::{self, cannot_make_namespace, default_image_bytes, default_u32, root, RunOutput};
+use drive_tests::real_master::{
+    self, cannot_run_soem as cannot_run, default_image_bytes, default_u32, root, RunOutput,
+};
 use firmware::boot::program::Interface;
 use firmware::boot::tables::APPLICATION_TABLE;
 use firmware::od::abort::SdoAbort;
 use firmware::od::access::{AccessContext, CommState, Dictionary, NoApplicationObjects};
 use firmware::od::entry::{Access, DataType, Entry, Limits, Storage};
 use hal_sim::sim::update::PowerOnObjects;
-
-/// Why the machine cannot run a SOEM test, if it cannot.
-fn cannot_run() -> Option<String> {
-    if let Some(why) = cannot_make_namespace() {
-        return Some(why);
-    }
-    match Command::new("python3").args(["-c", "import pysoem"]).output() {
-        Ok(o) if o.status.success() => None,
-        Ok(o) => Some(format!(
-            "python3 cannot import pysoem (scripts/setup.sh installs tests/python/requirements.txt): {}",
-            String::from_utf8_lossy(&o.stderr).trim()
-        )),
-        Err(e) => Some(format!("cannot run python3 ({e}); run scripts/setup.sh")),
-    }
-}
 
 /// A temporary directory for the files a test hands to the script (the namespace shares the file system).
 fn work_dir(name: &str) -> PathBuf {

@@ -4,31 +4,26 @@
 //! stops all of them, as on the chip).
 #![allow(dead_code)]
 
+// The development key, trust anchor and payload generator are the simulator's (one definition).
+pub use hal_sim::sim::update::{dev_seed, dev_trust as trust, payload};
+
 use std::cell::RefCell;
 use std::rc::Rc;
 
-use firmware::boot::image::{ImageHeader, HARDWARE_ID, HEADER_LEN, HEADER_OFFSET, MAX_PAYLOAD_LEN};
-use firmware::boot::keys::DEV_PUBLIC_KEY;
+use firmware::boot::image::{ImageHeader, HARDWARE_ID, HEADER_LEN, HEADER_OFFSET};
 use firmware::boot::sign::sign_image;
 use firmware::boot::swap::BootFlash;
 use firmware::boot::update::{Download, UpdateError};
-use firmware::boot::verify::Trust;
 use firmware::flash_map::{BOOT_STATE_LEN, FLASH_LEN, SLOT_B_LEN};
 use firmware::hal::flash::{FlashError, Geometry, NorFlash};
 use hal_sim::flash::SimFlash;
 
 /// The F405's 128 KiB sectors (slots A and B) and the 64 KiB sector 4 (BOOT_STATE), RM0090 section 3.3.
-pub const SLOT_SECTOR: u32 = 128 * 1024;
-pub const STATE_SECTOR: u32 = 64 * 1024;
+pub use hal_sim::sim::update::{SLOT_SECTOR, STATE_SECTOR};
 /// Copy/verify buffer of the bootloader in these tests.
 pub const BUF_LEN: usize = 4096;
 
-/// The development secret seed from `keys/dev-signing-key.secret`.
-pub fn dev_seed() -> [u8; 32] {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../keys/dev-signing-key.secret");
-    hex32(&std::fs::read_to_string(path).expect("dev key file"))
-}
-
+/// 32 bytes from a key file's 64 hex digits.
 pub fn hex32(text: &str) -> [u8; 32] {
     let t = text.trim();
     assert_eq!(t.len(), 64, "a key file holds 64 hex digits");
@@ -37,23 +32,6 @@ pub fn hex32(text: &str) -> [u8; 32] {
         *o = u8::from_str_radix(&t[2 * i..2 * i + 2], 16).expect("hex");
     }
     out
-}
-
-pub fn trust() -> Trust {
-    Trust { public_key: DEV_PUBLIC_KEY, hardware_id: HARDWARE_ID, max_payload: MAX_PAYLOAD_LEN }
-}
-
-/// A deterministic payload of `len` bytes for firmware `version` (no long 0xFF runs, so every chunk is written).
-pub fn payload(len: usize, version: u32) -> Vec<u8> {
-    let mut x = version.wrapping_mul(0x9E37_79B9) | 1;
-    (0..len)
-        .map(|_| {
-            x ^= x << 13;
-            x ^= x >> 17;
-            x ^= x << 5;
-            (x >> 8) as u8 & 0x7F
-        })
-        .collect()
 }
 
 /// A signed image (header then payload) of firmware `version` with a `len`-byte payload.
