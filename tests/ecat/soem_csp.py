@@ -25,40 +25,8 @@ import time
 
 import pysoem
 
-STATE_NAMES = {
-    pysoem.NONE_STATE: "NONE",
-    pysoem.INIT_STATE: "INIT",
-    pysoem.PREOP_STATE: "PREOP",
-    pysoem.BOOT_STATE: "BOOT",
-    pysoem.SAFEOP_STATE: "SAFEOP",
-    pysoem.OP_STATE: "OP",
-}
-
-
-class Fail(Exception):
-    """A check failed: the reason is the verdict."""
-
-
-def state_name(code):
-    base = STATE_NAMES.get(code & 0x0F, f"0x{code & 0x0F:02x}")
-    return base + ("+ERROR" if code & pysoem.STATE_ERROR else "")
-
-
-def emit(key, value):
-    print(f"{key}={value}", flush=True)
-
-
-def reach(master, slave, state, timeout_us, what):
-    """Requests `state` for all slaves and waits for it; the AL status code explains a refusal."""
-    master.state = state
-    master.write_state()
-    reached = master.state_check(state, timeout_us)
-    if reached != state:
-        master.read_state()
-        raise Fail(
-            f"{what}: slave in {state_name(slave.state)}, AL status code 0x{slave.al_status:04x} "
-            f"(wanted {state_name(state)})"
-        )
+# The verdict protocol and state helpers are the SOEM scripts' shared ones.
+from soem_common import Fail, emit, reach, state_name
 
 
 def run(args):

@@ -35,7 +35,7 @@ use firmware::hal::power::SLOW_TICK_DIVIDER;
 use firmware::od::generated::handles as h;
 use firmware::od::store::ParamStore;
 
-use super::ethercat::PERIOD_NS;
+use super::ethercat::{MAX_CATCH_UP_PERIODS, PERIOD_NS};
 use super::update::{self, SimProgram};
 use super::Simulation;
 use crate::can::bus::{CanBus, Delivery, NodeIndex};
@@ -48,9 +48,6 @@ pub const SYNC_COB_ID: u16 = 0x080;
 /// Longest a non-SYNC frame may run simulated time in lock-step mode before the runner stops waiting for quiet
 /// (20 ms: a 127-segment block upload at 125 kbit/s takes about 14 ms).
 pub const QUIET_LIMIT_NS: u64 = 20_000_000;
-
-/// Most PWM periods one real-time catch-up runs (100 ms), as for EtherCAT.
-pub const MAX_CATCH_UP_PERIODS: u64 = 2_500;
 
 /// How simulated time advances.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
