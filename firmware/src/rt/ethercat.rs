@@ -61,11 +61,12 @@ use crate::drive::objects::DriveObjects;
 use crate::drive::Drive;
 use crate::ecat::esc::{al_event, Esc};
 use crate::ecat::esm::AlState;
+use crate::ecat::foe::{FoeSink, NoFoeSink};
 use crate::ecat::slave::EthercatSlave;
 use crate::ecat::spi_pdi::{Addressing, SpiEsc};
 use crate::ecat::sync::SyncMode;
 use crate::ecat::sync_pll::{Sync0Capture, SyncPll, DITHER_LEN, NOMINAL_ARR};
-use crate::od::access::NoApplicationObjects;
+use crate::od::access::{ApplicationObjects, NoApplicationObjects};
 
 /// AL event mask (u32): which AL event request bits drive SPI_IRQ (ESC datasheet section II, 0x0204).
 const AL_EVENT_MASK: u16 = 0x0204;
@@ -146,19 +147,27 @@ pub(crate) fn poll(params: &mut Option<app::Params>, program: Option<&RefCell<Bo
     let _ = with_slave(|s, drive| {
         let power_stage_enabled = drive.power_stage_enabled();
         let before = s.slave.state();
-        match (params.as_mut(), program) {
+        // One instance of the slave's code for every case (`dyn`): an instance per objects type would not fit
+        // slot A next to the CANopen node.
+        let (mut with_program, mut store_only, mut no_objects, mut program_foe);
+        let mut no_foe = NoFoeSink;
+        let (objects, foe): (&mut dyn ApplicationObjects, &mut dyn FoeSink) = match (params.as_mut(), program) {
             (Some(store), Some(program)) => {
                 let port = SharedPort::new(program, Interface::Ethercat, power_stage_enabled);
-                let mut objects = DriveObjects::new(store, power_stage_enabled).with_program_control(port);
-                let mut foe = SharedPort::new(program, Interface::Ethercat, power_stage_enabled);
-                s.slave.poll_with_foe(&mut s.esc, drive, &mut objects, &mut foe, now_ms);
+                with_program = DriveObjects::new(store, power_stage_enabled).with_program_control(port);
+                program_foe = SharedPort::new(program, Interface::Ethercat, power_stage_enabled);
+                (&mut with_program, &mut program_foe)
             }
             (Some(store), None) => {
-                let mut objects = DriveObjects::new(store, power_stage_enabled);
-                s.slave.poll(&mut s.esc, drive, &mut objects, now_ms);
+                store_only = DriveObjects::new(store, power_stage_enabled);
+                (&mut store_only, &mut no_foe)
             }
-            (None, _) => s.slave.poll(&mut s.esc, drive, &mut NoApplicationObjects, now_ms),
-        }
+            (None, _) => {
+                no_objects = NoApplicationObjects;
+                (&mut no_objects, &mut no_foe)
+            }
+        };
+        s.slave.poll_with_foe(&mut s.esc, drive, objects, foe, now_ms);
         if let Some(program) = program {
             // Leaving BOOT after an FoE download (E4 Table 4-29 step D) asks for the reset that activates it.
             if before == AlState::Boot && s.slave.state() != AlState::Boot {

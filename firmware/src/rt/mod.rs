@@ -32,6 +32,8 @@
 //! start-up, tier 2 and tier 3, never in tier 1 ([`log`]).
 
 pub mod app;
+#[cfg(not(feature = "qemu"))]
+pub mod canopen;
 #[cfg(all(feature = "ethercat", not(feature = "qemu")))]
 pub mod ethercat;
 pub mod log;
@@ -90,12 +92,18 @@ pub fn run() -> ! {
     let program = program::start(&mut boot.drive);
     #[cfg(feature = "qemu")]
     let program: Option<core::cell::RefCell<program::BoardProgram>> = None;
+    // CAN1 with the stored node-ID and bit rate, before tier 1 runs (bringing the controller up waits for bus
+    // idle, milliseconds that must not be spent with tier 1 held off).
+    #[cfg(not(feature = "qemu"))]
+    let can = canopen::start(&boot.drive);
+    #[cfg(feature = "qemu")]
+    let can = None;
     #[cfg(all(feature = "ethercat", not(feature = "qemu")))]
     ethercat::start();
     let _ = tier2::start();
     tier1::start(board.power, boot.drive);
     crate::rt_info!("tiers 1 and 2 running");
-    tier3::run(boot.params, program)
+    tier3::run(boot.params, program, can)
 }
 
 /// Stops for good with the power stage off: after an unrecoverable start-up error.

@@ -29,12 +29,14 @@ use core::cell::RefCell;
 
 use crate::board::boot::UpdateRegion;
 use crate::boot::program::ProgramControl;
-#[cfg(all(feature = "ethercat", not(feature = "qemu")))]
-use crate::boot::{program::Request, tables::BOOTLOADER_TABLE};
 #[cfg(not(feature = "qemu"))]
 use crate::{
-    board::boot::update_flash, boot::loader::running_image, boot::tables::APPLICATION_TABLE,
-    boot::verify::DEVICE_TRUST, drive::Drive,
+    board::boot::update_flash,
+    boot::loader::running_image,
+    boot::program::Request,
+    boot::tables::{APPLICATION_TABLE, BOOTLOADER_TABLE},
+    boot::verify::DEVICE_TRUST,
+    drive::Drive,
 };
 
 /// Program control over the board's update regions.
@@ -72,9 +74,9 @@ pub(crate) fn confirm_when_healthy(program: &RefCell<BoardProgram>, healthy_tick
     super::tier1::with_drive(|drive| !drive.power_stage_enabled() && p.confirm().is_ok()).unwrap_or(false)
 }
 
-/// Acts on program control's request after a fieldbus poll, with the drive (inside `tier1::with_drive`). The
-/// EtherCAT slave's poll calls it (feature `ethercat`); the CAN node is not run by the board's runtime yet.
-#[cfg(all(feature = "ethercat", not(feature = "qemu")))]
+/// Acts on program control's request after a fieldbus poll (the CAN node's, the EtherCAT slave's), with the
+/// drive (inside `tier1::with_drive`).
+#[cfg(not(feature = "qemu"))]
 pub(crate) fn follow(program: &RefCell<BoardProgram>, drive: &mut Drive) {
     let request = program.try_borrow_mut().ok().and_then(|mut p| p.take_request());
     match request {

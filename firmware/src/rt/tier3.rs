@@ -25,9 +25,16 @@ pub static TICK: TickSignal = TickSignal::new();
 /// Program control for the running image (`None` in the QEMU image).
 pub(crate) type Program = Option<RefCell<BoardProgram>>;
 
+/// The CANopen node (`None` in the QEMU image, or when CAN did not come up).
+#[cfg(not(feature = "qemu"))]
+pub(crate) type Can = Option<super::canopen::Canopen>;
+/// The CANopen node: none in the QEMU image (no bxCAN).
+#[cfg(feature = "qemu")]
+pub(crate) type Can = Option<core::convert::Infallible>;
+
 /// Runs the thread executor forever with the tier-3 tasks; `params` is the parameter store from boot, `program`
-/// program control of the running image.
-pub(crate) fn run(params: Option<app::Params>, program: Program) -> ! {
+/// program control of the running image, `can` the CANopen node.
+pub(crate) fn run(params: Option<app::Params>, program: Program, can: Can) -> ! {
     let Some(executor) = cortex_m::singleton!(: Executor = Executor::new()) else {
         super::halt("tier 3: executor already running");
     };
@@ -37,14 +44,22 @@ pub(crate) fn run(params: Option<app::Params>, program: Program) -> ! {
     let Some(program) = cortex_m::singleton!(: Program = program) else {
         super::halt("tier 3: program control already placed");
     };
-    executor.run(|spawner| spawn_tasks(spawner, params, program))
+    let Some(can) = cortex_m::singleton!(: Can = can) else {
+        super::halt("tier 3: CAN node already placed");
+    };
+    executor.run(|spawner| spawn_tasks(spawner, params, program, can))
 }
 
-fn spawn_tasks(spawner: Spawner, params: &'static mut Option<app::Params>, program: &'static Program) {
+fn spawn_tasks(
+    spawner: Spawner,
+    params: &'static mut Option<app::Params>,
+    program: &'static Program,
+    can: &'static mut Can,
+) {
     #[cfg(feature = "qemu")]
-    let _ = (params, program);
+    let _ = (params, program, can);
     #[cfg(not(feature = "qemu"))]
-    match supervisor(params, program) {
+    match supervisor(params, program, can) {
         Ok(token) => spawner.spawn(token),
         Err(_) => super::halt("tier 3: supervisor already spawned"),
     }
@@ -60,7 +75,7 @@ fn spawn_tasks(spawner: Spawner, params: &'static mut Option<app::Params>, progr
 /// program control, which the EtherCAT slave's poll borrows (feature `ethercat`).
 #[cfg(not(feature = "qemu"))]
 #[embassy_executor::task]
-async fn supervisor(_params: &'static mut Option<app::Params>, program: &'static Program) {
+async fn supervisor(params: &'static mut Option<app::Params>, program: &'static Program, can: &'static mut Can) {
     use core::sync::atomic::Ordering;
     const REPORT_EVERY: u32 = 2_500;
     let mut seen = 0;
@@ -69,8 +84,6 @@ async fn supervisor(_params: &'static mut Option<app::Params>, program: &'static
     let mut healthy_ticks = 0u32;
     let mut missed_before = super::tier2::SLOW_MISSED.load(Ordering::Relaxed);
     let mut confirmed = program.is_none();
-    // Tier-3 ticks since start (400 us each): the EtherCAT slave's millisecond clock.
-    #[cfg(feature = "ethercat")]
     let mut ticks_total = 0u64;
     loop {
         let new = TICK.wait(&mut seen).await;
@@ -90,12 +103,15 @@ async fn supervisor(_params: &'static mut Option<app::Params>, program: &'static
                 }
             }
         }
-        // The EtherCAT slave's tier-3 work, every tick, with the parameter store (`super::ethercat`).
+        ticks_total = ticks_total.wrapping_add(u64::from(new));
+        // The fieldbuses' tier-3 work, every tick, with the parameter store and program control.
+        if let Some(can) = can.as_mut() {
+            super::canopen::poll(can, params, program.as_ref(), ticks_total.wrapping_mul(400));
+        }
         #[cfg(feature = "ethercat")]
         {
-            ticks_total = ticks_total.wrapping_add(u64::from(new));
             let now_ms = ticks_total.wrapping_mul(2).checked_div(5).unwrap_or(0) as u32;
-            super::ethercat::poll(_params, program.as_ref(), now_ms);
+            super::ethercat::poll(params, program.as_ref(), now_ms);
         }
         if since_report >= REPORT_EVERY {
             since_report = 0;
