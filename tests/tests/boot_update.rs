@@ -7,7 +7,7 @@ mod boot_support;
 
 use boot_support::*;
 use firmware::boot::image::ImageError;
-use firmware::boot::loader::{boot, BootEvent, Outcome};
+use firmware::boot::loader::{boot, running_image, BootEvent, Outcome};
 use firmware::boot::state::{scan, BootState};
 use firmware::boot::update::{confirm, Download, UpdateError};
 
@@ -127,4 +127,36 @@ fn the_state_log_is_compacted_only_when_idle_and_updates_keep_working() {
     let erases = board.state.flash.erase_counts()[0] - start_erases;
     assert!(erases >= 1, "400 updates x 12 records must have needed a compaction");
     assert_eq!(running(&run(&mut board)), (0x0600_0000, false, BootEvent::Normal));
+}
+
+/// What the started application reconstructs with `loader::running_image` (it does not verify again) matches what
+/// the bootloader decided: the header of the image in slot A, and the trial until the image confirms itself.
+#[test]
+fn the_application_finds_its_header_and_its_trial_as_the_bootloader_left_them() {
+    let mut board = factory();
+    let first = run(&mut board);
+    let seen = running_image(&mut board.slot_a, &mut board.state, &trust());
+    assert_eq!(running(&seen), running(&first));
+    assert_eq!(running(&seen), (OLD, false, BootEvent::Normal));
+
+    download(&mut board.slot_b, &mut board.state, &image(100 * 1024, NEW), 4096).unwrap();
+    let Outcome::Run { header, trial: true, .. } = run(&mut board) else { panic!("the new image runs on trial") };
+    let seen = running_image(&mut board.slot_a, &mut board.state, &trust());
+    assert!(matches!(seen, Outcome::Run { header: h, trial: true, event: BootEvent::Normal } if h == header));
+    assert_eq!(confirm(&mut board.state), Ok(true));
+    assert_eq!(running(&running_image(&mut board.slot_a, &mut board.state, &trust())), (NEW, false, BootEvent::Normal));
+
+    // An erased slot A (no header): no program, with the reason.
+    let mut empty = on_supply(&regions());
+    assert_eq!(
+        running_image(&mut empty.slot_a, &mut empty.state, &trust()),
+        Outcome::NoValidImage(ImageError::BadMagic)
+    );
+    // A header for other hardware is not taken for this drive's program.
+    let mut other = trust();
+    other.hardware_id ^= 1;
+    assert!(matches!(
+        running_image(&mut board.slot_a, &mut board.state, &other),
+        Outcome::NoValidImage(ImageError::WrongHardware { .. })
+    ));
 }

@@ -13,7 +13,7 @@
 //! at once. If slot A holds no valid image at the end, the outcome is [`Outcome::NoValidImage`]: the bootloader
 //! stays active and waits for a new image on the fieldbus (IDX L3345-3350: 0x1F51 reads 3 "no program").
 
-use super::image::{ImageError, ImageHeader, HEADER_OFFSET};
+use super::image::{ImageError, ImageHeader, HEADER_LEN, HEADER_OFFSET};
 use super::state::{self, BootState, Direction, Record, RecordKind};
 use super::swap::{BootError, BootFlash};
 use super::verify::{verify_in_flash, Trust};
@@ -139,5 +139,27 @@ fn run_a<A: NorFlash, B: NorFlash, S: NorFlash>(
         Ok(header) => Ok(Outcome::Run { header, trial, event }),
         Err(ImageError::Flash(e)) => Err(BootError::Flash(e)),
         Err(e) => Ok(Outcome::NoValidImage(e)),
+    }
+}
+
+/// The bootloader's decision as the started application finds it, without verifying again (the bootloader did,
+/// a moment ago, or the application would not run): the header of the image in slot A, checked against `trust`
+/// (structure, hardware id, slot size), and whether the state log says it runs on trial. The platform hands this
+/// to program control ([`super::program::ProgramControl::started`]) at start-up, so that 0x1F56, 0x100A and the
+/// confirmation ([`super::update::confirm`]) refer to the image that runs. The event is
+/// [`BootEvent::Normal`]: what the bootloader did during the reset is in the state log, not known here.
+pub fn running_image<A: NorFlash, S: NorFlash>(slot_a: &mut A, state_flash: &mut S, trust: &Trust) -> Outcome {
+    let mut bytes = [0u8; HEADER_LEN as usize];
+    let header = slot_a
+        .read(HEADER_OFFSET, &mut bytes)
+        .map_err(ImageError::Flash)
+        .and_then(|()| ImageHeader::parse(&bytes))
+        .and_then(|h| h.check(trust.hardware_id, trust.max_payload).map(|()| h));
+    match header {
+        Ok(header) => {
+            let trial = matches!(state::scan(state_flash).map(|s| s.state), Ok(BootState::Trial { .. }));
+            Outcome::Run { header, trial, event: BootEvent::Normal }
+        }
+        Err(e) => Outcome::NoValidImage(e),
     }
 }

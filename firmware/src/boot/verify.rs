@@ -26,6 +26,14 @@ pub struct Trust {
     pub max_payload: u32,
 }
 
+/// This drive's trust anchor, the same in the bootloader and the application: the compiled-in key
+/// ([`super::keys::DEV_PUBLIC_KEY`]), the hardware id of the reference board, and slot A's payload capacity.
+pub const DEVICE_TRUST: Trust = Trust {
+    public_key: super::keys::DEV_PUBLIC_KEY,
+    hardware_id: super::image::HARDWARE_ID,
+    max_payload: super::image::MAX_PAYLOAD_LEN,
+};
+
 /// A streaming check of one image: created from its header, fed the payload in order, then finished.
 pub struct ImageCheck {
     header: ImageHeader,

@@ -314,6 +314,12 @@ impl<const N: usize> Dictionary<N> {
         Self { table, values }
     }
 
+    /// Serves the values under `table` from now on, keeping every value: program control switches between the
+    /// application's and the stopped program's tables (`boot::tables`), which share the generated value layout.
+    pub fn set_table(&mut self, table: Table) {
+        self.table = table;
+    }
+
     /// The table.
     pub const fn table(&self) -> &Table {
         &self.table

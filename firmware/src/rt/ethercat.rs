@@ -52,17 +52,21 @@ use cortex_m::interrupt::Mutex;
 use cortex_m::peripheral::NVIC;
 
 use super::app;
+use super::program::BoardProgram;
 use crate::board::esc_spi::{self, Spi1};
 use crate::board::sync_timer::{self, ARR_TABLE_LEN};
 use crate::board::vectors::Interrupt;
+use crate::boot::program::{Interface, SharedPort};
 use crate::drive::objects::DriveObjects;
 use crate::drive::Drive;
 use crate::ecat::esc::{al_event, Esc};
+use crate::ecat::esm::AlState;
+use crate::ecat::foe::{FoeSink, NoFoeSink};
 use crate::ecat::slave::EthercatSlave;
 use crate::ecat::spi_pdi::{Addressing, SpiEsc};
 use crate::ecat::sync::SyncMode;
 use crate::ecat::sync_pll::{Sync0Capture, SyncPll, DITHER_LEN, NOMINAL_ARR};
-use crate::od::access::NoApplicationObjects;
+use crate::od::access::{ApplicationObjects, NoApplicationObjects};
 
 /// AL event mask (u32): which AL event request bits drive SPI_IRQ (ESC datasheet section II, 0x0204).
 const AL_EVENT_MASK: u16 = 0x0204;
@@ -136,17 +140,42 @@ pub(crate) fn start() {
 }
 
 /// Tier 3, every tick: the slave's poll with the drive's application objects (the parameter store for
-/// 0x1010/0x1011 when there is one), the PLL's supervision, the cycle source for the current mode.
-/// `now_ms` is tier 3's millisecond clock.
-pub(crate) fn poll(params: &mut Option<app::Params>, now_ms: u32) {
+/// 0x1010/0x1011 when there is one, program control for 0x1F50..0x1F57 and the FoE download in BOOT), then
+/// program control's request (`super::program::follow`), the PLL's supervision, the cycle source for the
+/// current mode. `now_ms` is tier 3's millisecond clock.
+pub(crate) fn poll(params: &mut Option<app::Params>, program: Option<&RefCell<BoardProgram>>, now_ms: u32) {
     let _ = with_slave(|s, drive| {
         let power_stage_enabled = drive.power_stage_enabled();
-        match params.as_mut() {
-            Some(store) => {
-                let mut objects = DriveObjects::new(store, power_stage_enabled);
-                s.slave.poll(&mut s.esc, drive, &mut objects, now_ms);
+        let before = s.slave.state();
+        // One instance of the slave's code for every case (`dyn`): an instance per objects type would not fit
+        // slot A next to the CANopen node.
+        let (mut with_program, mut store_only, mut no_objects, mut program_foe);
+        let mut no_foe = NoFoeSink;
+        let (objects, foe): (&mut dyn ApplicationObjects, &mut dyn FoeSink) = match (params.as_mut(), program) {
+            (Some(store), Some(program)) => {
+                let port = SharedPort::new(program, Interface::Ethercat, power_stage_enabled);
+                with_program = DriveObjects::new(store, power_stage_enabled).with_program_control(port);
+                program_foe = SharedPort::new(program, Interface::Ethercat, power_stage_enabled);
+                (&mut with_program, &mut program_foe)
             }
-            None => s.slave.poll(&mut s.esc, drive, &mut NoApplicationObjects, now_ms),
+            (Some(store), None) => {
+                store_only = DriveObjects::new(store, power_stage_enabled);
+                (&mut store_only, &mut no_foe)
+            }
+            (None, _) => {
+                no_objects = NoApplicationObjects;
+                (&mut no_objects, &mut no_foe)
+            }
+        };
+        s.slave.poll_with_foe(&mut s.esc, drive, objects, foe, now_ms);
+        if let Some(program) = program {
+            // Leaving BOOT after an FoE download (E4 Table 4-29 step D) asks for the reset that activates it.
+            if before == AlState::Boot && s.slave.state() != AlState::Boot {
+                if let Ok(mut p) = program.try_borrow_mut() {
+                    p.leave_bootstrap();
+                }
+            }
+            super::program::follow(program, drive);
         }
         s.pll.supervise(super::tier1::FAST_TICKS.load(Ordering::Relaxed));
         s.follow_mode();

@@ -23,17 +23,22 @@
 //! | `ethercat` state (SPI ESC, slave, PLL) | `interrupt::Mutex`, feature `ethercat` | tier 3 (poll), EXTI0/TIM3 and tier 2 (cycle), all inside `tier1::with_drive` | same |
 //! | TIM1 registers (duties, MOE)| peripheral                   | tier 1; the panic/fault handlers force MOE off | - |
 //! | parameter flash (FLASH_CR, PARAMS_A/B) | `board::flash::ParamFlash` in `app::Params`, owned | start-up reads it (`app::boot`); then tier 3 only, erasing and programming inside `tier1::with_drive` with the power stage off | start-up, tier 3 |
+//! | update flash (slot A, slot B, BOOT_STATE) | `board::boot::UpdateRegion`s in [`program::BoardProgram`], owned | start-up reads slot A's header and the state log ([`program::start`]); then tier 3 only: the confirmation and the download, inside `tier1::with_drive` with the power stage off | start-up, tier 3 |
 //!
 //! Start-up order: board init (outputs off) -> parameters loaded from flash and the drive built from them
-//! (`app::boot`; defaults in the QEMU image) -> tier 2 started (its interrupt unmasked, slow loop spawned) ->
-//! tier 1 started (ADC interrupt unmasked) -> tier 3 runs forever (owning the parameter store). Logging (defmt, feature `defmt`) happens in
+//! (`app::boot`; defaults in the QEMU image) -> program control for the running image ([`program::start`]; not in
+//! the QEMU image) -> tier 2 started (its interrupt unmasked, slow loop spawned) ->
+//! tier 1 started (ADC interrupt unmasked) -> tier 3 runs forever (owning the parameter store and program control). Logging (defmt, feature `defmt`) happens in
 //! start-up, tier 2 and tier 3, never in tier 1 ([`log`]).
 
 pub mod app;
+#[cfg(not(feature = "qemu"))]
+pub mod canopen;
 #[cfg(all(feature = "ethercat", not(feature = "qemu")))]
 pub mod ethercat;
 pub mod log;
 mod panic;
+pub mod program;
 pub mod signal;
 pub mod tier1;
 pub mod tier2;
@@ -76,16 +81,29 @@ pub fn run() -> ! {
             peripherals.NVIC.set_priority(Interrupt::Sync0, TIER2_PRIORITY);
         }
     }
-    let boot = app::boot();
+    #[cfg_attr(feature = "qemu", allow(unused_mut))]
+    let mut boot = app::boot();
     if let Some(_report) = boot.report {
         crate::rt_info!("parameters: {}", defmt::Debug2Format(&_report));
     }
+    // Program control for the image that runs (0x1F5x, FoE; its confirmation runs in tier 3). The QEMU image
+    // has no flash interface to drive it.
+    #[cfg(not(feature = "qemu"))]
+    let program = program::start(&mut boot.drive);
+    #[cfg(feature = "qemu")]
+    let program: Option<core::cell::RefCell<program::BoardProgram>> = None;
+    // CAN1 with the stored node-ID and bit rate, before tier 1 runs (bringing the controller up waits for bus
+    // idle, milliseconds that must not be spent with tier 1 held off).
+    #[cfg(not(feature = "qemu"))]
+    let can = canopen::start(&boot.drive);
+    #[cfg(feature = "qemu")]
+    let can = None;
     #[cfg(all(feature = "ethercat", not(feature = "qemu")))]
     ethercat::start();
     let _ = tier2::start();
     tier1::start(board.power, boot.drive);
     crate::rt_info!("tiers 1 and 2 running");
-    tier3::run(boot.params)
+    tier3::run(boot.params, program, can)
 }
 
 /// Stops for good with the power stage off: after an unrecoverable start-up error.
