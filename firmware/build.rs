@@ -53,28 +53,6 @@ fn main() {
             std::process::exit(1);
         }
         println!("cargo:rustc-link-arg-bin=bootloader=-Tbootloader.x");
-        // The bootloader's code region (BOOT_CODE in bootloader.x): BOOTLOADER, 32 KiB. The QEMU build adds
-        // semihosting output and panic formatting (about 33 KiB in all) and may also use PARAMS_A, the next
-        // sector, which the QEMU image never writes (it runs on default parameters).
-        let text = fs::read_to_string(&memory_x).unwrap_or_default();
-        let regions = build_flash_map::parse(&text).unwrap_or_default();
-        let region = |name: &str| regions.iter().find(|r| r.name == name);
-        let code_region = match (env::var("CARGO_FEATURE_QEMU").is_ok(), region("BOOTLOADER"), region("PARAMS_A")) {
-            (false, _, _) => "REGION_ALIAS(\"BOOT_CODE\", BOOTLOADER);\n".to_string(),
-            (true, Some(boot), Some(params)) if boot.origin + boot.length == params.origin => format!(
-                "MEMORY {{ BOOT_CODE : ORIGIN = {:#x}, LENGTH = {:#x} }}\n",
-                boot.origin,
-                boot.length + params.length
-            ),
-            _ => {
-                eprintln!("memory.x: BOOTLOADER must be followed directly by PARAMS_A");
-                std::process::exit(1);
-            }
-        };
-        if let Err(e) = fs::write(out_dir.join("bootloader-region.x"), code_region) {
-            eprintln!("cannot write bootloader-region.x: {e}");
-            std::process::exit(1);
-        }
         if env::var("CARGO_FEATURE_DEFMT").is_ok() {
             println!("cargo:rustc-link-arg-bins=-Tdefmt.x");
         }

@@ -21,10 +21,13 @@ cargo clippy -p firmware --target thumbv7em-none-eabihf --lib --bins --features 
 cargo clippy -p firmware --target thumbv7em-none-eabihf --lib --bins --features qemu -- -D warnings
 cargo clippy -p firmware --target thumbv7em-none-eabihf --lib --bins --features ethercat -- -D warnings
 
-step "target build (release, LTO) with and without defmt, with the EtherCAT slave on SPI"
-cargo build -p firmware --release --target thumbv7em-none-eabihf
-cargo build -p firmware --release --target thumbv7em-none-eabihf --features defmt
-cargo build -p firmware --release --target thumbv7em-none-eabihf --features ethercat
+step "target build (release, LTO) with and without defmt, with the EtherCAT slave on SPI, and the bootloader"
+cargo build -p firmware --release --target thumbv7em-none-eabihf --bin drive
+cargo build -p firmware --release --target thumbv7em-none-eabihf --bin drive --features defmt
+cargo build -p firmware --release --target thumbv7em-none-eabihf --bin drive --features "ethercat defmt"
+# The bootloader has a size-optimised profile of its own (root Cargo.toml) to fit its 32 KiB.
+cargo build -p firmware --profile bootloader --target thumbv7em-none-eabihf --bin bootloader
+cargo build -p firmware --profile bootloader --target thumbv7em-none-eabihf --bin bootloader --features defmt
 
 step "docs (warnings denied)"
 RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps

@@ -295,31 +295,45 @@ pub const BOOTLOADER_BIN: &str = "bootloader";
 /// Exit status of the bootloader image when it stays in its fallback (`board::semihosting::EXIT_NO_VALID_IMAGE`).
 pub const EXIT_NO_VALID_IMAGE: i32 = 3;
 
-/// Builds target binaries of the firmware in release (`--features` `extra_features`, e.g. `qemu`) and returns their
-/// ELF paths in the order given.
+/// The cargo profile a target binary is built with: the bootloader with the size-optimised `bootloader` profile
+/// (root `Cargo.toml`; it must fit its 32 KiB region), everything else in release.
+pub fn profile_of(bin: &str) -> &'static str {
+    if bin == BOOTLOADER_BIN {
+        "bootloader"
+    } else {
+        "release"
+    }
+}
+
+/// Builds target binaries of the firmware, each with its profile ([`profile_of`]; `--features` `features`, e.g.
+/// `qemu`) and returns their ELF paths in the order given.
 pub fn build_target_bins(bins: &[&str], features: &[&str]) -> Result<Vec<PathBuf>, Error> {
     let target_dir = image_target_dir();
     let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
-    let mut command = Command::new(cargo);
-    command
-        .current_dir(workspace_root())
-        .env_remove("RUSTFLAGS")
-        .env_remove("CARGO_ENCODED_RUSTFLAGS")
-        .env_remove("CARGO_BUILD_RUSTFLAGS")
-        .env_remove("CARGO_BUILD_TARGET")
-        .env("CARGO_TARGET_DIR", &target_dir)
-        .args(["build", "-p", "firmware", "--release", "--target", TARGET]);
-    for bin in bins {
-        command.args(["--bin", bin]);
+    let mut profiles: Vec<&str> = bins.iter().map(|b| profile_of(b)).collect();
+    profiles.dedup();
+    for profile in profiles {
+        let mut command = Command::new(&cargo);
+        command
+            .current_dir(workspace_root())
+            .env_remove("RUSTFLAGS")
+            .env_remove("CARGO_ENCODED_RUSTFLAGS")
+            .env_remove("CARGO_BUILD_RUSTFLAGS")
+            .env_remove("CARGO_BUILD_TARGET")
+            .env("CARGO_TARGET_DIR", &target_dir)
+            .args(["build", "-p", "firmware", "--profile", profile, "--target", TARGET]);
+        for bin in bins.iter().filter(|b| profile_of(b) == profile) {
+            command.args(["--bin", bin]);
+        }
+        if !features.is_empty() {
+            command.arg("--features").arg(features.join(","));
+        }
+        let output = command.output().map_err(|e| Error::Build(format!("cannot start cargo: {e}")))?;
+        if !output.status.success() {
+            return Err(Error::Build(String::from_utf8_lossy(&output.stderr).into_owned()));
+        }
     }
-    if !features.is_empty() {
-        command.arg("--features").arg(features.join(","));
-    }
-    let output = command.output().map_err(|e| Error::Build(format!("cannot start cargo: {e}")))?;
-    if !output.status.success() {
-        return Err(Error::Build(String::from_utf8_lossy(&output.stderr).into_owned()));
-    }
-    Ok(bins.iter().map(|b| target_dir.join(TARGET).join("release").join(b)).collect())
+    Ok(bins.iter().map(|b| target_dir.join(TARGET).join(profile_of(b)).join(b)).collect())
 }
 
 /// Builds the host tool `drive-image` (image-tool) into the image target directory and returns its path.

@@ -13,7 +13,7 @@
 
 use drive_tests::qemu::{self, Run};
 use firmware::boot::image::{HEADER_LEN, HEADER_OFFSET};
-use firmware::flash_map::{BOOTLOADER_END, BOOTLOADER_START, PARAMS_A_END};
+use firmware::flash_map::{BOOTLOADER_END, BOOTLOADER_START};
 
 /// `Fallback::code` of `firmware/src/bin/bootloader.rs`: bad magic, CRC, signature.
 const FALLBACK_BAD_MAGIC: &str = "102";
@@ -78,18 +78,18 @@ fn bootloader_starts_a_signed_image_and_refuses_a_corrupted_one() {
 
 #[test]
 fn bootloader_links_at_the_boot_address_and_fits_its_region() {
-    // The board build (no semihosting) must fit BOOTLOADER (32 KiB); the QEMU build, with semihosting output and
-    // panic formatting, may also use PARAMS_A (firmware/build.rs). Sizes from the ELF program headers.
-    let board = qemu::build_target_bins(&[qemu::BOOTLOADER_BIN], &[]).unwrap_or_else(|e| panic!("{e}"));
-    let elf = std::fs::read(&board[0]).expect("bootloader ELF");
-    let (start, end) = qemu::flash_extent(&elf).expect("loadable segments in flash");
-    eprintln!("board bootloader: {} bytes of {}", end - start, BOOTLOADER_END - BOOTLOADER_START);
-    assert_eq!(start, BOOTLOADER_START, "the bootloader must start at the boot address");
-    assert!(end <= BOOTLOADER_END, "the bootloader ends at {end:#010x}, beyond BOOTLOADER ({BOOTLOADER_END:#010x})");
-    let qemu_build = qemu::build_target_bins(&[qemu::BOOTLOADER_BIN], &["qemu"]).unwrap_or_else(|e| panic!("{e}"));
-    let elf = std::fs::read(&qemu_build[0]).expect("bootloader ELF");
-    let (start, end) = qemu::flash_extent(&elf).expect("loadable segments in flash");
-    eprintln!("QEMU bootloader: {} bytes", end - start);
-    assert_eq!(start, BOOTLOADER_START);
-    assert!(end <= PARAMS_A_END, "the QEMU bootloader ends at {end:#010x}, beyond PARAMS_A");
+    // Every build of the bootloader must fit BOOTLOADER (32 KiB): the board's (with the CAN service of its
+    // fallback), with defmt logging, and the QEMU one (semihosting output and panic formatting). Sizes from the ELF
+    // program headers; the builds use the size-optimised `bootloader` profile (`qemu::profile_of`).
+    for features in [&[][..], &["defmt"][..], &["qemu"][..]] {
+        let bins = qemu::build_target_bins(&[qemu::BOOTLOADER_BIN], features).unwrap_or_else(|e| panic!("{e}"));
+        let elf = std::fs::read(&bins[0]).expect("bootloader ELF");
+        let (start, end) = qemu::flash_extent(&elf).expect("loadable segments in flash");
+        eprintln!("bootloader {features:?}: {} bytes of {}", end - start, BOOTLOADER_END - BOOTLOADER_START);
+        assert_eq!(start, BOOTLOADER_START, "the bootloader must start at the boot address");
+        assert!(
+            end <= BOOTLOADER_END,
+            "bootloader {features:?} ends at {end:#010x}, beyond BOOTLOADER ({BOOTLOADER_END:#010x})"
+        );
+    }
 }

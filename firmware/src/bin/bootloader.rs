@@ -4,14 +4,27 @@
 //! a pending one in slot B), the power-fail-safe swap or its resumption, the revert of an image that did not
 //! confirm itself; then starts the verified application, or stays in the fallback when no valid image exists.
 //!
-//! * Clocks: none are changed; the bootloader runs on the 16 MHz HSI of reset, so the application's own clock
-//!   set-up finds the reset state it expects.
+//! * Clocks: the bootloader switches to 168 MHz at its start (`board::clock::init`: the check of a
+//!   full slot took about 3-5 s at the 16 MHz HSI of reset) and puts the reset state back
+//!   (`board::clock::restore_reset_state`) before it jumps, so the application's own clock set-up
+//!   finds what it expects. Without a crystal (`init` fails) it runs on at the HSI and serves no CAN (bxCAN's bit
+//!   timing assumes APB1 = 42 MHz). The `qemu` build changes no clock (QEMU models no RCC).
 //! * A flash error during the decision ([`BootError::Flash`](firmware::boot::swap::BootError::Flash): on the board, a failing supply) resets the core:
 //!   the next boot resumes from the last state record (`boot::swap`).
 //! * Fallback (`stay_in_bootloader`): the IDX spec's bootloader state (L3345-3350: 0x1F51 reads 3 "no
-//!   program", device type 0x0000012E, one interface) must answer on the fieldbus so that a new image can be
-//!   loaded. The bootloader does not link the ESC (SPI) or bxCAN drivers yet, so `serve_fieldbus` is the hook where that
-//!   service plugs in and nothing answers yet.
+//!   program", device type 0x0000012E, one interface) answers on CAN so that a new image can be loaded:
+//!   [`firmware::boot::fallback::FallbackNode`] (SDO server of the reduced object set, program control over
+//!   slot B) on bxCAN (`board::can::BxCan`), polled: receive, handle, send; the SDO timeout runs on
+//!   the DWT cycle counter. One interface only, CAN: the ESC / EtherCAT stack does not fit the 32 KiB. Bit
+//!   rate and node-ID are the device defaults (device.toml 0x2000 = 1, 0x2001 = 0: 1 Mbit/s), not the stored
+//!   parameters: a board without a valid application is found at a known address whatever its parameter
+//!   sectors hold, and the parameter store's record walk (CRC, item structure) would cost flash the fallback
+//!   needs. The boot-up message goes out first; an NMT reset, 0x1F51 = 1 with a verified image or 0x1F51 = 2
+//!   answers, waits until the transmit mailboxes are empty and resets: the next boot activates the image.
+//!   **Size**: built with the size-optimised profile `bootloader` (root `Cargo.toml`: opt-level "z"; the drive
+//!   image keeps opt-level 3 for its 25 kHz tick): `cargo build -p firmware --profile bootloader --target
+//!   thumbv7em-none-eabihf --bin bootloader`. 28,544 bytes with the CAN service (31,972 with defmt, 27,172 for
+//!   QEMU) of the 32,768; with the release profile it would not fit (`tests/tests/qemu_boot.rs` checks).
 //!
 //! With the `qemu` feature (QEMU's `netduinoplus2`): reports on semihosting stdout (`boot.*` lines and
 //! `insn.boot_verify`, the instruction count of the header, CRC and signature check of slot A under
@@ -21,15 +34,15 @@
 
 #[cfg(target_os = "none")]
 mod target {
-    use firmware::board::boot::{start_application, update_flash, StartError};
-    use firmware::boot::image::{ImageError, HARDWARE_ID, MAX_PAYLOAD_LEN};
-    use firmware::boot::keys::DEV_PUBLIC_KEY;
+    use firmware::board::boot::{start_application, update_flash, StartError, UpdateFlash};
+    use firmware::boot::image::ImageError;
     use firmware::boot::loader::{boot, Outcome};
     use firmware::boot::swap::BootError;
-    use firmware::boot::verify::Trust;
+    use firmware::boot::verify::{Trust, DEVICE_TRUST};
 
-    /// What images must satisfy: signed with the compiled-in key, for this hardware, fitting slot A.
-    const TRUST: Trust = Trust { public_key: DEV_PUBLIC_KEY, hardware_id: HARDWARE_ID, max_payload: MAX_PAYLOAD_LEN };
+    /// What images must satisfy: signed with the compiled-in key, for this hardware, fitting slot A (the same
+    /// anchor the application's program control uses).
+    const TRUST: Trust = DEVICE_TRUST;
     /// Copy and verification buffer: a whole number of flash words; 2 KiB keeps the stack small and the flash
     /// reads few.
     const BUF_LEN: usize = 2048;
@@ -78,9 +91,34 @@ mod target {
         }
     }
 
+    impl Fallback {
+        /// The reason as the fallback's 0x1F57 status sees it: an unusable vector table is an image of unknown
+        /// format (status 2), an update state that cannot be kept a flash fault (status 5).
+        #[cfg_attr(feature = "qemu", allow(dead_code))]
+        fn image_error(&self) -> ImageError {
+            match *self {
+                Fallback::NoValidImage(e) => e,
+                Fallback::Start(_) => ImageError::MalformedHeader,
+                Fallback::State(_) | Fallback::NoFlash => ImageError::Flash(firmware::hal::flash::FlashError::Device),
+            }
+        }
+    }
+
     #[cortex_m_rt::entry]
     fn main() -> ! {
-        let Some(mut flash) = update_flash() else { stay_in_bootloader(Fallback::NoFlash) };
+        // 168 MHz for the verification. Without a crystal (HSE or PLL not ready) the HSI runs on, whatever
+        // `init` left half done is undone, and the CAN service is skipped (its bit timing needs APB1 = 42 MHz).
+        #[cfg(not(feature = "qemu"))]
+        let clocked = match firmware::board::clock::init() {
+            Ok(()) => true,
+            Err(_) => {
+                let _ = firmware::board::clock::restore_reset_state();
+                false
+            }
+        };
+        #[cfg(feature = "qemu")]
+        let clocked = false;
+        let Some(mut flash) = update_flash() else { stay_in_bootloader(Fallback::NoFlash, None, clocked) };
         let mut buf = [0u8; BUF_LEN];
         #[cfg(feature = "qemu")]
         qemu::measure_verify(&mut flash.slot_a, &TRUST, &mut buf);
@@ -88,38 +126,128 @@ mod target {
             Ok(Outcome::Run { header, trial, event }) => {
                 // `trial` and `event` are the application's business (it confirms itself, `boot::update`).
                 let _ = (trial, event);
+                // The application's `clock::init` expects the reset state. Should the switch back not be
+                // confirmed, the jump goes ahead all the same: `init` then reports its own clock error.
+                #[cfg(not(feature = "qemu"))]
+                let _ = firmware::board::clock::restore_reset_state();
                 let error = start_application(&mut flash.slot_a, &header);
-                stay_in_bootloader(Fallback::Start(error))
+                stay_in_bootloader(Fallback::Start(error), Some(&mut flash), false)
             }
-            Ok(Outcome::NoValidImage(e)) => stay_in_bootloader(Fallback::NoValidImage(e)),
+            Ok(Outcome::NoValidImage(e)) => stay_in_bootloader(Fallback::NoValidImage(e), Some(&mut flash), clocked),
             // The supply is failing (or the controller refused): start again, the log says where to resume.
             Err(BootError::Flash(_)) => cortex_m::peripheral::SCB::sys_reset(),
-            Err(e) => stay_in_bootloader(Fallback::State(e)),
+            Err(e) => stay_in_bootloader(Fallback::State(e), Some(&mut flash), clocked),
         }
     }
 
-    /// The bootloader's fallback: no application runs; the fieldbus service answers so that a new image can be
-    /// loaded (IDX L3345-3350). Never returns.
-    fn stay_in_bootloader(reason: Fallback) -> ! {
+    /// The bootloader's fallback: no application runs; the CAN service answers so that a new image can be
+    /// loaded (IDX L3345-3350), if the regions and the 168 MHz clock are there (`clocked`; after a failed jump
+    /// the clock was already put back to the HSI, so the core only waits). Never returns.
+    fn stay_in_bootloader(reason: Fallback, flash: Option<&mut UpdateFlash>, clocked: bool) -> ! {
         #[cfg(feature = "qemu")]
-        qemu::report_fallback(reason);
+        {
+            let _ = (flash, clocked);
+            qemu::report_fallback(reason);
+            // QEMU has no bxCAN: the run ends here, so that a test sees the bootloader in its fallback.
+            firmware::board::semihosting::exit(firmware::board::semihosting::EXIT_NO_VALID_IMAGE);
+        }
         #[cfg(not(feature = "qemu"))]
-        let _ = reason;
+        if let (Some(flash), true) = (flash, clocked) {
+            can_service::serve(reason.image_error(), flash);
+        }
+        #[allow(unreachable_code)]
         loop {
-            serve_fieldbus();
+            core::hint::spin_loop();
         }
     }
 
-    /// Hook of the bootloader's fieldbus service: where the ESC (EtherCAT: BOOT state, FoE) or CAN driver of
-    /// the reduced object set (0x1F51 = 3 "no program", 0x1000 = 0x0000012E) is polled and a received image is
-    /// written to slot B through `boot::update`. The reference board's bootloader has no such driver yet:
-    /// nothing answers, the core only waits. Under QEMU (no fieldbus either) the run ends here with
-    /// `EXIT_NO_VALID_IMAGE`, so that a test sees the bootloader in its fallback.
-    fn serve_fieldbus() {
-        #[cfg(feature = "qemu")]
-        firmware::board::semihosting::exit(firmware::board::semihosting::EXIT_NO_VALID_IMAGE);
-        #[cfg(not(feature = "qemu"))]
-        core::hint::spin_loop();
+    /// The fallback's CAN service on the board (module documentation).
+    #[cfg(not(feature = "qemu"))]
+    mod can_service {
+        use cortex_m::peripheral::{DWT, SCB};
+        use firmware::board::boot::UpdateFlash;
+        use firmware::board::can::BxCan;
+        use firmware::board::clock::SYSCLK_HZ;
+        use firmware::boot::fallback::FallbackNode;
+        use firmware::boot::image::ImageError;
+        use firmware::canopen::frame::{BitRate, CanBus, CanFrame};
+        use firmware::od::generated::DEFAULT_NODE_ID;
+
+        use super::TRUST;
+
+        /// Core cycles per millisecond at 168 MHz.
+        const CYCLES_PER_MS: u32 = SYSCLK_HZ / 1000;
+        /// Polls of a full transmit side before a frame is given up (each poll is a register read and a few
+        /// instructions: far more than the 8 ms one frame takes at 20 kbit/s, the slowest rate of 0x2001).
+        const TX_POLLS: u32 = 2_000_000;
+
+        /// Milliseconds from the DWT cycle counter, which wraps every 25.6 s at 168 MHz: each call adds the
+        /// cycles since the previous one (read far more often than every 25 s: the longest step between two
+        /// calls is the clear of slot B, three sector erases of at most 2 s each), carrying the remainder.
+        struct Millis {
+            last: u32,
+            ms: u32,
+            rest: u32,
+        }
+
+        impl Millis {
+            fn now(&mut self) -> u32 {
+                let cycles = DWT::cycle_count();
+                let d = cycles.wrapping_sub(self.last);
+                self.last = cycles;
+                let rest = self.rest.saturating_add(d % CYCLES_PER_MS);
+                let carry = u32::from(rest >= CYCLES_PER_MS);
+                self.rest = rest.wrapping_sub(carry.wrapping_mul(CYCLES_PER_MS));
+                self.ms = self.ms.wrapping_add(d / CYCLES_PER_MS).wrapping_add(carry);
+                self.ms
+            }
+        }
+
+        /// Sends `frame`, waiting (bounded) while all transmit mailboxes are full.
+        fn send(can: &mut BxCan, frame: &CanFrame) {
+            for _ in 0..TX_POLLS {
+                if can.send(frame).is_ok() {
+                    return;
+                }
+            }
+        }
+
+        /// Brings CAN up at the device defaults and serves [`FallbackNode`] until a reset. Never returns.
+        pub(super) fn serve(reason: ImageError, flash: &mut UpdateFlash) -> ! {
+            if let Some(mut core) = cortex_m::Peripherals::take() {
+                core.DCB.enable_trace();
+                core.DWT.enable_cycle_counter();
+            }
+            // Without a transceiver or bus, leaving initialisation times out: try again until a bus is there.
+            let mut can = loop {
+                if let Ok(can) = BxCan::init(BitRate::default()) {
+                    break can;
+                }
+            };
+            let mut node = FallbackNode::new(DEFAULT_NODE_ID, TRUST, reason);
+            let mut clock = Millis { last: DWT::cycle_count(), ms: 0, rest: 0 };
+            send(&mut can, &node.boot_up());
+            loop {
+                let now = clock.now();
+                if let Some(abort) = node.poll(now) {
+                    send(&mut can, &abort);
+                }
+                let Some(frame) = can.receive() else { continue };
+                let reply = node.handle(&frame, flash, now);
+                if let Some(answer) = reply.frame {
+                    send(&mut can, &answer);
+                }
+                if reply.reset {
+                    // The answer leaves before the reset (bounded: an unacknowledged frame stays pending).
+                    for _ in 0..TX_POLLS {
+                        if can.tx_idle() {
+                            break;
+                        }
+                    }
+                    SCB::sys_reset();
+                }
+            }
+        }
     }
 
     /// The QEMU report: `key=value` lines on semihosting stdout, as few and as plain as possible (the 32 KiB

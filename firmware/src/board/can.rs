@@ -221,6 +221,12 @@ impl BxCan {
         enter_normal()
     }
 
+    /// Whether all three transmit mailboxes are empty (TSR.TME0..2): every queued frame has been sent or
+    /// aborted. The bootloader waits for this before a reset, so that its last SDO response leaves first.
+    pub fn tx_idle(&self) -> bool {
+        TSR.read() & TSR_TME == TSR_TME
+    }
+
     /// The error counters and state.
     pub fn errors(&self) -> ErrorCounters {
         let esr = ESR.read();

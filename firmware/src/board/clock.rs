@@ -85,3 +85,41 @@ pub fn init() -> Result<(), ClockError> {
     }
     Ok(())
 }
+
+/// Puts the clock tree back into its reset state (RM0090 §6.3: RCC_CR, RCC_PLLCFGR and RCC_CFGR reset values;
+/// §3.5.1: FLASH_ACR), so that software started afterwards finds what a reset leaves: the bootloader runs at
+/// 168 MHz ([`init`]) and calls this before it jumps to the application, whose own [`init`] expects the reset
+/// state (it programs the PLL, which must be off, and relies on the HSI running SYSCLK).
+///
+/// Order (RM0090 §6.3.3, §6.3.1, §3.5.1): SYSCLK back to the HSI (which stays on from reset) and wait until SWS
+/// confirms it; only then are the prescalers reset, the PLL and the HSE switched off (neither clocks anything
+/// any more), and last, at 16 MHz, the flash wait states dropped (fewer wait states before the clock is slow
+/// would break instruction fetches) and the caches reset while they are disabled. Bounded like [`init`]: a
+/// switch that is not confirmed leaves the rest untouched and returns [`ClockError::Switch`].
+pub fn restore_reset_state() -> Result<(), ClockError> {
+    // HSION (bit 0) is set from reset and never cleared by `init`; wait for HSIRDY (bit 1) all the same.
+    rcc::CR.modify(0, 1);
+    if !wait(|| rcc::CR.read() & (1 << 1) != 0) {
+        return Err(ClockError::Switch);
+    }
+    // SW [1:0] = 00 (HSI), SWS [3:2] = 00 confirms it.
+    rcc::CFGR.modify(0b11, 0);
+    if !wait(|| rcc::CFGR.read() & (0b11 << 2) == 0) {
+        return Err(ClockError::Switch);
+    }
+    // CFGR reset value 0: AHB and APB prescalers /1, MCO settings off.
+    rcc::CFGR.write(0);
+    // PLLON (bit 24) and HSEON (bit 16) off, wait for PLLRDY (bit 25) to clear; PLLCFGR reset value.
+    rcc::CR.modify((1 << 24) | (1 << 16), 0);
+    let _ = wait(|| rcc::CR.read() & (1 << 25) == 0);
+    rcc::PLLCFGR.write(0x2400_3010);
+    // Power interface clock off again (PWREN, bit 28 of APB1ENR, reset 0; the regulator scale stays at its
+    // reset value, scale 1).
+    rcc::APB1ENR.modify(1 << 28, 0);
+    // Flash: 0 wait states, prefetch and caches off, then both caches reset (ICRST bit 11, DCRST bit 12: only
+    // allowed while they are disabled), then the reset value 0.
+    flash::ACR.write(0);
+    flash::ACR.write((1 << 11) | (1 << 12));
+    flash::ACR.write(0);
+    Ok(())
+}

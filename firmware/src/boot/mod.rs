@@ -43,6 +43,7 @@
 //!   idea (page swap through one spare page, progress in a state partition) in ~150 lines over
 //!   [`crate::hal::flash::NorFlash`].
 
+pub mod fallback;
 pub mod image;
 pub mod keys;
 pub mod loader;
