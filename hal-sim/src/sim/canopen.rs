@@ -18,11 +18,31 @@
 //!   (`CanopenRunner::lock_step`). The master's pace is
 //!   the simulation's pace, so a tool on a busy 2-core machine gets the same verdict every run; time without
 //!   SYNCs does not pass, so SYNC-driven tests measure supervision (heartbeat, SYNC loss) in SYNC periods.
+//!
+//! # The bootloader's fallback (issue 7, item 4)
+//! Every drive boots as the target does: the bootloader ([`update::reset`]) decides over the drive's update
+//! regions first. When slot A holds no valid image ([`Outcome::NoValidImage`]) the target stays in the
+//! bootloader, which answers on CAN with its own compact service, [`FallbackNode`]; so does the simulated drive:
+//! its bus port is served by a `FallbackNode` (node-ID the drive's, the program's trust anchor, the loader's
+//! reason) instead of the drive's [`CanopenNode`], which, like the firmware's drive, does not run. The fallback
+//! sends its boot-up when it starts, answers each frame in the PWM period the frame ends in (handing it the
+//! drive's update regions, `SimProgram::flash_mut`), is polled every slow tick with simulated milliseconds (its
+//! SDO timeout), and when it asks for a reset the runner sends its answer first and then runs the simulated
+//! reset: the bootloader swaps a pending image in and the application boots (its boot-up follows at the next
+//! slow tick), or it finds nothing valid again and a new fallback starts. Lock-step semantics are unchanged: a
+//! frame to the fallback runs until its answer is out.
+//!
+//! The plant does not step while a drive is in the fallback: on the target no part of the application (current
+//! loop, CiA 402) runs in the bootloader and the power stage is off; the rotor is taken to stand (program control
+//! refuses to stop the program with the power stage enabled, and the fallback is entered only at a reset).
+//! Flash work takes no simulated time here (as for program control in the application).
+//! [`CanopenConfig::empty_slot_nodes`] (`drive-sim canopen --no-image K`) starts nodes with an erased slot A.
 
 use std::collections::VecDeque;
 use std::io;
 use std::time::{Duration, Instant};
 
+use firmware::boot::fallback::FallbackNode;
 use firmware::boot::loader::Outcome;
 use firmware::boot::program::{Interface, Request};
 use firmware::boot::tables::{APPLICATION_TABLE, BOOTLOADER_TABLE};
@@ -71,11 +91,34 @@ pub struct CanopenConfig {
     pub nodes: u8,
     /// Seed of the plants' noise (drive k uses seed + k).
     pub seed: u64,
+    /// Nodes whose slot A is erased before their first boot, bit k for node-ID k: the bootloader finds no valid
+    /// image and they start in its fallback (see the module documentation). 0: every node runs the factory image.
+    pub empty_slot_nodes: u128,
 }
 
 impl Default for CanopenConfig {
     fn default() -> Self {
-        Self { clock: CanClock::RealTime, sync_period_ns: 1_000_000, bit_rate: 1_000_000, nodes: 1, seed: 1 }
+        Self {
+            clock: CanClock::RealTime,
+            sync_period_ns: 1_000_000,
+            bit_rate: 1_000_000,
+            nodes: 1,
+            seed: 1,
+            empty_slot_nodes: 0,
+        }
+    }
+}
+
+impl CanopenConfig {
+    /// The same settings with node-ID `id` (1..=127) starting with an erased slot A.
+    pub fn with_empty_slot(mut self, id: u8) -> Self {
+        self.empty_slot_nodes |= 1u128.checked_shl(u32::from(id)).unwrap_or(0);
+        self
+    }
+
+    /// Whether node-ID `id` starts with an erased slot A.
+    pub fn empty_slot(&self, id: u8) -> bool {
+        self.empty_slot_nodes.checked_shr(u32::from(id)).is_some_and(|b| b & 1 == 1)
     }
 }
 
@@ -131,23 +174,171 @@ pub struct CanDrive {
     pub last_boot: Outcome,
     /// Whether an image on trial confirms itself when the node has booted (default on).
     pub auto_confirm: bool,
+    /// The bootloader's CAN service while slot A holds no valid image (`None`: the application runs).
+    fallback: Option<FallbackNode>,
+    /// Frames this drive sends in the current PWM period, in order (they go onto the bus at its end).
+    outbox: Vec<CanFrame>,
+    /// Frames the fallback services answered or sent since power-on (boot-ups, answers, timeouts).
+    fallback_frames: u64,
 }
 
 impl CanDrive {
+    /// A drive with node-ID `id` on bus port `port`, powered on: the bootloader runs over `program`'s regions,
+    /// then the application (drive and node) or the bootloader's fallback starts.
+    fn power_on(id: u8, port: NodeIndex, mut sim: Simulation, mut program: SimProgram) -> Self {
+        let mut store = ParamStore::new(SimFlash::params());
+        // Power-on as on the target: the bootloader starts the image in slot A, which builds the dictionary from
+        // the parameter store (empty here: defaults).
+        let last_boot = update::reset(&mut program);
+        sim.drive = update::boot_drive(&mut store, &program);
+        let mut d = Self {
+            program,
+            last_boot,
+            auto_confirm: true,
+            sim,
+            node: CanopenNode::new(id),
+            port,
+            inbox: VecDeque::new(),
+            store,
+            following_error: FollowingError::default(),
+            events: Vec::new(),
+            powering_up: true,
+            fallback: None,
+            outbox: Vec::new(),
+            fallback_frames: 0,
+        };
+        d.enter_fallback_if_no_image(id);
+        d
+    }
+
+    /// Whether the bootloader's fallback serves this drive's bus port (slot A held no valid image at the last
+    /// reset): its [`CanDrive::node`] and drive do not run meanwhile.
+    pub fn in_fallback(&self) -> bool {
+        self.fallback.is_some()
+    }
+
+    /// The bootloader's fallback service, while it runs.
+    pub fn fallback(&self) -> Option<&FallbackNode> {
+        self.fallback.as_ref()
+    }
+
+    /// Frames the bootloader's fallback sent since power-on (boot-ups, SDO answers and aborts).
+    pub fn fallback_frames(&self) -> u64 {
+        self.fallback_frames
+    }
+
+    /// After the loader's decision: no valid image -> the fallback starts and sends its boot-up.
+    fn enter_fallback_if_no_image(&mut self, id: u8) {
+        self.fallback = match self.last_boot {
+            Outcome::NoValidImage(reason) => {
+                let node = FallbackNode::new(id, *self.program.trust(), reason);
+                self.outbox.push(node.boot_up());
+                self.fallback_frames += 1;
+                Some(node)
+            }
+            Outcome::Run { .. } => None,
+        };
+    }
+
+    /// The microcontroller restarts: the bootloader runs (it activates a pending image, reverts an unconfirmed
+    /// one), then the drive starts anew from its parameter store and the node with node-ID `id` boots, or the
+    /// fallback starts if no valid image is left. Frames not yet handled are lost, as on the target.
+    fn restart(&mut self, id: u8) {
+        self.last_boot = update::reset(&mut self.program);
+        self.sim.drive = update::boot_drive(&mut self.store, &self.program);
+        self.node = CanopenNode::new(id);
+        self.inbox.clear();
+        self.powering_up = true;
+        self.enter_fallback_if_no_image(id);
+    }
+
     /// Acts on program control after a request (issue 7): a stop or start changes the dictionary, a reset
     /// restarts the microcontroller (bootloader, then the drive and the node from scratch).
     fn follow_program(&mut self) {
         match self.program.take_request() {
             Some(Request::Stop) => update::use_table(&mut self.sim.drive, BOOTLOADER_TABLE),
             Some(Request::Start) => update::use_table(&mut self.sim.drive, APPLICATION_TABLE),
-            Some(Request::Reset) => {
-                self.last_boot = update::reset(&mut self.program);
-                self.sim.drive = update::boot_drive(&mut self.store, &self.program);
-                self.node = CanopenNode::new(self.node.node_id());
-                self.inbox.clear();
-                self.powering_up = true;
-            }
+            Some(Request::Reset) => self.restart(self.node.node_id()),
             None => {}
+        }
+    }
+
+    /// One PWM period of the bootloader's fallback: the frames that arrived, then (every slow tick) its SDO
+    /// timeout. A reset it asks for runs after its answer is queued.
+    fn fallback_period(&mut self, now_ms: u32, slow: bool) {
+        while let Some(frame) = self.inbox.pop_front() {
+            let Some(fallback) = self.fallback.as_mut() else { return };
+            let reply = fallback.handle(&frame, self.program.flash_mut(), now_ms);
+            let id = fallback.node_id();
+            if let Some(answer) = reply.frame {
+                self.outbox.push(answer);
+                self.fallback_frames += 1;
+            }
+            if reply.reset {
+                self.restart(id);
+                return;
+            }
+        }
+        if slow {
+            if let Some(abort) = self.fallback.as_mut().and_then(|f| f.poll(now_ms)) {
+                self.outbox.push(abort);
+                self.fallback_frames += 1;
+            }
+        }
+    }
+
+    /// One PWM period of the application: the frames that arrived, the plant and drive, and every slow tick the
+    /// node's tier 3.
+    fn application_period(&mut self, now_us: u64, slow: bool) {
+        while let Some(frame) = self.inbox.pop_front() {
+            let on = self.sim.drive.power_stage_enabled();
+            let mut app =
+                DriveObjects::new(&mut self.store, on).with_program_control(self.program.port(Interface::Canopen, on));
+            self.node.handle_frame(&frame, &mut self.sim.drive, &mut app, now_us);
+            self.follow_program();
+            if self.in_fallback() {
+                return;
+            }
+        }
+        // The SYNC path queued its TPDOs; the target's background (tier 3) hands them to the controller's
+        // transmit mailboxes within microseconds, not at the next slow tick.
+        while let Some(frame) = self.node.transmit() {
+            self.outbox.push(frame);
+        }
+        self.sim.step();
+        if !slow {
+            return;
+        }
+        let on = self.sim.drive.power_stage_enabled();
+        let mut app =
+            DriveObjects::new(&mut self.store, on).with_program_control(self.program.port(Interface::Canopen, on));
+        if let Some(event) = self.node.process(&mut self.sim.drive, &mut app, now_us) {
+            self.events.push(event);
+            if event == NodeEvent::Booted {
+                self.powering_up = false;
+                // The node is up after a start: an image on trial confirms itself (issue 7).
+                if self.auto_confirm && self.program.on_trial() {
+                    let _ = self.program.confirm();
+                }
+            }
+            if let (NodeEvent::Reset { kind: ResetKind::Node, node_id, .. }, false) = (event, self.powering_up) {
+                // What the target does at a reset node: the microcontroller restarts, so the drive comes back
+                // with the values in its parameter store and the node boots anew (the node has already put the
+                // power stage in a safe state). The plant keeps turning meanwhile. The bootloader runs first
+                // (issue 7: it activates a pending image, reverts an unconfirmed one, or stays in its fallback).
+                self.restart(node_id);
+                if self.in_fallback() {
+                    return;
+                }
+            }
+        }
+        while let Some(frame) = self.node.transmit() {
+            self.outbox.push(frame);
+        }
+        let dict = self.sim.drive.dictionary();
+        let csp = dict.get(h::MODES_OF_OPERATION_DISPLAY) == 8i8;
+        if csp && self.sim.cia402_state() == State::OperationEnabled {
+            self.following_error.sample(dict.get(h::FOLLOWING_ERROR_ACTUAL_VALUE));
         }
     }
 }
@@ -184,33 +375,16 @@ pub struct CanopenRunner {
 
 impl CanopenRunner {
     /// `config.nodes` reference drives (at least one), node-IDs 1.., booted (their boot-up messages are on the bus
-    /// after the first period).
+    /// after the first period; those of the nodes in the bootloader's fallback at once).
     pub fn new(config: CanopenConfig) -> Self {
         let mut bus = CanBus::new(config.bit_rate);
         let master = bus.attach();
         let drives = (1..=config.nodes.max(1))
             .map(|id| {
-                let mut store = ParamStore::new(SimFlash::params());
-                let mut sim = Simulation::reference(config.seed.wrapping_add(u64::from(id)));
-                // Power-on as on the target: the bootloader starts the factory image, which builds the dictionary
-                // from the parameter store (empty here: defaults).
-                let mut program = update::factory_program();
-                let last_boot = update::reset(&mut program);
-                sim.drive = update::boot_drive(&mut store, &program);
-                (id, sim, store, program, last_boot)
-            })
-            .map(|(id, sim, store, program, last_boot)| CanDrive {
-                program,
-                last_boot,
-                auto_confirm: true,
-                sim,
-                node: CanopenNode::new(id),
-                port: bus.attach(),
-                inbox: VecDeque::new(),
-                store,
-                following_error: FollowingError::default(),
-                events: Vec::new(),
-                powering_up: true,
+                let sim = Simulation::reference(config.seed.wrapping_add(u64::from(id)));
+                // The factory image in slot A, or (`empty_slot_nodes`) nothing: the bootloader's fallback.
+                let program = if config.empty_slot(id) { update::blank_program() } else { update::factory_program() };
+                CanDrive::power_on(id, bus.attach(), sim, program)
             })
             .collect();
         Self { bus, drives, master, config, now_ns: 0, ticks: 0, stats: CanRunnerStats::default(), origin: None }
@@ -308,13 +482,15 @@ impl CanopenRunner {
             return false;
         }
         let heartbeat = (0x701..=0x77F).contains(&frame.id()) && frame.data().len() == 1;
-        heartbeat || self.drives.iter().any(|d| d.node.is_realtime(frame))
+        heartbeat || self.drives.iter().any(|d| !d.in_fallback() && d.node.is_realtime(frame))
     }
 
     fn quiet(&self) -> bool {
         (0..self.bus.nodes()).all(|p| self.bus.pending(p) == 0)
             && self.drives.iter().all(|d| {
-                d.node.pending_frames() == 0 && d.inbox.is_empty() && d.node.state() != NmtState::Initialisation
+                d.inbox.is_empty()
+                    && d.outbox.is_empty()
+                    && (d.in_fallback() || (d.node.pending_frames() == 0 && d.node.state() != NmtState::Initialisation))
             })
     }
 
@@ -334,53 +510,17 @@ impl CanopenRunner {
             }
         }
         let now_us = self.now_ns / 1_000;
+        // The fallback's millisecond clock wraps as the target's tick counter does.
+        let now_ms = (self.now_ns / 1_000_000) as u32;
         let slow = self.ticks.is_multiple_of(u64::from(SLOW_TICK_DIVIDER));
         for d in &mut self.drives {
-            while let Some(frame) = d.inbox.pop_front() {
-                let on = d.sim.drive.power_stage_enabled();
-                let mut app =
-                    DriveObjects::new(&mut d.store, on).with_program_control(d.program.port(Interface::Canopen, on));
-                d.node.handle_frame(&frame, &mut d.sim.drive, &mut app, now_us);
-                d.follow_program();
+            if d.in_fallback() {
+                d.fallback_period(now_ms, slow);
+            } else {
+                d.application_period(now_us, slow);
             }
-            // The SYNC path queued its TPDOs; the target's background (tier 3) hands them to the controller's
-            // transmit mailboxes within microseconds, not at the next slow tick.
-            while let Some(frame) = d.node.transmit() {
+            for frame in d.outbox.drain(..) {
                 self.bus.send(d.port, self.now_ns, frame);
-            }
-            d.sim.step();
-            if slow {
-                let on = d.sim.drive.power_stage_enabled();
-                let mut app =
-                    DriveObjects::new(&mut d.store, on).with_program_control(d.program.port(Interface::Canopen, on));
-                if let Some(event) = d.node.process(&mut d.sim.drive, &mut app, now_us) {
-                    d.events.push(event);
-                    if event == NodeEvent::Booted {
-                        d.powering_up = false;
-                        // The node is up after a start: an image on trial confirms itself (issue 7).
-                        if d.auto_confirm && d.program.on_trial() {
-                            let _ = d.program.confirm();
-                        }
-                    }
-                    if let (NodeEvent::Reset { kind: ResetKind::Node, node_id, .. }, false) = (event, d.powering_up) {
-                        // What the target does at a reset node: the microcontroller restarts, so the drive comes
-                        // back with the values in its parameter store and the node boots anew (the node has
-                        // already put the power stage in a safe state). The plant keeps turning meanwhile. The
-                        // bootloader runs first (issue 7: it activates a pending image, reverts an unconfirmed one).
-                        d.last_boot = update::reset(&mut d.program);
-                        d.sim.drive = update::boot_drive(&mut d.store, &d.program);
-                        d.node = CanopenNode::new(node_id);
-                        d.powering_up = true;
-                    }
-                }
-                while let Some(frame) = d.node.transmit() {
-                    self.bus.send(d.port, self.now_ns, frame);
-                }
-                let dict = d.sim.drive.dictionary();
-                let csp = dict.get(h::MODES_OF_OPERATION_DISPLAY) == 8i8;
-                if csp && d.sim.cia402_state() == State::OperationEnabled {
-                    d.following_error.sample(dict.get(h::FOLLOWING_ERROR_ACTUAL_VALUE));
-                }
             }
         }
     }
@@ -435,9 +575,10 @@ impl CanopenRunner {
         }
     }
 
-    /// Whether every drive is in NMT state `state`.
+    /// Whether every drive is in NMT state `state` (a drive in the bootloader's fallback has no NMT state of the
+    /// application and is in none).
     pub fn all_in(&self, state: NmtState) -> bool {
-        self.drives.iter().all(|d| d.node.state() == state)
+        self.drives.iter().all(|d| !d.in_fallback() && d.node.state() == state)
     }
 }
 
@@ -469,6 +610,29 @@ mod tests {
         assert_eq!(got[0].frame.id(), 0x581);
         assert_eq!(got[0].frame.data()[0], 0x43, "expedited upload of 0x1000");
         assert!(r.now_ns() - t0 < 2_000_000, "quiet within 2 ms: {} ns", r.now_ns() - t0);
+        assert_eq!(r.stats().quiet_limit_hits, 0);
+    }
+
+    /// Node 2 with an erased slot A boots into the bootloader's fallback: both boot-ups reach the master, node 2's
+    /// device type is the bootloader's (0x0000_012E) and its plant does not step; node 1 runs the application.
+    #[test]
+    fn a_node_with_an_empty_slot_a_runs_the_fallback_beside_an_application_node() {
+        let mut r = CanopenRunner::new(
+            CanopenConfig { clock: CanClock::LockStep, nodes: 2, ..CanopenConfig::default() }.with_empty_slot(2),
+        );
+        assert!(r.config().empty_slot(2) && !r.config().empty_slot(1));
+        let got = r.run_for(2_000_000);
+        let mut ids: Vec<_> = got.iter().map(|d| (d.frame.id(), d.frame.data().to_vec())).collect();
+        ids.sort();
+        assert_eq!(ids, [(0x701, vec![0]), (0x702, vec![0])]);
+        assert!(!r.drives[0].in_fallback() && r.drives[1].in_fallback());
+        assert!(!r.all_in(NmtState::PreOperational), "the fallback has no application NMT state");
+        let t_plant = r.drives[1].sim.time_s();
+        let got = r.lock_step(CanFrame::new(0x602, &[0x40, 0x00, 0x10, 0, 0, 0, 0, 0]).unwrap());
+        assert_eq!(got.len(), 1, "{got:?}");
+        assert_eq!(got[0].frame.data(), [0x43, 0x00, 0x10, 0, 0x2E, 0x01, 0, 0]);
+        assert_eq!(r.drives[1].sim.time_s(), t_plant, "the plant stands still in the bootloader");
+        assert_eq!(r.drives[1].fallback_frames(), 2, "boot-up and one answer");
         assert_eq!(r.stats().quiet_limit_hits, 0);
     }
 

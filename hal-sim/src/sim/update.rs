@@ -126,6 +126,12 @@ pub fn factory_program() -> SimProgram {
     ProgramControl::new(r, dev_trust())
 }
 
+/// Program control over fresh regions with slot A erased (a board whose application was never programmed, or
+/// erased by the debugger): the bootloader finds no valid image at [`reset`] and stays active (issue 7, item 4).
+pub fn blank_program() -> SimProgram {
+    ProgramControl::new(regions(), dev_trust())
+}
+
 /// The bootloader at a reset: its decision over the regions, handed to program control. A flash failure (only a
 /// simulated power cut causes one) counts as no valid image: the bootloader stays active.
 pub fn reset(program: &mut SimProgram) -> Outcome {
@@ -139,8 +145,7 @@ pub fn reset(program: &mut SimProgram) -> Outcome {
 
 /// The drive's dictionary under `table`, keeping every value (both tables share the generated value layout).
 pub fn use_table(drive: &mut Drive, table: Table) {
-    let values = drive.dictionary().values().clone();
-    *drive.dictionary_mut() = Dictionary::with_table(table, values);
+    drive.dictionary_mut().set_table(table);
 }
 
 /// The table program control's mode asks for.

@@ -3,11 +3,15 @@
 //!
 //! ```text
 //! drive-sim canopen --port N [--nodes K] [--bit-rate BPS] [--lock-step] [--sync-us N] [--seconds S]
-//!                   [--idle-exit-ms N] [--seed N]
+//!                   [--idle-exit-ms N] [--seed N] [--no-image ID]...
 //! ```
 //! `--port 0` picks a free port; the chosen one is printed as `port=N` before anything else, so a test can read
 //! it. It runs until `--seconds` of wall time, or until `--idle-exit-ms` without a client frame once a client
 //! had connected and left, and then prints its figures as `key=value` lines.
+//!
+//! `--no-image ID` (repeatable, 1..=K) erases slot A of node ID before its first boot: the bootloader finds no
+//! valid image and serves its CAN fallback on that node-ID (boot-up, program control 0x1F50/0x1F51/0x1F56/0x1F57,
+//! device type 0x0000012E), through which a master loads a signed image and starts it (issue 7, item 4).
 
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
@@ -16,7 +20,7 @@ use hal_sim::can::socketcand::SocketcandServer;
 use hal_sim::sim::canopen::{CanClock, CanopenConfig, CanopenRunner};
 
 const USAGE: &str = "usage: drive-sim canopen --port N [--nodes K] [--bit-rate BPS] [--lock-step] [--sync-us N] \
-                     [--seconds S] [--idle-exit-ms N] [--seed N]";
+                     [--seconds S] [--idle-exit-ms N] [--seed N] [--no-image ID]...";
 
 struct Args {
     port: u16,
@@ -59,10 +63,20 @@ fn parse(args: &[String]) -> Result<Args, String> {
                 out.idle_exit_ms = Some(value("--idle-exit-ms")?.parse().map_err(|e| format!("--idle-exit-ms: {e}"))?);
             }
             "--seed" => out.config.seed = value("--seed")?.parse().map_err(|e| format!("--seed: {e}"))?,
+            "--no-image" => {
+                let id: u8 = value("--no-image")?.parse().map_err(|e| format!("--no-image: {e}"))?;
+                if !(1..=127).contains(&id) {
+                    return Err(format!("--no-image {id}: a node-ID 1..=127"));
+                }
+                out.config = out.config.with_empty_slot(id);
+            }
             other => return Err(format!("unknown argument {other}\n{USAGE}")),
         }
     }
     out.port = port.ok_or_else(|| format!("--port is required\n{USAGE}"))?;
+    if let Some(id) = (1..=127u8).find(|&id| out.config.empty_slot(id) && id > out.config.nodes) {
+        return Err(format!("--no-image {id}: only node-IDs 1..={} are on the bus", out.config.nodes));
+    }
     Ok(out)
 }
 
@@ -90,6 +104,9 @@ pub fn run(args: &[String]) -> Result<(), String> {
     );
     println!("  python: can.Bus(interface='socketcand', host='127.0.0.1', port={}, channel='can0')", local.port());
     let mut runner = CanopenRunner::new(args.config);
+    for d in runner.drives.iter().filter(|d| d.in_fallback()) {
+        println!("  node {}: slot A holds no valid image ({:?}): bootloader fallback", d.node.node_id(), d.last_boot);
+    }
     // The nodes boot before anyone connects (their boot-up messages go nowhere, as on a bus without a master).
     runner.run_for(2_000_000);
     let started = Instant::now();
@@ -130,6 +147,10 @@ fn report(runner: &CanopenRunner, server: &SocketcandServer) {
     println!("client_elements_refused={}", srv.refused);
     for d in &runner.drives {
         let id = d.node.node_id();
+        // What runs on the node's port at the end: the application or the bootloader's fallback (issue 7).
+        println!("node{id}_running={}", if d.in_fallback() { "fallback" } else { "application" });
+        println!("node{id}_fallback_frames={}", d.fallback_frames());
+        println!("node{id}_sw_id=0x{:08x}", d.program.software_identification());
         let c = d.node.counters();
         println!("node{id}_nmt={:?}", d.node.state());
         println!("node{id}_cia402={:?}", d.sim.cia402_state());
