@@ -46,7 +46,8 @@
 //!   INIT, which is harmless; the poll simply repeats.
 
 use core::cell::RefCell;
-use core::sync::atomic::{AtomicU16, AtomicU32, Ordering};
+use core::mem::MaybeUninit;
+use core::sync::atomic::{AtomicBool, AtomicU16, AtomicU32, Ordering};
 
 use cortex_m::interrupt::Mutex;
 use cortex_m::peripheral::NVIC;
@@ -98,7 +99,11 @@ struct Ethercat {
     arr_stream: bool,
 }
 
-static STATE: Mutex<RefCell<Option<Ethercat>>> = Mutex::new(RefCell::new(None));
+/// The slave's state, placed once by [`start`] (then [`STATE_READY`]). `MaybeUninit` rather than an `Option`: a
+/// `None` of this type is not all zero bytes, so an `Option` static would carry a 6 KiB initial image in flash.
+static STATE: Mutex<RefCell<MaybeUninit<Ethercat>>> = Mutex::new(RefCell::new(MaybeUninit::uninit()));
+/// Set by [`start`] once [`STATE`] holds the slave.
+static STATE_READY: AtomicBool = AtomicBool::new(false);
 
 /// Runs `f` on the slave's state and the drive, with every interrupt masked (see the module documentation).
 /// `None` before [`start`], before tier 1 has the drive, or if the state is already borrowed (cannot happen: all
@@ -107,7 +112,8 @@ fn with_slave<R>(f: impl FnOnce(&mut Ethercat, &mut Drive) -> R) -> Option<R> {
     super::tier1::with_drive(|drive| {
         cortex_m::interrupt::free(|cs| {
             let mut slot = STATE.borrow(cs).try_borrow_mut().ok()?;
-            slot.as_mut().map(|s| f(s, drive))
+            // SAFETY: `STATE_READY` is set only after `start` wrote the state (inside a critical section).
+            STATE_READY.load(Ordering::Relaxed).then(|| f(unsafe { slot.assume_init_mut() }, drive))
         })
     })
     .flatten()
@@ -132,7 +138,8 @@ pub(crate) fn start() {
     };
     cortex_m::interrupt::free(|cs| {
         if let Ok(mut slot) = STATE.borrow(cs).try_borrow_mut() {
-            *slot = Some(state);
+            slot.write(state);
+            STATE_READY.store(true, Ordering::Relaxed);
         }
     });
     // SAFETY: the handler's state is in place; unmasking breaks no critical section (none is held here).

@@ -8,6 +8,7 @@
 //! latches [`OVERRUN`] for the diagnostics.
 
 use core::cell::UnsafeCell;
+use core::mem::MaybeUninit;
 use core::sync::atomic::{compiler_fence, AtomicBool, AtomicU32, Ordering};
 
 use cortex_m::peripheral::NVIC;
@@ -35,15 +36,39 @@ struct Tier1 {
     overhead: u32,
 }
 
-/// Tier 1's state: written once by [`start`] before the ADC interrupt is unmasked, then used by the ADC handler, and
-/// by [`with_drive`] with all interrupts masked.
-struct Slot(UnsafeCell<Option<Tier1>>);
+/// Tier 1's state: written once by [`start`] before the ADC interrupt is unmasked (then `ready`), then used by the
+/// ADC handler, and by [`with_drive`] with all interrupts masked.
+///
+/// `MaybeUninit` and a flag rather than an `Option`: `None` of the drive's type is not all zero bytes (a niche
+/// in one of its enums), so an `Option` static would sit in `.data` with a 6 KiB initial image in flash; this one
+/// is in `.bss`.
+struct Slot {
+    state: UnsafeCell<MaybeUninit<Tier1>>,
+    ready: AtomicBool,
+}
 
 // SAFETY: see `Slot`: one writer before the interrupt is enabled; afterwards the ADC handler (which cannot preempt
 // itself) and `with_drive`, which runs with interrupts disabled and so never overlaps the handler or itself.
 unsafe impl Sync for Slot {}
 
-static TIER1: Slot = Slot(UnsafeCell::new(None));
+impl Slot {
+    /// The state, once [`start`] has placed it.
+    ///
+    /// # Safety
+    /// The caller is the ADC handler or runs with interrupts disabled (see `Slot`), and holds no other reference
+    /// obtained from this function.
+    #[allow(clippy::mut_from_ref)]
+    unsafe fn get(&self) -> Option<&mut Tier1> {
+        // Relaxed: one core, and `start` sets the flag before it unmasks the ADC interrupt (with compiler fences).
+        if !self.ready.load(Ordering::Relaxed) {
+            return None;
+        }
+        // SAFETY: `ready` is set only after `start` wrote the state; exclusivity is the caller's contract.
+        Some(unsafe { (*self.state.get()).assume_init_mut() })
+    }
+}
+
+static TIER1: Slot = Slot { state: UnsafeCell::new(MaybeUninit::uninit()), ready: AtomicBool::new(false) };
 
 /// Hands the power stage and the fast state to tier 1 and unmasks the ADC interrupt. Call once, from start-up,
 /// with interrupts of tier 1 still masked.
@@ -51,8 +76,10 @@ pub(crate) fn start(power: PowerStage, fast: FastState) {
     let overhead = empty_call_cost();
     NVIC::mask(Interrupt::Adc);
     compiler_fence(Ordering::SeqCst);
-    // SAFETY: the ADC interrupt is masked, so its handler (the slot's only other user) cannot run now.
-    unsafe { *TIER1.0.get() = Some(Tier1 { power, fast, overhead }) };
+    // SAFETY: the ADC interrupt is masked, so its handler (the slot's only other user) cannot run now; `start` runs
+    // once, from start-up, before `with_drive` has anything to reach.
+    unsafe { (*TIER1.state.get()).write(Tier1 { power, fast, overhead }) };
+    TIER1.ready.store(true, Ordering::Relaxed);
     compiler_fence(Ordering::SeqCst);
     // SAFETY: the handler's state is in place; unmasking cannot break a critical section (none is held here).
     unsafe { NVIC::unmask(Interrupt::Adc) };
@@ -65,7 +92,7 @@ pub(crate) fn start(power: PowerStage, fast: FastState) {
 /// `with_drive` keeps interrupts off while it holds the state.
 pub unsafe extern "C" fn on_adc() {
     // SAFETY: see `# Safety`: no other reference to the slot is live while the handler runs.
-    let Some(t) = (unsafe { &mut *TIER1.0.get() }) else {
+    let Some(t) = (unsafe { TIER1.get() }) else {
         // An ADC interrupt before start-up finished: nothing to run; keep the power stage off.
         crate::board::safe_state();
         return;
@@ -103,8 +130,7 @@ pub fn with_drive<R>(f: impl FnOnce(&mut FastState) -> R) -> Option<R> {
     cortex_m::interrupt::free(|_| {
         // SAFETY: interrupts are disabled, so the ADC handler cannot run, and no other `with_drive` is active (it
         // would have to be an interrupted one, and nothing interrupts this closure).
-        let slot = unsafe { &mut *TIER1.0.get() };
-        slot.as_mut().map(|t| f(&mut t.fast))
+        unsafe { TIER1.get() }.map(|t| f(&mut t.fast))
     })
 }
 
