@@ -7,7 +7,8 @@
 //!   the default 1 Mbit/s. No transceiver or no bus: `BxCan::init` times out and the drive runs without CAN.
 //! * **Every tier-3 tick** (400 us, [`poll`]): [`CanopenNode::poll`] inside `tier1::with_drive` (receive up to
 //!   `RX_PER_POLL` frames, SDO, NMT, SYNC, PDOs, EMCY, heartbeat, transmit), then program control's request
-//!   (`super::program::follow`) and the node's event: a reset node restarts the microcontroller (the node has
+//!   (`super::program::follow`; for a reset, the SDO response leaves the mailboxes first, bounded wait) and the
+//!   node's event: a reset node restarts the microcontroller (the node has
 //!   put the power stage in a safe state; the bootloader runs and may activate a pending image, and the
 //!   application comes back with the stored parameters, as `hal-sim`'s runner models it), a reset communication
 //!   with a new 0x2001 reprograms the bit timing.
@@ -95,12 +96,15 @@ pub(crate) fn poll(
             }
         };
         let event = can.node.poll(&mut can.bus, drive, objects, now_us);
-        if let Some(program) = program {
-            super::program::follow(program, drive);
-        }
-        event
-    })
-    .flatten();
+        let reset = program.is_some_and(|program| super::program::follow(program, drive));
+        (event, reset)
+    });
+    let Some((event, reset)) = event else { return };
+    if reset {
+        // Program control asked for the reset (0x1F51 = 1 with a verified image, or 2): its SDO response first.
+        flush(can);
+        super::program::reset();
+    }
     match event {
         Some(NodeEvent::Booted) => can.powering_up = false,
         Some(NodeEvent::Reset { kind: ResetKind::Node, .. }) if !can.powering_up => {
@@ -115,5 +119,24 @@ pub(crate) fn poll(
             crate::rt_info!("CAN: bit rate {=u32}, refused {=bool}", rate.bits_per_second(), _refused);
         }
         _ => {}
+    }
+}
+
+/// Polls of the transmit mailboxes while the last frames leave before a reset: far more than the few frames of an
+/// SDO response need at 20 kbit/s (about 6 ms each); a bus without other nodes never acknowledges, so the wait is
+/// bounded.
+const FLUSH_POLLS: u32 = 2_000_000;
+
+/// Hands the node's queued frames to the controller and waits (bounded) until its mailboxes are empty.
+fn flush(can: &mut Canopen) {
+    let mut pending = can.node.transmit();
+    for _ in 0..FLUSH_POLLS {
+        match pending {
+            Some(frame) if can.bus.send(&frame).is_ok() => pending = can.node.transmit(),
+            None if can.bus.tx_idle() => return,
+            // Mailboxes full, or the last frames still on the bus.
+            _ => {}
+        }
+        core::hint::spin_loop();
     }
 }

@@ -182,7 +182,10 @@ pub(crate) fn poll(params: &mut Option<app::Params>, program: Option<&RefCell<Bo
                     p.leave_bootstrap();
                 }
             }
-            super::program::follow(program, drive);
+            // The answer is in the ESC's mailbox already (the SPI writes are done): reset at once.
+            if super::program::follow(program, drive) {
+                super::program::reset();
+            }
         }
         s.pll.supervise(super::tier1::FAST_TICKS.load(Ordering::Relaxed));
         s.follow_mode();

@@ -75,18 +75,28 @@ pub(crate) fn confirm_when_healthy(program: &RefCell<BoardProgram>, healthy_tick
 }
 
 /// Acts on program control's request after a fieldbus poll (the CAN node's, the EtherCAT slave's), with the
-/// drive (inside `tier1::with_drive`).
+/// drive (inside `tier1::with_drive`). Returns `true` when the request is a reset: the power stage is then already
+/// in its safe state, and the caller resets ([`reset`]) once its answer has left (the SDO response to 0x1F51 is
+/// still in the CAN controller's mailboxes at this point).
 #[cfg(not(feature = "qemu"))]
-pub(crate) fn follow(program: &RefCell<BoardProgram>, drive: &mut Drive) {
+#[must_use]
+pub(crate) fn follow(program: &RefCell<BoardProgram>, drive: &mut Drive) -> bool {
     let request = program.try_borrow_mut().ok().and_then(|mut p| p.take_request());
     match request {
         Some(Request::Stop) => drive.dictionary_mut().set_table(BOOTLOADER_TABLE),
         Some(Request::Start) => drive.dictionary_mut().set_table(APPLICATION_TABLE),
         Some(Request::Reset) => {
-            // The power stage first, then the reset: the bootloader runs next and swaps a pending image in.
             crate::board::safe_state();
-            cortex_m::peripheral::SCB::sys_reset()
+            return true;
         }
         None => {}
     }
+    false
+}
+
+/// The reset program control asked for: the bootloader runs next and swaps a pending image in.
+#[cfg(not(feature = "qemu"))]
+pub(crate) fn reset() -> ! {
+    crate::board::safe_state();
+    cortex_m::peripheral::SCB::sys_reset()
 }
