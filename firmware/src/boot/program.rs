@@ -51,7 +51,6 @@ use core::cell::RefCell;
 use super::image::ImageError;
 use super::loader::Outcome;
 use super::swap::BootFlash;
-use super::tables::MANUFACTURER_SOFTWARE_VERSION;
 use super::update::{self, Download, Phase, UpdateError};
 use super::verify::Trust;
 use crate::drive::objects::{
@@ -254,7 +253,8 @@ impl<A: NorFlash, B: NorFlash, S: NorFlash> ProgramControl<A, B, S> {
         &self.trust
     }
 
-    /// After a reset: what the loader started. A run image is the program (0x1F56, 0x100A); without one the
+    /// After a reset: what the loader started. A run image is the program (0x1F56; the platform shows its version
+    /// string in 0x100A with [`super::tables::show_software_version`]); without one the
     /// program stays stopped with no interface locked yet (0x1F51 reads 3, 0x1F57 status 1).
     pub fn started(&mut self, outcome: Outcome) {
         self.download = Download::new();
@@ -448,7 +448,7 @@ impl<A: NorFlash, B: NorFlash, S: NorFlash> ProgramControl<A, B, S> {
 }
 
 /// [`ProgramControl`] as seen by one transfer from one interface: the [`ApplicationObjects`] of 0x1F50, 0x1F51,
-/// 0x1F56, 0x1F57 and 0x100A, and on EtherCAT the [`FoeSink`].
+/// 0x1F56 and 0x1F57, and on EtherCAT the [`FoeSink`].
 #[derive(Debug)]
 pub struct ProgramPort<'a, A, B, S> {
     control: &'a mut ProgramControl<A, B, S>,
@@ -475,10 +475,6 @@ impl<A: NorFlash, B: NorFlash, S: NorFlash> ApplicationObjects for ProgramPort<'
             PROGRAM_CONTROL => Ok(copy_out(&[c.program_state()], offset, buf)),
             PROGRAM_SOFTWARE_IDENTIFICATION => Ok(copy_out(&c.software_identification().to_le_bytes(), offset, buf)),
             FLASH_STATUS_IDENTIFICATION => Ok(copy_out(&c.flash_status().to_le_bytes(), offset, buf)),
-            MANUFACTURER_SOFTWARE_VERSION => {
-                let version = c.running.as_ref().map_or(&[][..], |h| h.version_str());
-                Ok(copy_out(version, offset, buf))
-            }
             _ => Err(SdoAbort::CannotTransfer),
         }
     }

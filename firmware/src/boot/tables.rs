@@ -1,9 +1,10 @@
 //! The two dictionary tables program control switches between (built at compile time from the generated one):
 //!
-//! * [`APPLICATION_TABLE`]: the generated dictionary with 0x100A *Manufacturer software version* served by the
-//!   application, so that it reports the version string of the image the loader verified (image header offset
-//!   32) instead of a constant compiled into the dictionary (issue 7: "after the reset, 0x1F56 and 0x100A report
-//!   the new image").
+//! * [`APPLICATION_TABLE`]: the generated dictionary. Its 0x100A *Manufacturer software version* is a read-only
+//!   RAM string that the platform sets at start to the version string of the image the loader verified (image
+//!   header offset 32; [`show_software_version`]), so that it reports the running image (issue 7: "after the
+//!   reset, 0x1F56 and 0x100A report the new image"). One table: a second copy of the entries for this one object
+//!   would cost 27 KiB of flash.
 //! * [`BOOTLOADER_TABLE`]: the reduced object set of a drive whose program is stopped (E4 Table 4-32/4-33,
 //!   L2162-2209; comms-faults-bootloader.md §4.2): 0x1000 device type reads 0x0000_012E (CiA 302, E4 L2199),
 //!   0x1008, 0x1018 (revision 0x0000_0000, E4 L2190-2209) and 0x1F50, 0x1F51, 0x1F56, 0x1F57 (IDX L3413 adds the
@@ -12,7 +13,7 @@
 //!
 //! Both keep the generated entries' value offsets, so the drive's value storage is the same under either table.
 
-use crate::od::access::Table;
+use crate::od::access::{Dictionary, Table};
 use crate::od::entry::{Access, Entry, Object, Storage};
 use crate::od::generated::{ENTRIES, OBJECTS};
 
@@ -31,20 +32,6 @@ const ENTRY_COUNT: usize = ENTRIES.len();
 const OBJECT_COUNT: usize = OBJECTS.len();
 
 // The tables are computed by the compiler: an index out of range here is a build error, never a run-time panic.
-#[allow(clippy::indexing_slicing, clippy::arithmetic_side_effects)]
-const fn application_entries() -> [Entry; ENTRY_COUNT] {
-    let mut out = ENTRIES;
-    let mut i = 0;
-    while i < ENTRY_COUNT {
-        if out[i].index == MANUFACTURER_SOFTWARE_VERSION {
-            out[i].storage = Storage::Application;
-            out[i].access = Access::ReadOnly;
-        }
-        i += 1;
-    }
-    out
-}
-
 #[allow(clippy::indexing_slicing, clippy::arithmetic_side_effects)]
 const fn kept(index: u16) -> bool {
     let mut i = 0;
@@ -129,12 +116,23 @@ const fn bootloader_objects() -> [Object; BOOT_OBJECT_COUNT] {
     out
 }
 
-static APPLICATION_ENTRIES: [Entry; ENTRY_COUNT] = application_entries();
 static BOOTLOADER_ENTRIES: [Entry; BOOT_ENTRY_COUNT] = bootloader_entries();
 static BOOTLOADER_OBJECT_LIST: [Object; BOOT_OBJECT_COUNT] = bootloader_objects();
 
-/// The application's table: the generated one with 0x100A served by program control (module documentation).
-pub const APPLICATION_TABLE: Table = Table::new(&APPLICATION_ENTRIES, &OBJECTS);
+/// The application's table: the generated one (module documentation).
+pub const APPLICATION_TABLE: Table = Table::GENERATED;
+
+/// Sets 0x100A to `version` (the running image's version string, [`super::image::ImageHeader::version_str`]),
+/// NUL-padded to the entry's capacity and cut to it; without the entry (the bootloader's table) nothing changes.
+pub fn show_software_version(dictionary: &mut Dictionary, version: &[u8]) {
+    let Ok(entry) = dictionary.find(MANUFACTURER_SOFTWARE_VERSION, 0) else { return };
+    if let Some(raw) = dictionary.values_mut().raw_mut(entry) {
+        raw.fill(0);
+        for (to, from) in raw.iter_mut().zip(version) {
+            *to = *from;
+        }
+    }
+}
 
 /// The stopped program's reduced table (module documentation).
 pub const BOOTLOADER_TABLE: Table = Table::new(&BOOTLOADER_ENTRIES, &BOOTLOADER_OBJECT_LIST);
@@ -158,10 +156,19 @@ mod tests {
     }
 
     #[test]
-    fn the_application_table_differs_from_the_generated_one_only_in_0x100a() {
-        let (a, g) = (APPLICATION_TABLE.entries(), Table::GENERATED.entries());
-        assert_eq!(a.len(), g.len());
-        let differ: Vec<u16> = a.iter().zip(g).filter(|(x, y)| x != y).map(|(x, _)| x.index).collect();
-        assert_eq!(differ, vec![MANUFACTURER_SOFTWARE_VERSION]);
+    fn the_software_version_shows_the_running_image_and_stays_read_only() {
+        let mut d = Dictionary::new(1);
+        let read = |d: &Dictionary| {
+            let mut buf = [0u8; 40];
+            let r = d.read(MANUFACTURER_SOFTWARE_VERSION, 0, 0, &mut buf, &mut crate::od::access::NoApplicationObjects);
+            buf[..r.unwrap().len].to_vec()
+        };
+        assert_eq!(read(&d), b"0.1.0".to_vec(), "the device.toml default before the platform sets it");
+        show_software_version(&mut d, b"2.0.3");
+        assert_eq!(read(&d), b"2.0.3".to_vec());
+        show_software_version(&mut d, &[b'9'; 40]);
+        assert_eq!(read(&d), vec![b'9'; 32], "cut to the entry's capacity");
+        let entry = APPLICATION_TABLE.find(MANUFACTURER_SOFTWARE_VERSION, 0).unwrap();
+        assert_eq!(entry.access, Access::ReadOnly);
     }
 }

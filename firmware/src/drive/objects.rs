@@ -259,8 +259,6 @@ const fn served(index: u16) -> Served {
         PROGRAM_DATA | PROGRAM_CONTROL | PROGRAM_SOFTWARE_IDENTIFICATION | FLASH_STATUS_IDENTIFICATION => {
             Served::Program
         }
-        // 0x100A is an application entry only in `boot::tables::APPLICATION_TABLE` (the running image's version).
-        crate::boot::tables::MANUFACTURER_SOFTWARE_VERSION => Served::Program,
         _ => Served::Nobody,
     }
 }

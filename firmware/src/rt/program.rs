@@ -4,8 +4,8 @@
 //!
 //! * **Start-up** ([`start`]): the running image as the bootloader left it (`boot::loader::running_image`: the
 //!   header of slot A, and whether the state log says it runs on trial), handed to
-//!   [`ProgramControl::started`], so that 0x1F56 and 0x100A report this image; the drive's dictionary switches
-//!   to [`APPLICATION_TABLE`] (0x100A served from the image header).
+//!   [`ProgramControl::started`], so that 0x1F56 reports this image, and its version string shown in 0x100A
+//!   (`boot::tables::show_software_version`).
 //! * **Confirmation** ([`confirm_when_healthy`], tier 3): an image on trial confirms itself once the tiers have
 //!   run for [`CONFIRM_AFTER_TICKS`] slow ticks (1 s) without a lost period and with the power stage disabled.
 //!   "A successful start" is then more than reaching `main`: the clock, the parameter load, and tiers 1 and 2
@@ -34,7 +34,7 @@ use crate::{
     board::boot::update_flash,
     boot::loader::running_image,
     boot::program::Request,
-    boot::tables::{APPLICATION_TABLE, BOOTLOADER_TABLE},
+    boot::tables::{show_software_version, APPLICATION_TABLE, BOOTLOADER_TABLE},
     boot::verify::DEVICE_TRUST,
     drive::Drive,
 };
@@ -55,6 +55,9 @@ pub(crate) fn start(drive: &mut Drive) -> Option<RefCell<BoardProgram>> {
     let mut program = ProgramControl::new(flash, DEVICE_TRUST);
     program.started(outcome);
     drive.dictionary_mut().set_table(APPLICATION_TABLE);
+    if let Some(header) = program.running() {
+        show_software_version(drive.dictionary_mut(), header.version_str());
+    }
     Some(RefCell::new(program))
 }
 

@@ -18,7 +18,7 @@ use firmware::boot::loader::{self, Outcome};
 use firmware::boot::program::{Interface, Mode, ProgramControl, SharedPort};
 use firmware::boot::sign::sign_image;
 use firmware::boot::swap::BootFlash;
-use firmware::boot::tables::{APPLICATION_TABLE, BOOTLOADER_TABLE};
+use firmware::boot::tables::{show_software_version, APPLICATION_TABLE, BOOTLOADER_TABLE};
 use firmware::boot::verify::Trust;
 use firmware::drive::objects::DriveObjects;
 use firmware::drive::{Drive, DriveConfig};
@@ -160,6 +160,9 @@ pub fn table_for(mode: Mode) -> Table {
 pub fn boot_drive(store: &mut ParamStore<SimFlash>, program: &SimProgram) -> Drive {
     let mut drive = Drive::boot(DriveConfig::DEFAULT, store).0;
     use_table(&mut drive, table_for(program.mode()));
+    if let Some(header) = program.running() {
+        show_software_version(drive.dictionary_mut(), header.version_str());
+    }
     drive
 }
 
