@@ -2,9 +2,21 @@
 //! keeps the low-side shunt sampling window open.
 //!
 //! # Modulation
-//! Min-max zero-sequence injection: the three phase voltages of the (alpha, beta) command are shifted by a common
-//! offset so that the largest and smallest sit symmetrically about half the bus. Equivalent to centred SVPWM; linear
-//! up to a line-to-neutral amplitude of Vbus/sqrt(3), where the duty span max - min reaches 100 %.
+//! Bottom-clamped discontinuous modulation (DPWMMIN): the three phase voltages of the (alpha, beta) command are
+//! shifted by a common offset so that the lowest one sits at compare value 0, its low switch on for the whole
+//! period. The zero sequence is free (the star point floats: line voltages, hence currents, do not depend on it), so
+//! this has the same linear range as centred SVPWM, up to a line-to-neutral amplitude of Vbus/sqrt(3) where the duty
+//! span max - min reaches 100 %, and the same line voltages.
+//!
+//! Why not centred (min-max) SVPWM: a clamped leg has no switching edge, hence no dead-time error, and the other two
+//! legs switch with narrower high pulses. The dead-time error of a leg whose current is within its PWM ripple
+//! depends on the sign of that current at its edges, and that sign changes when a current step enlarges the ripple;
+//! the integrators hold the error of before the step, and the difference disturbs the other axis for the periods
+//! the loop needs to see it. Measured on the reference plant (0.5 us dead time), q step 0 -> 2 A at standstill with
+//! phase A nearly unloaded: the d-axis peak is 0.9-2.5 % of the step over seeds 1..8 bottom-clamped against
+//! 2.8-4.0 % centred (`drive-tests`, `current_loop::q_current_step_d_axis_within_3_percent`). The bottom rail also
+//! keeps the low-side shunts (and the bootstrap supplies of the high-side drivers) on longer: the sampling window
+//! only grows. One leg at a time does not switch, a third less switching loss.
 //! Bus compensation: duty = v / Vbus, computed with one reciprocal of the measured bus voltage per call.
 //!
 //! # The voltage-vector limit ([`VoltageLimit`])
@@ -21,9 +33,9 @@
 //! low side is on for (1 - duty) of the 40 us period, centred on that sample, so a maximum compare value keeps a
 //! minimum window. Default: 2.4 us (target-qemu.md gives 0.6 to 2.5 us for settling + sampling; 2.4 us covers the
 //! reference inverter's 0.5 us dead time, about 1 us of ringing and the F405's injected conversion), which is a
-//! maximum compare value of 3158 of 3360 (94.0 %). The clamp first lowers the common-mode offset (line voltages
-//! unchanged), and only clips phases when the duty span itself exceeds the maximum; so the 90 % EPOS4 limit (span <=
-//! 90 %) passes undistorted. [`Modulator::new`] caps the voltage limit at the clamp for that reason.
+//! maximum compare value of 3158 of 3360 (94.0 %). With the lowest phase at 0 the largest compare value is the duty
+//! span, so the clamp only clips phases when the span itself exceeds the maximum (then the top phase sits at the
+//! clamp and the lowest is clipped at 0); the 90 % EPOS4 limit (span <= 90 %) passes undistorted. [`Modulator::new`] caps the voltage limit at the clamp for that reason.
 //!
 //! # Arithmetic (Cortex-M4, no floating point, no 64-bit division)
 //! - Reciprocal: `kn = (sqrt(3) / f) / Vbus`, the gain from volts to limit units, by one 32-bit `SDIV` per call
@@ -230,7 +242,7 @@ pub struct Modulated {
 
 impl Modulator {
     /// A modulator. The limit is capped so that its duty span (= permille) fits under the clamp, so that the clamp
-    /// never clips a limited command (only shifts its common mode).
+    /// never clips a limited command.
     #[must_use]
     pub const fn new(limit: VoltageLimit, clamp: DutyClamp) -> Self {
         let span_permille = const_div((clamp.max_compare as u64).wrapping_mul(1000), PWM_PERIOD_TICKS as u64) as u16;
@@ -317,7 +329,7 @@ impl Modulator {
     }
 
     /// Compare values from an (alpha, beta) vector in limit units (Q14, |n| <= 1.0001): inverse Clarke in
-    /// ticks, min-max centring, the duty clamp. Returns the ticks and whether a phase was clipped.
+    /// ticks, the bottom clamp (lowest phase at 0), the duty clamp. Returns the ticks and whether a phase was clipped.
     #[inline(always)]
     pub(crate) fn compare_ticks(&self, n_alpha: i32, n_beta: i32) -> (Abc<u16>, bool) {
         // Q14 x Q18 = Q32: the rounded high word of each product is in whole ticks (SMMULR, error <= 1/2 tick each;
@@ -329,12 +341,11 @@ impl Modulator {
         let vc = beta.wrapping_add(half).wrapping_neg();
         let max = va.max(vb).max(vc);
         let min = va.min(vb).min(vc);
-        let period = i32::from(PWM_PERIOD_TICKS);
         let top = i32::from(self.clamp.max_compare);
-        // Centre the span on half the period, unless that puts the largest phase above the clamp: then lower the
-        // common mode just enough. Small values: no wrap.
-        let centred = period.wrapping_sub(max).wrapping_sub(min) >> 1;
-        let offset = centred.min(top.wrapping_sub(max));
+        // Bottom clamp (DPWMMIN, see the module docs): the lowest phase at compare 0, its low switch on all period.
+        // Only when the span exceeds the clamp does the top phase decide (it sits at the clamp, the lowest phase is
+        // clipped at 0). Small values: no wrap.
+        let offset = min.wrapping_neg().min(top.wrapping_sub(max));
         // <= top by construction; below 0 only when the span exceeds the clamp (clip).
         let duty = |v: i32| v.wrapping_add(offset).max(0) as u16;
         let clipped = max.wrapping_sub(min) > top;
@@ -383,6 +394,27 @@ mod tests {
         assert!(close(l.beta_q18.into(), f * 3360.0 / 2.0 * 2f64.powi(18)));
         assert_eq!(Modulator::default().limit().permille_of_bus(), 900);
         assert_eq!(Modulator::new(VoltageLimit::LINEAR, DutyClamp::DEFAULT).limit().permille_of_bus(), 939);
+    }
+
+    /// The lowest phase sits at compare 0 whatever the command's angle (no edge, no dead-time error on that leg),
+    /// a zero command switches no leg, and the top phase stays under the duty clamp.
+    #[test]
+    fn lowest_phase_is_clamped_to_the_bottom_rail() {
+        let m = Modulator::default();
+        let volts = |x: f64| Volts(I16F16::from_num(x));
+        let bus = volts(24.0);
+        let zero = m.modulate(AlphaBeta::new(Volts::ZERO, Volts::ZERO), bus);
+        assert_eq!(zero.compare_ticks, Abc { a: 0, b: 0, c: 0 });
+        assert!(!zero.saturated);
+        for k in 0..24 {
+            let (s, c) = (f64::from(k) * core::f64::consts::TAU / 24.0).sin_cos();
+            let v = AlphaBeta::new(volts(10.0 * c), volts(10.0 * s));
+            let t = m.modulate(v, bus).compare_ticks;
+            let (lo, hi) = (t.a.min(t.b).min(t.c), t.a.max(t.b).max(t.c));
+            assert_eq!(lo, 0, "{k}: {t:?}");
+            // 10 V amplitude at 24 V: a span of 1.5 to sqrt(3) x 10 V, 2100 to 2425 ticks.
+            assert!((2090..=2435).contains(&hi), "{k}: {t:?}");
+        }
     }
 
     #[test]

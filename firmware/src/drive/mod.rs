@@ -40,6 +40,7 @@ use crate::control::angle::ElectricalAngle;
 use crate::control::current_loop::{foc_step, CurrentController, CurrentLoopConfig, FocInput};
 use crate::control::frames::{Abc, Amps, Dq, Volts};
 use crate::control::pi::PiGains;
+use crate::control::velocity_estimate::PositionSum;
 use crate::fault::emcy::InhibitTime;
 use crate::fault::table::FaultId;
 use crate::hal::power::{FeedbackSample, Measurements, PwmCommand, SLOW_TICK_DIVIDER};
@@ -253,6 +254,8 @@ pub struct Drive {
     /// 50 Hz low-pass states (`I16F16` bits) of the q current and the bus voltage.
     i_q_average: i32,
     v_bus_average: i32,
+    /// Tier 1's encoder positions summed and latched per slow tick (the averaged velocity estimate).
+    position_sum: PositionSum,
     /// The machine's last power-stage request, to act on its changes.
     last_power_request: crate::cia402::PowerStage,
     /// Output pin levels from tier 2.
@@ -309,6 +312,7 @@ impl Drive {
             divider: SLOW_TICK_DIVIDER,
             i_q_average: 0,
             v_bus_average: 0,
+            position_sum: PositionSum::default(),
             latches: PinLatches::default(),
             axis: Axis::new(&dictionary),
             supervision: Supervision::new(&dictionary),
@@ -338,11 +342,11 @@ impl Drive {
         // Counts down: one subtraction and one compare with zero.
         let slow_tick_due = self.divider <= 1;
         self.divider = if slow_tick_due { SLOW_TICK_DIVIDER } else { self.divider.wrapping_sub(1) };
-        FastTick { pwm: self.fast_step(m), slow_tick_due }
+        FastTick { pwm: self.fast_step(m, slow_tick_due), slow_tick_due }
     }
 
     #[inline(always)]
-    fn fast_step(&mut self, m: &Measurements) -> PwmCommand {
+    fn fast_step(&mut self, m: &Measurements, slow_tick_due: bool) -> PwmCommand {
         // 1. Protection: acts before anything else, in every state (the current checks run with the loop below).
         if m.break_input {
             self.last_break_input = true;
@@ -366,6 +370,8 @@ impl Drive {
             Err(e) => return self.trip(DriveError::Commutation(e)),
         };
         let encoder = self.commutation.encoder();
+        // Every sample of the encoder feeds the velocity estimate's window average (velocity_estimate docs).
+        self.position_sum.add(encoder.position(), slow_tick_due);
         self.latches.sample_inputs(feedback.digital_inputs, encoder.position());
         if let Some(latch) = feedback.index_latch {
             let at = encoder.position_at(latch);
@@ -646,6 +652,7 @@ impl Drive {
             } else {
                 self.hall_position.position()
             },
+            encoder_window: self.encoder_present.then(|| self.position_sum.latched()),
             current: s.i_dq.q,
             current_average_ma: Amps::from_bits(self.i_q_average).to_milliamps(),
             phase_currents_ma: [s.i_abc.a.to_milliamps(), s.i_abc.b.to_milliamps(), s.i_abc.c.to_milliamps()],

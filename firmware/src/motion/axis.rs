@@ -36,6 +36,7 @@ use crate::cia402::{Controlword, Mode, State, StatusFlags, Statusword, StopRamp,
 use crate::control::frames::Amps;
 use crate::control::interpolator::CyclicSetpoint;
 use crate::control::trajectory::{Acceleration, ProfileGenerator, Setpoint, Velocity};
+use crate::control::velocity_estimate::PositionWindow;
 use crate::drive::demand::DemandScale;
 use crate::drive::latch::PinLatches;
 use crate::drive::PowerState;
@@ -52,6 +53,9 @@ use crate::od::generated::handles as h;
 pub struct AxisInputs<'a> {
     /// Multi-turn encoder position (wrapping increments, tier 1's count).
     pub encoder_position: i32,
+    /// Tier 1's last latched window of encoder positions (the averaged velocity estimate); `None` when the Hall
+    /// sensors count the position (no encoder), then the estimate uses the position difference.
+    pub encoder_window: Option<PositionWindow>,
     /// The measured q current of the last fast tick.
     pub current: Amps,
     /// The averaged q current, mA (0x30D1:01).
@@ -274,7 +278,7 @@ impl Axis {
 
         // 2. Feedback.
         let position = input.encoder_position.wrapping_add(self.offset);
-        let velocity = velocity_of(self.loops.estimate(position, input.current));
+        let velocity = velocity_of(self.loops.estimate(position, input.encoder_window, input.current));
 
         // 3. Inputs (the outputs follow the machine, below).
         let inputs = self.io.inputs(input.pins, self.offset, d);

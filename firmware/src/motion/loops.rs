@@ -17,7 +17,7 @@ use crate::control::observer::{ObserverGains, VelocityObserver};
 use crate::control::position::{Increments, PositionController, PositionGains};
 use crate::control::trajectory::Velocity;
 use crate::control::velocity::{IncPerTick, IncPerTick2, VelocityController, VelocityGains};
-use crate::control::velocity_estimate::LowPassVelocityEstimator;
+use crate::control::velocity_estimate::{LowPassVelocityEstimator, PositionWindow};
 use crate::drive::demand::DemandScale;
 use crate::od::access::Dictionary;
 use crate::od::generated::handles as h;
@@ -168,16 +168,20 @@ impl Loops {
         self.objects = o;
     }
 
-    /// Updates the velocity estimate with the position of this tick and the q current applied during the last one
-    /// (the observer's model input); returns it. Only the configured estimator runs; a change of 0x3000:02 restarts
-    /// it from the present position.
-    pub fn estimate(&mut self, position: i32, current: Amps) -> IncPerTick {
+    /// Updates the velocity estimate with the position of this tick, tier 1's window of encoder positions (if the
+    /// encoder is the position sensor) and the q current applied during the last one (the observer's model input);
+    /// returns it. Only the configured estimator runs; a change of 0x3000:02 restarts it from the present position.
+    /// The low-pass estimate uses the window's averaged displacement when there is one
+    /// ([`LowPassVelocityEstimator::update_window`]), else the position difference; the observer corrects with the
+    /// position.
+    pub fn estimate(&mut self, position: i32, window: Option<PositionWindow>, current: Amps) -> IncPerTick {
         if core::mem::take(&mut self.restart_estimate) {
             self.reset_estimate(position);
         }
-        self.velocity_estimate = match self.estimate {
-            VelocityEstimate::LowPass => self.low_pass.update(Increments(position)),
-            VelocityEstimate::Observer => self.observer.step(Increments(position), current),
+        self.velocity_estimate = match (self.estimate, window) {
+            (VelocityEstimate::LowPass, Some(w)) => self.low_pass.update_window(w),
+            (VelocityEstimate::LowPass, None) => self.low_pass.update(Increments(position)),
+            (VelocityEstimate::Observer, _) => self.observer.step(Increments(position), current),
         };
         self.velocity_estimate
     }
