@@ -47,13 +47,19 @@
 //! are ignored: the bootloader stays pre-operational (no PDOs, no application to start by NMT).
 
 use super::image::{ImageError, MAX_IMAGE_LEN};
-use super::program::{classify, command, program_state, status, BOOTLOADER_ID};
+use super::program::{classify, command, flash_status_word, program_state, status, BOOTLOADER_ID};
 use super::swap::BootFlash;
 use super::tables::BOOTLOADER_DEVICE_TYPE;
 use super::update::{Download, Phase, UpdateError};
 use super::verify::Trust;
 use crate::canopen::frame::CanFrame;
+use crate::canopen::ids::{cob_id, is_node_id, HEARTBEAT_BASE, NMT, SDO_RX_BASE, SDO_TX_BASE};
+use crate::canopen::nmt::NmtCommand;
 use crate::comm::sdo::crc::Crc16;
+use crate::drive::objects::{
+    FLASH_STATUS_IDENTIFICATION as FLASH_STATUS, PROGRAM_CONTROL, PROGRAM_DATA,
+    PROGRAM_SOFTWARE_IDENTIFICATION as SOFTWARE_ID,
+};
 use crate::hal::flash::NorFlash;
 use crate::od::abort::SdoAbort;
 use crate::od::generated::{DEFAULT_NODE_ID, DEVICE_NAME, PRODUCT_CODE, SERIAL_NUMBER, VENDOR_ID};
@@ -70,14 +76,10 @@ const VERIFY_BUF_LEN: usize = 512;
 const DEVICE_TYPE: u16 = 0x1000;
 const DEVICE_NAME_INDEX: u16 = 0x1008;
 const IDENTITY: u16 = 0x1018;
-const PROGRAM_DATA: u16 = 0x1F50;
-const PROGRAM_CONTROL: u16 = 0x1F51;
-const SOFTWARE_ID: u16 = 0x1F56;
-const FLASH_STATUS: u16 = 0x1F57;
 
-/// NMT command specifiers that reset (CiA 301 §7.2.8.3.1).
-const NMT_RESET_NODE: u8 = 0x81;
-const NMT_RESET_COMMUNICATION: u8 = 0x82;
+/// NMT command specifiers that reset (CiA 301 §7.2.8.3.1), as the application's NMT reads them.
+const NMT_RESET_NODE: u8 = NmtCommand::ResetNode.specifier();
+const NMT_RESET_COMMUNICATION: u8 = NmtCommand::ResetCommunication.specifier();
 /// The abort frame's byte 0 (ccs/scs 4).
 const ABORT: u8 = 0x80;
 
@@ -156,7 +158,7 @@ fn u32_value(v: u32) -> Value {
 impl FallbackNode {
     /// `node_id` 1..=127 (anything else: the device default), `reason`: the loader's ImageError (0x1F57 status).
     pub fn new(node_id: u8, trust: Trust, reason: ImageError) -> Self {
-        let node_id = if (1..=127).contains(&node_id) { node_id } else { DEFAULT_NODE_ID };
+        let node_id = if is_node_id(node_id) { node_id } else { DEFAULT_NODE_ID };
         // No magic at all (an erased or never programmed slot): "no valid program available"; anything else is
         // the status program control gives the same fault in a download (`classify`).
         let status = match reason {
@@ -185,14 +187,13 @@ impl FallbackNode {
     /// The boot-up message (0x700 + node-ID, one data byte 0x00), sent once when the service starts and after
     /// nothing else: the platform sends it.
     pub fn boot_up(&self) -> CanFrame {
-        CanFrame::from_raw(0x700 | u16::from(self.node_id), 1, [0; 8], false)
+        CanFrame::from_raw(cob_id(HEARTBEAT_BASE, self.node_id), 1, [0; 8], false)
     }
 
     /// 0x1F57:01: status in bits 7..1, bit 0 while a download is in progress (IDX L3413-3473), as
     /// [`super::program::ProgramControl::flash_status`].
     pub fn flash_status(&self) -> u32 {
-        let in_progress = u32::from(matches!(self.download.phase(), Phase::Receiving));
-        (u32::from(self.status & 0x7F) << 1) | in_progress
+        flash_status_word(self.status, self.download.phase())
     }
 
     /// One received frame (any identifier: frames not for this node give [`FallbackReply::default`]).
@@ -206,12 +207,12 @@ impl FallbackNode {
         if frame.is_remote() {
             return none;
         }
-        if frame.id() == 0 {
+        if frame.id() == NMT {
             let reset = matches!(frame.data(), [NMT_RESET_NODE | NMT_RESET_COMMUNICATION, node, ..]
                 if *node == 0 || *node == self.node_id);
             return FallbackReply { frame: None, reset };
         }
-        if frame.id() != 0x600 | u16::from(self.node_id) || frame.dlc() != 8 {
+        if frame.id() != cob_id(SDO_RX_BASE, self.node_id) || frame.dlc() != 8 {
             return none;
         }
         self.last_ms = now_ms;
@@ -236,7 +237,7 @@ impl FallbackNode {
     }
 
     fn response(&self, data: [u8; 8]) -> CanFrame {
-        CanFrame::from_raw(0x580 | u16::from(self.node_id), 8, data, false)
+        CanFrame::from_raw(cob_id(SDO_TX_BASE, self.node_id), 8, data, false)
     }
 
     /// A response frame's bytes: `cs`, the transfer's index and sub-index, `rest`.

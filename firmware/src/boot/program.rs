@@ -121,6 +121,13 @@ pub mod status {
     pub const SIGNATURE_INVALID: u8 = 93;
 }
 
+/// The 0x1F57:01 word (IDX L3413-3473): status code `status` in bits 7..1, bit 0 set while `phase` is receiving.
+/// Program control and the bootloader's fallback ([`super::fallback`]) both report through it.
+pub fn flash_status_word(status: u8, phase: Phase) -> u32 {
+    let in_progress = u32::from(matches!(phase, Phase::Receiving));
+    (u32::from(status & 0x7F) << 1) | in_progress
+}
+
 /// The fieldbus (or service) interface a request came from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Interface {
@@ -330,8 +337,7 @@ impl<A: NorFlash, B: NorFlash, S: NorFlash> ProgramControl<A, B, S> {
 
     /// 0x1F57:01: status code in bits 7..1, bit 0 set while a download is in progress (IDX L3413-3473).
     pub fn flash_status(&self) -> u32 {
-        let in_progress = u32::from(matches!(self.download.phase(), Phase::Receiving));
-        (u32::from(self.status & 0x7F) << 1) | in_progress
+        flash_status_word(self.status, self.download.phase())
     }
 
     /// The 0x1F57 status code alone.
