@@ -19,6 +19,50 @@ use hal_sim::esc::Esc;
 /// The station address the bench's master assigns.
 pub const STATION: u16 = 0x1001;
 
+/// The data and working counter of the first datagram of a frame the ESC has processed.
+pub fn first_datagram(frame: &[u8]) -> (Vec<u8>, u16) {
+    let f = Frame::new_checked(frame).expect("the returned frame parses");
+    let d = f.datagram(0).expect("one datagram");
+    (d.data().to_vec(), d.wkc())
+}
+
+/// The master's register access to the station [`STATION`], for a test rig that carries each datagram to its
+/// emulated ESC its own way ([`StationMaster::datagram`]: straight into the ESC, through a runner's bus cycle,
+/// through an SPI model).
+pub trait StationMaster {
+    /// One datagram in its own frame through the rig; its data and working counter.
+    fn datagram(&mut self, cmd: Command, adp: u16, ado: u16, data: &[u8]) -> (Vec<u8>, u16);
+
+    /// FPWR to the station; the working counter.
+    fn fpwr(&mut self, ado: u16, data: &[u8]) -> u16 {
+        self.datagram(Command::Fpwr, STATION, ado, data).1
+    }
+
+    /// FPRD of `len` bytes from the station; data and working counter.
+    fn fprd(&mut self, ado: u16, len: usize) -> (Vec<u8>, u16) {
+        self.datagram(Command::Fprd, STATION, ado, &vec![0; len])
+    }
+
+    /// Reads a u16 register.
+    fn read_u16(&mut self, ado: u16) -> u16 {
+        let (d, _) = self.fprd(ado, 2);
+        u16::from_le_bytes([d[0], d[1]])
+    }
+
+    /// AL status (0x0130) and AL status code (0x0134), in one read.
+    fn al_status(&mut self) -> (u16, u16) {
+        let (d, _) = self.fprd(0x0130, 6);
+        (u16::from_le_bytes([d[0], d[1]]), u16::from_le_bytes([d[4], d[5]]))
+    }
+
+    /// Writes sync manager `n`'s configuration, activated; asserts that the station took it.
+    fn configure_sm(&mut self, n: u16, start: u16, len: u16, control: u8) {
+        let [s0, s1] = start.to_le_bytes();
+        let [l0, l1] = len.to_le_bytes();
+        assert_eq!(self.fpwr(0x0800 + 8 * n, &[s0, s1, l0, l1, control, 0, 0x01, 0]), 1, "SM{n} configured");
+    }
+}
+
 /// Mailbox type CoE.
 pub const COE: u8 = 3;
 /// Mailbox type FoE.
@@ -187,9 +231,7 @@ impl Bench {
     pub fn datagram(&mut self, cmd: Command, adp: u16, ado: u16, data: &[u8]) -> (Vec<u8>, u16) {
         let mut frame = FrameBuilder::new().push(cmd, adp, ado, data).build();
         self.esc.process_frame(&mut frame).expect("a well-formed frame");
-        let f = Frame::new_checked(&frame).expect("the returned frame parses");
-        let d = f.datagram(0).expect("one datagram");
-        (d.data().to_vec(), d.wkc())
+        first_datagram(&frame)
     }
 
     /// FPWR to the bench's station; the working counter.

@@ -26,10 +26,11 @@
 //! it). A failing case is shrunk, stored in `ecat_fuzz.proptest-regressions` and replayed first in every later
 //! run.
 
+use drive_tests::ecat_master::{first_datagram, StationMaster, STATION};
 use firmware::ecat::mailbox::{Header, HEADER_LEN};
 use firmware::ecat::process_data::ProcessDataLayout;
 use firmware::od::generated;
-use hal_sim::esc::datagram::{Command, Frame, FrameBuilder};
+use hal_sim::esc::datagram::{Command, FrameBuilder};
 use hal_sim::sim::ethercat::{ClockMode, EthercatConfig, EthercatRunner};
 use proptest::prelude::*;
 use proptest::test_runner::RngSeed;
@@ -38,7 +39,6 @@ use proptest::test_runner::RngSeed;
 const DEFAULT_CASES: u32 = 400;
 
 /// The station address the master assigns.
-const STATION: u16 = 0x1001;
 /// Mailbox type CoE (ETG.1000.6 §5.2.1).
 const COE: u8 = 3;
 /// Mailbox type FoE.
@@ -245,34 +245,6 @@ impl Master {
         let _ = self.r.frame(frame);
     }
 
-    /// One datagram in its own frame; data and working counter.
-    fn datagram(&mut self, cmd: Command, adp: u16, ado: u16, data: &[u8]) -> (Vec<u8>, u16) {
-        let mut frame = FrameBuilder::new().push(cmd, adp, ado, data).build();
-        self.r.frame(&mut frame).expect("a well-formed frame is processed");
-        let f = Frame::new_checked(&frame).expect("the returned frame parses");
-        let d = f.datagram(0).expect("one datagram");
-        (d.data().to_vec(), d.wkc())
-    }
-
-    fn fpwr(&mut self, ado: u16, data: &[u8]) -> u16 {
-        self.datagram(Command::Fpwr, STATION, ado, data).1
-    }
-
-    fn fprd(&mut self, ado: u16, len: usize) -> (Vec<u8>, u16) {
-        self.datagram(Command::Fprd, STATION, ado, &vec![0; len])
-    }
-
-    fn al_status(&mut self) -> (u16, u16) {
-        let (d, _) = self.fprd(0x0130, 6);
-        (u16::from_le_bytes([d[0], d[1]]), u16::from_le_bytes([d[4], d[5]]))
-    }
-
-    fn configure_sm(&mut self, n: u16, start: u16, len: u16, control: u8) {
-        let [s0, s1] = start.to_le_bytes();
-        let [l0, l1] = len.to_le_bytes();
-        assert_eq!(self.fpwr(0x0800 + 8 * n, &[s0, s1, l0, l1, control, 0, 0x01, 0]), 1, "SM{n} configured");
-    }
-
     fn configure_fmmu(&mut self, n: u16, logical: u32, len: u16, physical: u16, kind: u8) {
         let mut regs = logical.to_le_bytes().to_vec();
         regs.extend_from_slice(&len.to_le_bytes());
@@ -426,6 +398,15 @@ impl Master {
             return Err(format!("unexpected answer {h:?} {a:02X?} after {seen:?}"));
         }
         Err(format!("no answer in SM1 after {seen:?}"))
+    }
+}
+
+impl StationMaster for Master {
+    /// One datagram in its own frame; data and working counter.
+    fn datagram(&mut self, cmd: Command, adp: u16, ado: u16, data: &[u8]) -> (Vec<u8>, u16) {
+        let mut frame = FrameBuilder::new().push(cmd, adp, ado, data).build();
+        self.r.frame(&mut frame).expect("a well-formed frame is processed");
+        first_datagram(&frame)
     }
 }
 

@@ -7,6 +7,7 @@
 //! the SM2 event, the slave's tier 3 polls, then the plant and the drive run 25 PWM periods of 40 us while the
 //! ESC's clock advances with them (the watchdog and the DC time are the ESC's).
 
+use drive_tests::ecat_master::{first_datagram, StationMaster, STATION};
 use firmware::cia402::State;
 use firmware::ecat::esm::AlState;
 use firmware::ecat::mailbox::{Header, HEADER_LEN};
@@ -15,13 +16,12 @@ use firmware::ecat::slave::EthercatSlave;
 use firmware::fault::{EmcyMessage, FaultId};
 use firmware::od::access::NoApplicationObjects;
 use firmware::od::generated;
-use hal_sim::esc::datagram::{Command, Frame, FrameBuilder};
+use hal_sim::esc::datagram::{Command, FrameBuilder};
 use hal_sim::esc::Esc;
 use hal_sim::sim::motion::JerkLimitedMove;
 use hal_sim::sim::scenarios::{prepare, Setup};
 use hal_sim::sim::Simulation;
 
-const STATION: u16 = 0x1001;
 const COE: u8 = 3;
 /// PWM periods of 40 us per 1 ms bus cycle.
 const PERIODS_PER_CYCLE: u64 = 25;
@@ -76,43 +76,10 @@ impl Rig {
         self.esc.advance(PERIOD_NS);
     }
 
-    fn datagram(&mut self, cmd: Command, adp: u16, ado: u16, data: &[u8]) -> (Vec<u8>, u16) {
-        let mut frame = FrameBuilder::new().push(cmd, adp, ado, data).build();
-        self.esc.process_frame(&mut frame).expect("a well-formed frame");
-        let f = Frame::new_checked(&frame).expect("the returned frame parses");
-        let d = f.datagram(0).expect("one datagram");
-        (d.data().to_vec(), d.wkc())
-    }
-
     fn lrw(&mut self, image: &[u8]) -> (Vec<u8>, u16) {
         let mut frame = FrameBuilder::new().push_logical(Command::Lrw, LOGICAL, image).build();
         self.esc.process_frame(&mut frame).expect("a well-formed frame");
-        let f = Frame::new_checked(&frame).expect("the returned frame parses");
-        let d = f.datagram(0).expect("one datagram");
-        (d.data().to_vec(), d.wkc())
-    }
-
-    fn fpwr(&mut self, ado: u16, data: &[u8]) -> u16 {
-        self.datagram(Command::Fpwr, STATION, ado, data).1
-    }
-
-    fn fprd(&mut self, ado: u16, len: usize) -> (Vec<u8>, u16) {
-        self.datagram(Command::Fprd, STATION, ado, &vec![0; len])
-    }
-
-    fn read_u16(&mut self, ado: u16) -> u16 {
-        let (d, _) = self.fprd(ado, 2);
-        u16::from_le_bytes([d[0], d[1]])
-    }
-
-    fn al_status(&mut self) -> (u16, u16) {
-        (self.read_u16(0x0130), self.read_u16(0x0134))
-    }
-
-    fn configure_sm(&mut self, n: u16, start: u16, len: u16, control: u8) {
-        let [s0, s1] = start.to_le_bytes();
-        let [l0, l1] = len.to_le_bytes();
-        assert_eq!(self.fpwr(0x0800 + 8 * n, &[s0, s1, l0, l1, control, 0, 0x01, 0]), 1);
+        first_datagram(&frame)
     }
 
     fn configure_fmmu(&mut self, n: u16, logical: u32, len: u16, physical: u16, kind: u8) {
@@ -230,6 +197,14 @@ impl Rig {
         self.configure_sm(0, generated::MAILBOX_OUT_START, generated::MAILBOX_OUT_SIZE, 0x26);
         self.configure_sm(1, generated::MAILBOX_IN_START, generated::MAILBOX_IN_SIZE, 0x22);
         assert_eq!(self.request(0x0002), (0x0002, 0x0000), "PRE-OP reached");
+    }
+}
+
+impl StationMaster for Rig {
+    fn datagram(&mut self, cmd: Command, adp: u16, ado: u16, data: &[u8]) -> (Vec<u8>, u16) {
+        let mut frame = FrameBuilder::new().push(cmd, adp, ado, data).build();
+        self.esc.process_frame(&mut frame).expect("a well-formed frame");
+        first_datagram(&frame)
     }
 }
 

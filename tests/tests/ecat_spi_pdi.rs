@@ -10,6 +10,7 @@
 //! The model is written from the ET1100 datasheet (section III, 6.3 "SPI Slave Interface"), independently of the
 //! firmware's framing code, and records every departure from it as a violation; each test requires none.
 
+use drive_tests::ecat_master::{first_datagram, StationMaster, STATION};
 use firmware::drive::{Drive, DriveConfig};
 use firmware::ecat::esc::Esc as _;
 use firmware::ecat::mailbox::{Header, HEADER_LEN};
@@ -17,10 +18,9 @@ use firmware::ecat::slave::EthercatSlave;
 use firmware::ecat::spi_pdi::{Addressing, SpiBus, SpiEsc};
 use firmware::od::access::NoApplicationObjects;
 use firmware::od::generated;
-use hal_sim::esc::datagram::{Command, Frame, FrameBuilder};
+use hal_sim::esc::datagram::{Command, FrameBuilder};
 use hal_sim::esc::Esc;
 
-const STATION: u16 = 0x1001;
 const COE: u8 = 3;
 
 /// Where the model chip is within one access (one chip select).
@@ -213,37 +213,6 @@ impl Rig {
         self.slave.poll(&mut self.spi, &mut self.drive, &mut NoApplicationObjects, self.now_ms);
     }
 
-    fn datagram(&mut self, cmd: Command, adp: u16, ado: u16, data: &[u8]) -> (Vec<u8>, u16) {
-        let mut frame = FrameBuilder::new().push(cmd, adp, ado, data).build();
-        self.esc().process_frame(&mut frame).expect("a well-formed frame");
-        let f = Frame::new_checked(&frame).expect("the returned frame parses");
-        let d = f.datagram(0).expect("one datagram");
-        (d.data().to_vec(), d.wkc())
-    }
-
-    fn fpwr(&mut self, ado: u16, data: &[u8]) -> u16 {
-        self.datagram(Command::Fpwr, STATION, ado, data).1
-    }
-
-    fn fprd(&mut self, ado: u16, len: usize) -> (Vec<u8>, u16) {
-        self.datagram(Command::Fprd, STATION, ado, &vec![0; len])
-    }
-
-    fn read_u16(&mut self, ado: u16) -> u16 {
-        let (d, _) = self.fprd(ado, 2);
-        u16::from_le_bytes([d[0], d[1]])
-    }
-
-    fn al_status(&mut self) -> (u16, u16) {
-        (self.read_u16(0x0130), self.read_u16(0x0134))
-    }
-
-    fn configure_sm(&mut self, n: u16, start: u16, len: u16, control: u8) {
-        let [s0, s1] = start.to_le_bytes();
-        let [l0, l1] = len.to_le_bytes();
-        assert_eq!(self.fpwr(0x0800 + 8 * n, &[s0, s1, l0, l1, control, 0, 0x01, 0]), 1);
-    }
-
     /// Sends a CoE mailbox and returns the CoE answer (CoE header onwards), polling the slave up to 10 times.
     fn coe(&mut self, data: &[u8]) -> Vec<u8> {
         self.counter = if self.counter >= 7 { 1 } else { self.counter + 1 };
@@ -324,6 +293,14 @@ impl Rig {
 
     fn violations(&mut self) -> Vec<String> {
         self.spi.bus_mut().violations.clone()
+    }
+}
+
+impl StationMaster for Rig {
+    fn datagram(&mut self, cmd: Command, adp: u16, ado: u16, data: &[u8]) -> (Vec<u8>, u16) {
+        let mut frame = FrameBuilder::new().push(cmd, adp, ado, data).build();
+        self.esc().process_frame(&mut frame).expect("a well-formed frame");
+        first_datagram(&frame)
     }
 }
 

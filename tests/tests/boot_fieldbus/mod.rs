@@ -7,17 +7,18 @@
 //! lock-step runs one cycle of simulated time per frame. Update times over CoE and FoE are in those cycles.
 #![allow(dead_code)]
 
+use drive_tests::ecat_master::first_datagram;
+pub use drive_tests::ecat_master::{StationMaster, STATION};
 use firmware::boot::image::HARDWARE_ID;
 use firmware::canopen::frame::CanFrame;
 use firmware::comm::sdo::crc::Crc16;
 use firmware::ecat::mailbox::{Header, HEADER_LEN};
 use firmware::od::generated;
-use hal_sim::esc::datagram::{Command, Frame, FrameBuilder};
+use hal_sim::esc::datagram::{Command, FrameBuilder};
 use hal_sim::sim::canopen::{CanClock, CanopenConfig, CanopenRunner};
 use hal_sim::sim::ethercat::{ClockMode, EthercatConfig, EthercatRunner};
 use hal_sim::sim::update::{dev_seed, payload, signed_image};
 
-pub const STATION: u16 = 0x1001;
 pub const COE: u8 = 3;
 pub const FOE: u8 = 4;
 pub const CYCLE_NS: u64 = 1_000_000;
@@ -53,36 +54,6 @@ impl EcatRig {
         let mut rig = Self { r: EthercatRunner::new(config).expect("runner"), counter: 0, frames: 0 };
         rig.datagram(Command::Apwr, 0, 0x0010, &STATION.to_le_bytes());
         rig
-    }
-
-    /// One frame: the datagram and a cyclic LRD (one bus cycle of simulated time).
-    pub fn datagram(&mut self, cmd: Command, adp: u16, ado: u16, data: &[u8]) -> (Vec<u8>, u16) {
-        let mut frame =
-            FrameBuilder::new().push(cmd, adp, ado, data).push_logical(Command::Lrd, 0x0001_0000, &[0]).build();
-        self.r.frame(&mut frame).expect("a well-formed frame");
-        self.frames += 1;
-        let f = Frame::new_checked(&frame).expect("the returned frame parses");
-        let d = f.datagram(0).expect("the first datagram");
-        (d.data().to_vec(), d.wkc())
-    }
-
-    pub fn fpwr(&mut self, ado: u16, data: &[u8]) -> u16 {
-        self.datagram(Command::Fpwr, STATION, ado, data).1
-    }
-
-    pub fn fprd(&mut self, ado: u16, len: usize) -> (Vec<u8>, u16) {
-        self.datagram(Command::Fprd, STATION, ado, &vec![0; len])
-    }
-
-    pub fn al_status(&mut self) -> (u16, u16) {
-        let (d, _) = self.fprd(0x0130, 6);
-        (u16::from_le_bytes([d[0], d[1]]), u16::from_le_bytes([d[4], d[5]]))
-    }
-
-    fn configure_sm(&mut self, n: u16, start: u16, len: u16, control: u8) {
-        let [s0, s1] = start.to_le_bytes();
-        let [l0, l1] = len.to_le_bytes();
-        assert_eq!(self.fpwr(0x0800 + 8 * n, &[s0, s1, l0, l1, control, 0, 0x01, 0]), 1);
     }
 
     /// Writes AL control and waits (a few cycles) for the AL status to follow; returns (status, code).
@@ -244,6 +215,17 @@ impl EcatRig {
                 return Ok(());
             }
         }
+    }
+}
+
+impl StationMaster for EcatRig {
+    /// One frame: the datagram and a cyclic LRD (one bus cycle of simulated time).
+    fn datagram(&mut self, cmd: Command, adp: u16, ado: u16, data: &[u8]) -> (Vec<u8>, u16) {
+        let mut frame =
+            FrameBuilder::new().push(cmd, adp, ado, data).push_logical(Command::Lrd, 0x0001_0000, &[0]).build();
+        self.r.frame(&mut frame).expect("a well-formed frame");
+        self.frames += 1;
+        first_datagram(&frame)
     }
 }
 
