@@ -43,16 +43,9 @@ fn main() {
         }
         println!("cargo:rustc-link-search={}", out_dir.display());
         println!("cargo:rustc-link-arg-bins=--nmagic");
-        // The application links with cortex-m-rt's link.x into FLASH (slot A); the bootloader with its own script
-        // into BOOTLOADER (src/bin/bootloader.x: same memory.x, other region).
+        // The application links with cortex-m-rt's link.x into FLASH (slot A). The bootloader (package
+        // `bootloader`) links with a script of its own into BOOTLOADER and finds memory.x on this search path.
         println!("cargo:rustc-link-arg-bin=drive=-Tlink.x");
-        let bootloader_x = manifest_dir.join("src/bin/bootloader.x");
-        println!("cargo:rerun-if-changed={}", bootloader_x.display());
-        if let Err(e) = fs::copy(&bootloader_x, out_dir.join("bootloader.x")) {
-            eprintln!("cannot copy {}: {e}", bootloader_x.display());
-            std::process::exit(1);
-        }
-        println!("cargo:rustc-link-arg-bin=bootloader=-Tbootloader.x");
         if env::var("CARGO_FEATURE_DEFMT").is_ok() {
             println!("cargo:rustc-link-arg-bins=-Tdefmt.x");
         }

@@ -2,5 +2,6 @@
 
 pub mod can_master;
 pub mod ecat_master;
+pub mod prerequisite;
 pub mod qemu;
 pub mod real_master;

@@ -290,29 +290,31 @@ pub fn image_size(elf: &Path) -> Option<ImageSize> {
     Some(ImageSize { text: fields.next()?.ok()?, data: fields.next()?.ok()?, bss: fields.next()?.ok()? })
 }
 
-/// The bootloader binary (issue 7): links at 0x0800_0000, verifies slot A and starts it (`firmware/src/bin/bootloader.rs`).
+/// The bootloader binary (issue 7): links at 0x0800_0000, verifies slot A and starts it (package `bootloader`,
+/// `bootloader/src/main.rs`).
 pub const BOOTLOADER_BIN: &str = "bootloader";
 /// Exit status of the bootloader image when it stays in its fallback (`board::semihosting::EXIT_NO_VALID_IMAGE`).
 pub const EXIT_NO_VALID_IMAGE: i32 = 3;
 
-/// The cargo profile a target binary is built with: the bootloader with the size-optimised `bootloader` profile
-/// (root `Cargo.toml`; it must fit its 32 KiB region), everything else in release.
-pub fn profile_of(bin: &str) -> &'static str {
+/// The package a target binary belongs to: the bootloader is a package of its own (its size settings are a
+/// per-package profile override in the root `Cargo.toml`), every other image is the firmware's.
+pub fn package_of(bin: &str) -> &'static str {
     if bin == BOOTLOADER_BIN {
         "bootloader"
     } else {
-        "release"
+        "firmware"
     }
 }
 
-/// Builds target binaries of the firmware, each with its profile ([`profile_of`]; `--features` `features`, e.g.
-/// `qemu`) and returns their ELF paths in the order given.
+/// Builds target binaries in the release profile, each in its package ([`package_of`]), with `--features`
+/// `features` (e.g. `qemu`, which both packages define), and returns their ELF paths in the order given.
 pub fn build_target_bins(bins: &[&str], features: &[&str]) -> Result<Vec<PathBuf>, Error> {
     let target_dir = image_target_dir();
     let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
-    let mut profiles: Vec<&str> = bins.iter().map(|b| profile_of(b)).collect();
-    profiles.dedup();
-    for profile in profiles {
+    let mut packages: Vec<&str> = bins.iter().map(|b| package_of(b)).collect();
+    packages.sort_unstable();
+    packages.dedup();
+    for package in packages {
         let mut command = Command::new(&cargo);
         command
             .current_dir(workspace_root())
@@ -321,8 +323,8 @@ pub fn build_target_bins(bins: &[&str], features: &[&str]) -> Result<Vec<PathBuf
             .env_remove("CARGO_BUILD_RUSTFLAGS")
             .env_remove("CARGO_BUILD_TARGET")
             .env("CARGO_TARGET_DIR", &target_dir)
-            .args(["build", "-p", "firmware", "--profile", profile, "--target", TARGET]);
-        for bin in bins.iter().filter(|b| profile_of(b) == profile) {
+            .args(["build", "-p", package, "--release", "--target", TARGET]);
+        for bin in bins.iter().filter(|b| package_of(b) == package) {
             command.args(["--bin", bin]);
         }
         if !features.is_empty() {
@@ -333,7 +335,7 @@ pub fn build_target_bins(bins: &[&str], features: &[&str]) -> Result<Vec<PathBuf
             return Err(Error::Build(String::from_utf8_lossy(&output.stderr).into_owned()));
         }
     }
-    Ok(bins.iter().map(|b| target_dir.join(TARGET).join(profile_of(b)).join(b)).collect())
+    Ok(bins.iter().map(|b| target_dir.join(TARGET).join("release").join(b)).collect())
 }
 
 /// Builds the host tool `drive-image` (image-tool) into the image target directory and returns its path.

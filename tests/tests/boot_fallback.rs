@@ -15,6 +15,7 @@ use std::time::Instant;
 
 use boot_fieldbus::{new_image, u32_of, CanRig, NEW_VERSION, NEW_VERSION_STRING};
 use drive_tests::can_master::{cannot_run, run, write_eds, WorkDir};
+use drive_tests::prerequisite;
 use drive_tests::real_master::default_u32;
 use firmware::boot::image::{ImageError, HEADER_LEN};
 use firmware::boot::loader::{BootEvent, Outcome};
@@ -208,8 +209,7 @@ fn a_signed_image_loaded_into_the_fallback_starts_and_the_drive_enables_over_sdo
 /// enabled in the statusword) with SYNCs giving the offset calibration its time.
 #[test]
 fn pypi_canopen_recovers_a_drive_in_the_fallback_by_block_download() {
-    if let Some(why) = cannot_run() {
-        eprintln!("SKIPPED pypi_canopen_recovers_a_drive_in_the_fallback: {why}");
+    if prerequisite::skip("pypi_canopen_recovers_a_drive_in_the_fallback_by_block_download", cannot_run()) {
         return;
     }
     let dir = WorkDir::new("fallback");

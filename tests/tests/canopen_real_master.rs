@@ -10,7 +10,8 @@
 //! firmware-update work (issue 7) serves; the block downloads here go to 0x607A (4 bytes, one segment) since the
 //! dictionary has no other writable object longer than 4 bytes.
 //!
-//! It skips (printing why) only when python3 or PyPI canopen is missing although `scripts/setup.sh` installs them.
+//! When python3 or PyPI canopen is missing (`scripts/setup.sh` installs them) each test fails under `CI=true` and
+//! is a reported skip elsewhere (`drive_tests::prerequisite`).
 
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -36,8 +37,7 @@ const FE_RMS_MAX: f64 = 8.0;
 
 macro_rules! skip_unless_runnable {
     ($name:expr) => {
-        if let Some(why) = cannot_run() {
-            eprintln!("SKIPPED {}: {why}", $name);
+        if drive_tests::prerequisite::skip($name, cannot_run()) {
             return;
         }
     };
@@ -57,7 +57,7 @@ fn pass(out: &RunOutput) {
 /// SdoCommunicationError after its timeout); back in pre-operational the upload answers with the device type.
 #[test]
 fn canopen_sees_the_boot_up_and_moves_the_node_through_the_nmt_states_by_its_heartbeat() {
-    skip_unless_runnable!("canopen_sees_the_boot_up...");
+    skip_unless_runnable!("canopen_sees_the_boot_up_and_moves_the_node_through_the_nmt_states_by_its_heartbeat");
     let dir = WorkDir::new("nmt");
     let eds = write_eds(&dir);
     let out = run("nmt.py", &["--lock-step"], &eds, &[]);
@@ -113,7 +113,7 @@ const FIXED_THOUGH_MAPPABLE: &[(u16, u8)] = &[(0x6502, 0), (0x6075, 0)];
 /// drive's objects answer them.
 #[test]
 fn every_readable_object_uploads_through_canopen_as_the_dictionary_says() {
-    skip_unless_runnable!("every_readable_object...");
+    skip_unless_runnable!("every_readable_object_uploads_through_canopen_as_the_dictionary_says");
     // The dictionary and application objects of the runner's drive at power-on (booted from an empty store,
     // the factory image running).
     let mut objects = PowerOnObjects::new();
@@ -180,7 +180,7 @@ fn path(p: &std::path::Path) -> String {
 /// SYNCs carry it (1 ms each, unanswered in pre-operational). The node answers the device type after all this.
 #[test]
 fn sdo_transfers_of_every_kind_both_ways_and_the_abort_codes_through_canopen() {
-    skip_unless_runnable!("sdo_transfers...");
+    skip_unless_runnable!("sdo_transfers_of_every_kind_both_ways_and_the_abort_codes_through_canopen");
     let dir = WorkDir::new("transfers");
     let eds = write_eds(&dir);
     let out = run("sdo.py", &["--lock-step"], &eds, &["--part".into(), "transfers".into()]);
@@ -256,7 +256,7 @@ fn write_setpoints(dir: &WorkDir, period_us: u64) -> PathBuf {
 /// +-1 inc; every TPDO within its SYNC period; no SYNC lost by the node's count.
 #[test]
 fn pdos_configured_through_canopen_then_csp_at_1_ms_follows_the_move_within_the_bounds() {
-    skip_unless_runnable!("pdos_configured...");
+    skip_unless_runnable!("pdos_configured_through_canopen_then_csp_at_1_ms_follows_the_move_within_the_bounds");
     let dir = WorkDir::new("csp");
     let eds = write_eds(&dir);
     let sp = write_setpoints(&dir, 1000);
@@ -309,7 +309,7 @@ fn pdos_configured_through_canopen_then_csp_at_1_ms_follows_the_move_within_the_
 /// with the operational state 0x05.
 #[test]
 fn the_masters_heartbeat_stops_and_the_drive_reacts_with_0x6007_emcy_and_its_own_heartbeat() {
-    skip_unless_runnable!("the_masters_heartbeat_stops...");
+    skip_unless_runnable!("the_masters_heartbeat_stops_and_the_drive_reacts_with_0x6007_emcy_and_its_own_heartbeat");
     let dir = WorkDir::new("heartbeat");
     let eds = write_eds(&dir);
     let sp = write_setpoints(&dir, 1000);
@@ -365,7 +365,7 @@ fn bus_ns_per_cycle(nodes: u16, bit_rate: u64) -> u64 {
 /// (RPDO + TPDO)): no period shorter than that can carry them.
 #[test]
 fn three_axes_at_1_mbit_run_csp_together_and_the_shortest_sync_period_is_found() {
-    skip_unless_runnable!("three_axes...");
+    skip_unless_runnable!("three_axes_at_1_mbit_run_csp_together_and_the_shortest_sync_period_is_found");
     let dir = WorkDir::new("axes");
     let eds = write_eds(&dir);
     let cycle_ns = bus_ns_per_cycle(3, 1_000_000);
@@ -443,7 +443,7 @@ fn three_axes_at_1_mbit_run_csp_together_and_the_shortest_sync_period_is_found()
 /// 0x1000 answers the device type.
 #[test]
 fn bad_frames_through_socketcand_get_no_answer_or_the_right_abort_and_the_node_answers_after() {
-    skip_unless_runnable!("bad_frames...");
+    skip_unless_runnable!("bad_frames_through_socketcand_get_no_answer_or_the_right_abort_and_the_node_answers_after");
     let dir = WorkDir::new("bad");
     let eds = write_eds(&dir);
     let out = run("bad_frames.py", &[], &eds, &[]);
@@ -487,7 +487,7 @@ fn bad_frames_through_socketcand_get_no_answer_or_the_right_abort_and_the_node_a
 /// the program runs (0x1F51:01 = 1) and the flash status 0x1F57:01 is 0 (no error).
 #[test]
 fn a_96_kib_signed_image_goes_in_by_block_download_with_its_crc_and_runs_after_the_start() {
-    skip_unless_runnable!("a_96_kib_signed_image...");
+    skip_unless_runnable!("a_96_kib_signed_image_goes_in_by_block_download_with_its_crc_and_runs_after_the_start");
     use firmware::boot::program::BOOTLOADER_ID;
     use hal_sim::sim::update::{dev_seed, payload, signed_image, FACTORY_VERSION};
     let dir = WorkDir::new("update");

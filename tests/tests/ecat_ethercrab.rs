@@ -7,11 +7,13 @@
 //! the SII image: identity, every readable object, parameter writes and their abort codes, the CSV remap and
 //! back, CSP at 1 ms and 200 us in free run, SM-synchronous and DC SYNC0 (the ESC's clock 100 ppm fast).
 //!
-//! They skip (printing why) only when the machine cannot make a network namespace.
+//! When the machine cannot make a network namespace they fail under `CI=true` and are reported skips elsewhere
+//! (`drive_tests::prerequisite`).
 
 use std::path::PathBuf;
 use std::sync::OnceLock;
 
+use drive_tests::prerequisite;
 use drive_tests::real_master::{self, cannot_make_namespace, default_image_bytes, default_u32, RunOutput};
 use firmware::od::access::{Dictionary, NoApplicationObjects};
 
@@ -26,8 +28,7 @@ fn master() -> &'static PathBuf {
 /// Runs `ethercrab_master --iface ecm0 <master_args>` against `drive-sim ethercat <sim_args>`; `None` (after
 /// printing why) when the machine cannot make a namespace.
 fn run(name: &str, sim_args: &str, master_args: &str) -> Option<RunOutput> {
-    if let Some(why) = cannot_make_namespace() {
-        eprintln!("SKIPPED {name}: {why}");
+    if prerequisite::skip(&format!("ethercrab {name}"), cannot_make_namespace()) {
         return None;
     }
     let command = format!("'{}' --iface ecm0 {master_args}", master().display());

@@ -12,13 +12,15 @@
 //! The first run records a capture (`drive-sim ethercat --pcap`): tshark's EtherCAT dissectors decode every frame
 //! and report none malformed (issue 6); a hand-made truncated frame shows that check can fail.
 //!
-//! It skips (printing why) only when the machine cannot run it at all: no user namespaces (`unshare -Urn true`
-//! fails), or python3/pysoem missing although `scripts/setup.sh` installs them.
+//! When the machine lacks a prerequisite (user namespaces: `unshare -Urn true`; python3/pysoem, which
+//! `scripts/setup.sh` installs) a test fails under `CI=true` and is a reported skip elsewhere
+//! (`drive_tests::prerequisite`).
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use drive_tests::prerequisite;
 use drive_tests::real_master::{self, cannot_run_soem as cannot_run, default_image_bytes, default_u32, root};
 use firmware::od::access::{Dictionary, NoApplicationObjects};
 
@@ -82,8 +84,10 @@ fn run_in_namespace(
 
 #[test]
 fn soem_finds_the_drive_takes_it_to_op_and_runs_1000_cycles_with_every_working_counter_right() {
-    if let Some(why) = cannot_run() {
-        eprintln!("SKIPPED soem_finds_the_drive...: {why}");
+    if prerequisite::skip(
+        "soem_finds_the_drive_takes_it_to_op_and_runs_1000_cycles_with_every_working_counter_right",
+        cannot_run(),
+    ) {
         return;
     }
     // The simulator records a capture of the whole run (`--pcap`), checked with tshark below.
@@ -195,8 +199,10 @@ fn tshark_reports_a_truncated_ethercat_datagram_in_a_pcap_written_by_the_simulat
 /// SM event missed within the 11,000 cycles (measured before the lock: 2 in 20,000); locked, none.
 #[test]
 fn soem_takes_the_drive_to_op_in_dc_mode_and_runs_11000_cycles_without_a_missed_sm_event() {
-    if let Some(why) = cannot_run() {
-        eprintln!("SKIPPED soem_takes_the_drive_to_op_in_dc_mode...: {why}");
+    if prerequisite::skip(
+        "soem_takes_the_drive_to_op_in_dc_mode_and_runs_11000_cycles_without_a_missed_sm_event",
+        cannot_run(),
+    ) {
         return;
     }
     let (m, s, text) = run_in_namespace(
@@ -272,8 +278,7 @@ fn run_motion(name: &str, sim_args: &str, master_args: &str) -> real_master::Run
 /// The drive starts from `Simulation::reference` (not commissioned): the controlword sequence runs the offset
 /// calibration and the Hall start, and the encoder index is found during the move; the bounds hold anyway.
 fn csp_move(name: &str, sync: u16, cycle_us: u64) {
-    if let Some(why) = cannot_run() {
-        eprintln!("SKIPPED csp {name}: {why}");
+    if prerequisite::skip(&format!("csp_move {name}"), cannot_run()) {
         return;
     }
     let ppm = if sync == 2 { "--clock-error-ppm 100" } else { "" };
@@ -350,8 +355,10 @@ fn soem_csp_move_dc_200us_clock_100ppm_fast_within_the_motion_bounds() {
 /// the EthercatWatchdog error code, the fault's EMCY, and a quick-stop statusword over SDO.
 #[test]
 fn soem_going_quiet_trips_the_watchdog_and_the_drive_quick_stops_within_100ms_plus_one_cycle() {
-    if let Some(why) = cannot_run() {
-        eprintln!("SKIPPED watchdog: {why}");
+    if prerequisite::skip(
+        "soem_going_quiet_trips_the_watchdog_and_the_drive_quick_stops_within_100ms_plus_one_cycle",
+        cannot_run(),
+    ) {
         return;
     }
     let out = run_motion("watchdog", "--lock-step --cycle-us 1000 --idle-cycle", "--sync 1 --cycles 1000 --watchdog");

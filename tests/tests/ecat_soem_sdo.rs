@@ -7,12 +7,13 @@
 //! differs. Four runs: every readable object, parameter downloads and their aborts, PDO remapping to a CSV set
 //! and back (with a short CSV run in OP), and the mailbox's SDO throughput.
 //!
-//! Each test skips (printing why) only when the machine cannot run it at all: no user namespaces, or python3 /
-//! pysoem missing although `scripts/setup.sh` installs them.
+//! When the machine lacks a prerequisite (user namespaces; python3/pysoem, which `scripts/setup.sh` installs) each
+//! test fails under `CI=true` and is a reported skip elsewhere (`drive_tests::prerequisite`).
 
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
+use drive_tests::prerequisite;
 use drive_tests::real_master::{
     self, cannot_run_soem as cannot_run, default_image_bytes, default_u32, root, RunOutput,
 };
@@ -103,8 +104,7 @@ fn rule(entry: &Entry, expected: &Result<Vec<u8>, u32>) -> Rule {
 
 #[test]
 fn every_readable_object_uploads_through_soem_as_the_dictionary_says() {
-    if let Some(why) = cannot_run() {
-        eprintln!("SKIPPED every_readable_object...: {why}");
+    if prerequisite::skip("every_readable_object_uploads_through_soem_as_the_dictionary_says", cannot_run()) {
         return;
     }
     // drive-sim's drive at power-on: its dictionary (application table) and application objects.
@@ -194,8 +194,10 @@ type Case = (String, u16, u8, Vec<u8>, Option<SdoAbort>);
 
 #[test]
 fn parameters_of_several_types_write_and_read_back_and_bad_writes_abort_with_the_dictionarys_code() {
-    if let Some(why) = cannot_run() {
-        eprintln!("SKIPPED parameters...: {why}");
+    if prerequisite::skip(
+        "parameters_of_several_types_write_and_read_back_and_bad_writes_abort_with_the_dictionarys_code",
+        cannot_run(),
+    ) {
         return;
     }
     let d = Dictionary::new(1);
@@ -302,8 +304,7 @@ fn pdo_bytes(entries: &[u32]) -> u32 {
 /// is the drive's filtered encoder velocity, whose 1 ms quantum at 4096 inc/rev is 14.6 rpm before filtering.
 #[test]
 fn pdos_remap_to_a_csv_set_run_csv_in_op_and_map_back_to_the_defaults() {
-    if let Some(why) = cannot_run() {
-        eprintln!("SKIPPED remap: {why}");
+    if prerequisite::skip("pdos_remap_to_a_csv_set_run_csv_in_op_and_map_back_to_the_defaults", cannot_run()) {
         return;
     }
     let d = Dictionary::new(1);
@@ -365,8 +366,10 @@ fn upload_round_trips(len: usize, mailbox: usize) -> usize {
 /// in one normal upload: this dictionary has no readable entry long enough for upload segments.
 #[test]
 fn sdo_mailbox_throughput_of_normal_and_expedited_uploads_of_the_longest_string_and_0x1000() {
-    if let Some(why) = cannot_run() {
-        eprintln!("SKIPPED throughput: {why}");
+    if prerequisite::skip(
+        "sdo_mailbox_throughput_of_normal_and_expedited_uploads_of_the_longest_string_and_0x1000",
+        cannot_run(),
+    ) {
         return;
     }
     let mut objects = PowerOnObjects::new();

@@ -80,7 +80,8 @@ fn bootloader_starts_a_signed_image_and_refuses_a_corrupted_one() {
 fn bootloader_links_at_the_boot_address_and_fits_its_region() {
     // Every build of the bootloader must fit BOOTLOADER (32 KiB): the board's (with the CAN service of its
     // fallback), with defmt logging, and the QEMU one (semihosting output and panic formatting). Sizes from the ELF
-    // program headers; the builds use the size-optimised `bootloader` profile (`qemu::profile_of`).
+    // program headers; the bootloader package is built size-optimised (root `Cargo.toml`,
+    // `[profile.release.package.bootloader]`) in the plain release profile.
     for features in [&[][..], &["defmt"][..], &["qemu"][..]] {
         let bins = qemu::build_target_bins(&[qemu::BOOTLOADER_BIN], features).unwrap_or_else(|e| panic!("{e}"));
         let elf = std::fs::read(&bins[0]).expect("bootloader ELF");

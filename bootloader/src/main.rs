@@ -21,10 +21,13 @@
 //!   sectors hold, and the parameter store's record walk (CRC, item structure) would cost flash the fallback
 //!   needs. The boot-up message goes out first; an NMT reset, 0x1F51 = 1 with a verified image or 0x1F51 = 2
 //!   answers, waits until the transmit mailboxes are empty and resets: the next boot activates the image.
-//!   **Size**: built with the size-optimised profile `bootloader` (root `Cargo.toml`: opt-level "z"; the drive
-//!   image keeps opt-level 3 for its 25 kHz tick): `cargo build -p firmware --profile bootloader --target
-//!   thumbv7em-none-eabihf --bin bootloader`. 28,544 bytes with the CAN service (31,972 with defmt, 27,172 for
-//!   QEMU) of the 32,768; with the release profile it would not fit (`tests/tests/qemu_boot.rs` checks).
+//!   **Size**: a package of its own so that it is built size-optimised by a per-package profile override (root
+//!   `Cargo.toml`: `[profile.release.package.bootloader]` opt-level "z", with the link-time optimisation at that
+//!   level; the firmware library it uses keeps the release settings of the drive image). The plain release build
+//!   makes it: `cargo build --release -p bootloader --target thumbv7em-none-eabihf` (or the workspace-wide
+//!   `cargo build --release --target thumbv7em-none-eabihf`, whose default members are the two images).
+//!   29,144 bytes with the CAN service, 32,324 with defmt, 27,604 for QEMU, of the 32,768 (the linker script
+//!   refuses an image that does not fit; `tests/tests/qemu_boot.rs` checks all three builds).
 //!
 //! With the `qemu` feature (QEMU's `netduinoplus2`): reports on semihosting stdout (`boot.*` lines and
 //! `insn.boot_verify`, the instruction count of the header, CRC and signature check of slot A under
@@ -290,7 +293,7 @@ mod target {
 #[cfg(not(target_os = "none"))]
 fn main() {
     eprintln!(
-        "`bootloader` is a target image: build it with `cargo build -p firmware --release --target \
-         thumbv7em-none-eabihf --bin bootloader`"
+        "`bootloader` is a target image: build it with `cargo build --release -p bootloader --target \
+         thumbv7em-none-eabihf`"
     );
 }
