@@ -28,7 +28,7 @@ pub fn cannot_run() -> Option<String> {
         Ok(o) if o.status.success() => None,
         Ok(o) => Some(format!(
             "python3 cannot import canopen (scripts/setup.sh installs tests/python/requirements.txt): {}",
-            String::from_utf8_lossy(&o.stderr).trim()
+            String::from_utf8_lossy(&o.stderr).trim().lines().last().unwrap_or_default()
         )),
         Err(e) => Some(format!("cannot run python3 ({e}); run scripts/setup.sh")),
     }

@@ -55,6 +55,8 @@ pub fn skip(test: &str, missing: Option<String>) -> bool {
         Verdict::Run => false,
         Verdict::Fail(message) => panic!("{message}"),
         Verdict::Skip(why) => {
+            // One line per skip in the report, whatever the reason's text.
+            let why = why.lines().map(str::trim).filter(|l| !l.is_empty()).collect::<Vec<_>>().join(" | ");
             eprintln!("SKIPPED {test}: {why}");
             let path = skip_report_path();
             // Several test binaries append at once; one write per line keeps the lines whole.
