@@ -31,6 +31,8 @@ pub mod hal;
 pub mod io;
 pub mod motion;
 pub mod od;
+pub mod power_state;
 #[cfg(target_os = "none")]
 pub mod rt;
+pub mod sensors;
 pub mod supervision;

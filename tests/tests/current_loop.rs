@@ -7,10 +7,8 @@
 //! defaults of 0x30A0 (1,555,000 uV/A, 2,450,000 uV/(A ms): a 1.5 kHz crossover). The bounds are the issue's;
 //! each test says why its tolerance is what it is.
 
-use firmware::drive::calibration::CalibrationError;
-use firmware::drive::protection::Trip;
-use firmware::drive::{DriveError, PowerState};
 use firmware::hal::power::PwmCommand;
+use firmware::power_state::{CalibrationError, DriveError, PowerState, Trip};
 use hal_sim::plant::PlantParams;
 use hal_sim::sim::scenarios::{self, Setup, SpinConfig};
 use hal_sim::sim::{SimError, Simulation};

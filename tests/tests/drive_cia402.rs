@@ -6,8 +6,8 @@
 //! is what the power stage does.
 
 use firmware::cia402::State;
-use firmware::drive::PowerState;
 use firmware::od::generated::handles as h;
+use firmware::power_state::PowerState;
 use hal_sim::sim::motion::prepare_motion;
 use hal_sim::sim::Simulation;
 

@@ -2,8 +2,7 @@
 //! Hall sensor is configured (0x3000:01). Angle errors are the drive's angle against the plant's true electrical
 //! angle at the sample instant (`hal_sim::sim::scenarios::angle_error_deg`).
 
-use firmware::drive::commutation::CommutationStage;
-use firmware::drive::PowerState;
+use firmware::power_state::{CommutationStage, PowerState};
 use hal_sim::plant::PlantParams;
 use hal_sim::sim::scenarios::angle_error_deg;
 use hal_sim::sim::Simulation;

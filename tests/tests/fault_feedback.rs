@@ -11,9 +11,9 @@
 use core::f64::consts::PI;
 
 use firmware::cia402::State;
-use firmware::drive::commutation::HallSector;
 use firmware::fault::FaultId;
 use firmware::od::generated::handles as h;
+use firmware::sensors::hall::HallSector;
 use firmware::supervision::feedback::hall_distance;
 use hal_sim::plant::faults::EncoderNoise;
 use hal_sim::sim::motion::prepare_motion;

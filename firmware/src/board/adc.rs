@@ -8,7 +8,7 @@
 //! | ADC2      | phase B, PC1 (IN11)  | power-stage temp., PC4 (IN14) |
 //! | ADC3      | phase C, PC2 (IN12)  | motor temperature, PA3 (IN3)  |
 //!
-//! Both temperatures are linear sensors (0.5 V at 0 degC, 10 mV/K; `crate::drive::scaling::temperature_ddegc`).
+//! Both temperatures are linear sensors (0.5 V at 0 degC, 10 mV/K; `crate::sensors::temperature::temperature_ddegc`).
 //! The motor's comes through the motor cable on PA3 (ADC123_IN3, free in the pin map of `super`), with a
 //! pull-down on the board so that a missing sensor reads code 0 (tier 2 takes a code at a rail as "no sensor
 //! connected", IDX L5476).

@@ -16,6 +16,7 @@
 
 pub mod angle;
 pub mod current_loop;
+pub mod demand;
 pub mod frames;
 pub mod interpolator;
 pub mod observer;

@@ -23,6 +23,7 @@
 
 use super::scaling::{ShuntOffsets, OFFSET_FRACTION_BITS, SHUNT_MID_SCALE_CODE};
 use crate::hal::power::{AdcSamples, PwmCommand, ADC_FULL_SCALE, PWM_PERIOD_TICKS};
+use crate::power_state::CalibrationError;
 
 /// Number of samples averaged per channel (2^8: the sum is the offset in 1/256 LSB).
 pub const CALIBRATION_SAMPLES: u16 = 1 << OFFSET_FRACTION_BITS;
@@ -54,29 +55,6 @@ impl Default for CalibrationConfig {
     fn default() -> Self {
         Self::DEFAULT
     }
-}
-
-/// Why a calibration failed.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum CalibrationError {
-    /// A channel's offset is outside the plausible window (broken amplifier, wrong reference, current flowing).
-    OffsetOutOfRange {
-        /// Channel 0..=2 (phases A, B, C).
-        channel: u8,
-        /// Its offset from mid-scale, in whole LSB (rounded towards minus infinity).
-        deviation_lsb: i16,
-    },
-    /// A channel's samples spread more than the noise allows (motor moving, unstable amplifier).
-    Unsteady {
-        /// Channel 0..=2 (phases A, B, C).
-        channel: u8,
-        /// Max minus min code seen while averaging, in LSB.
-        spread_lsb: u16,
-    },
-    /// Not enough valid samples within the timeout (codes at the rails).
-    Timeout,
-    /// The calibration was interrupted (break input, outputs switched off).
-    Aborted,
 }
 
 /// Progress of the calibration after one step.

@@ -38,77 +38,8 @@
 use crate::control::angle::{AngleDelta, ElectricalAngle};
 use crate::control::frames::Amps;
 use crate::hal::power::FeedbackSample;
-
-/// One sixth of a turn in `u32` turn bits (60 degrees), rounded: 2^32 / 6 = 715,827,882.67.
-const SIXTH_TURN: u32 = 715_827_883;
-/// The Hall states in sector order 0..=5 (see the module documentation).
-const HALL_SEQUENCE: [u8; 6] = [0b101, 0b001, 0b011, 0b010, 0b110, 0b100];
-
-/// Why the electrical angle cannot be determined.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum CommutationError {
-    /// The Hall sensors report an impossible state (0 or 7, or bits above bit 2): spec §2.7 "Hall sensor error"
-    /// 0xFF01 (wiring, supply, damage, noise).
-    InvalidHallState(u8),
-}
-
-/// One of the six 60-degree Hall sectors, 0..=5 (see the module documentation).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct HallSector(u8);
-
-impl HallSector {
-    /// The sector of a Hall state (bit 0 = H1, bit 1 = H2, bit 2 = H3).
-    pub const fn from_state(state: u8) -> Result<Self, CommutationError> {
-        match state {
-            0b101 => Ok(Self(0)),
-            0b001 => Ok(Self(1)),
-            0b011 => Ok(Self(2)),
-            0b010 => Ok(Self(3)),
-            0b110 => Ok(Self(4)),
-            0b100 => Ok(Self(5)),
-            other => Err(CommutationError::InvalidHallState(other)),
-        }
-    }
-
-    /// The sector number 0..=5.
-    #[must_use]
-    pub const fn index(self) -> u8 {
-        self.0
-    }
-
-    /// The Hall state of this sector.
-    #[must_use]
-    pub fn state(self) -> u8 {
-        HALL_SEQUENCE.get(usize::from(self.0)).copied().unwrap_or(0)
-    }
-
-    /// The sector's lower edge (where it is entered moving forward), relative to the Hall offset.
-    #[must_use]
-    pub const fn start_angle(self, hall_offset: ElectricalAngle) -> ElectricalAngle {
-        // index <= 5: 5 * SIXTH_TURN < 2^32.
-        ElectricalAngle((self.0 as u32).wrapping_mul(SIXTH_TURN).wrapping_add(hall_offset.0))
-    }
-
-    /// The sector's centre (the best guess within it), relative to the Hall offset.
-    #[must_use]
-    pub const fn centre_angle(self, hall_offset: ElectricalAngle) -> ElectricalAngle {
-        ElectricalAngle(self.start_angle(hall_offset).0.wrapping_add(SIXTH_TURN / 2))
-    }
-
-    /// The next sector in the positive direction.
-    #[must_use]
-    pub const fn next(self) -> Self {
-        // self.0 <= 4 in the else branch: no wrap.
-        Self(if self.0 >= 5 { 0 } else { self.0.wrapping_add(1) })
-    }
-
-    /// The next sector in the negative direction.
-    #[must_use]
-    pub const fn previous(self) -> Self {
-        // self.0 >= 1 in the else branch: no wrap.
-        Self(if self.0 == 0 { 5 } else { self.0.wrapping_sub(1) })
-    }
-}
+use crate::power_state::{CommutationError, CommutationStage};
+use crate::sensors::hall::HallSector;
 
 /// The Hall commutation offset 0x301A:03 (1/65536 electrical turn) as an angle.
 #[must_use]
@@ -331,31 +262,6 @@ pub enum CommutationMethod {
     Hall,
     /// Without Halls: forced alignment with a d current.
     ForcedAlignment(AlignmentConfig),
-}
-
-/// How well the electrical angle is known.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum CommutationStage {
-    /// Not started.
-    Unknown,
-    /// From the centre of a Hall sector: within +-30 degrees electrical.
-    HallSector,
-    /// From a Hall edge: within a fraction of one tick's travel (plus the Hall sensors' placement tolerance).
-    HallEdge,
-    /// Forced alignment in progress (the angle is imposed, not measured).
-    Aligning,
-    /// Forced alignment done: within the friction-limited alignment error.
-    Aligned,
-    /// From the encoder index with a stored or learned offset: exact to one count.
-    Indexed,
-}
-
-impl CommutationStage {
-    /// The angle is good enough to run field-oriented control.
-    #[must_use]
-    pub const fn is_valid(self) -> bool {
-        matches!(self, Self::HallSector | Self::HallEdge | Self::Aligned | Self::Indexed)
-    }
 }
 
 /// The forced alignment's current demand for one tick: the angle to use and the d current.
@@ -682,36 +588,7 @@ mod tests {
 
     /// Hall state of the reference plant's convention at an electrical angle in degrees (offset 0).
     fn hall_at(e_deg: f64) -> u8 {
-        HALL_SEQUENCE[(e_deg.rem_euclid(360.0) / 60.0) as usize]
-    }
-
-    #[test]
-    fn hall_sector_mapping_covers_every_state() {
-        let expected: [(u8, Result<u8, CommutationError>); 8] = [
-            (0, Err(CommutationError::InvalidHallState(0))),
-            (1, Ok(1)),
-            (2, Ok(3)),
-            (3, Ok(2)),
-            (4, Ok(5)),
-            (5, Ok(0)),
-            (6, Ok(4)),
-            (7, Err(CommutationError::InvalidHallState(7))),
-        ];
-        for (state, want) in expected {
-            assert_eq!(HallSector::from_state(state).map(HallSector::index), want, "state {state}");
-        }
-        assert_eq!(HallSector::from_state(9), Err(CommutationError::InvalidHallState(9)));
-        // Centres at 30 + 60 k degrees, edges at 60 k; the offset shifts them.
-        for k in 0..6u8 {
-            let s = HallSector(k);
-            assert_eq!(HallSector::from_state(s.state()), Ok(s));
-            assert!((deg(s.centre_angle(ElectricalAngle::ZERO)) - (30.0 + 60.0 * f64::from(k))).abs() < 1e-6);
-            assert!((deg(s.start_angle(ElectricalAngle::ZERO)) - 60.0 * f64::from(k)).abs() < 1e-6);
-            let shifted = s.centre_angle(hall_offset_from_od(0x4000));
-            assert!((deg(shifted) - (120.0 + 60.0 * f64::from(k)).rem_euclid(360.0)).abs() < 1e-6);
-        }
-        assert_eq!(HallSector(5).next(), HallSector(0));
-        assert_eq!(HallSector(0).previous(), HallSector(5));
+        crate::sensors::hall::HALL_SEQUENCE[(e_deg.rem_euclid(360.0) / 60.0) as usize]
     }
 
     #[test]

@@ -6,7 +6,7 @@
 //! sectors in one 40 us period, i.e. above 23,800 rpm on the reference motor, or an invalid state) is not
 //! counted: an invalid state is the commutation's fault, and the next valid state resynchronises the count.
 
-use super::commutation::HallSector;
+use crate::sensors::hall::HallSector;
 
 /// The Hall position counter.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

@@ -29,15 +29,14 @@
 
 pub mod calibration;
 pub mod commutation;
-pub mod demand;
 pub mod hall_position;
-pub mod latch;
 pub mod objects;
 pub mod protection;
 pub mod scaling;
 
 use crate::control::angle::ElectricalAngle;
 use crate::control::current_loop::{foc_step, CurrentController, CurrentLoopConfig, FocInput};
+use crate::control::demand::{rated_torque_micro_nm, DemandScale};
 use crate::control::frames::{Abc, Amps, Dq, Volts};
 use crate::control::pi::PiGains;
 use crate::control::velocity_estimate::PositionSum;
@@ -47,84 +46,23 @@ use crate::hal::power::{FeedbackSample, Measurements, PwmCommand, SLOW_TICK_DIVI
 use crate::motion::axis::{Axis, AxisInputs, AxisOutputs, CurrentDemand};
 use crate::od::access::Dictionary;
 use crate::od::generated::handles as h;
+use crate::power_state::{CommutationStage, DriveError, PowerState, Trip};
+use crate::sensors::hall::HallSector;
+use crate::sensors::latch::PinLatches;
 use crate::supervision::communication::LinkLoss;
 use crate::supervision::{Supervision, SupervisionInputs};
 
-use calibration::{Calibration, CalibrationConfig, CalibrationError, CalibrationStatus, CALIBRATION_COMMAND};
-use commutation::{
-    hall_offset_from_od, AlignmentConfig, Commutation, CommutationError, CommutationMethod, CommutationStage,
-    EncoderConfig,
-};
-use demand::{rated_torque_micro_nm, DemandScale};
+use calibration::{Calibration, CalibrationConfig, CalibrationStatus, CALIBRATION_COMMAND};
+use commutation::{hall_offset_from_od, AlignmentConfig, Commutation, CommutationMethod, EncoderConfig};
 use hall_position::HallPosition;
-use latch::PinLatches;
-use protection::{Limits, Trip};
+use protection::Limits;
 use scaling::ShuntOffsets;
-
-/// Why the drive is in [`PowerState::Fault`].
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum DriveError {
-    /// The current-offset calibration failed.
-    Calibration(CalibrationError),
-    /// The electrical angle could not be determined (invalid Hall state).
-    Commutation(CommutationError),
-    /// A tier-1 protection tripped.
-    Protection(Trip),
-    /// The current loop did not finish within its period; the runtime measured `cost` (its counter's units:
-    /// cycles on the board, instructions under QEMU) against its budget.
-    Overrun {
-        /// The overrunning tick's cost.
-        cost: u32,
-    },
-}
-
-impl DriveError {
-    /// The fault of the table this trip is reported as (`crate::fault::table`).
-    #[must_use]
-    pub const fn fault_id(self) -> FaultId {
-        match self {
-            Self::Calibration(_) => FaultId::CurrentOffsetCalibration,
-            Self::Commutation(_) => FaultId::HallInvalidState,
-            Self::Protection(Trip::BreakInput) => FaultId::PowerStageProtection,
-            Self::Protection(Trip::BusOverVoltage) => FaultId::DcBusOverVoltage,
-            Self::Protection(Trip::BusUnderVoltage) => FaultId::DcBusUnderVoltage,
-            Self::Protection(Trip::OverCurrent) => FaultId::OverCurrent,
-            Self::Protection(Trip::PhaseSum) => FaultId::PhaseCurrentImplausible,
-            Self::Overrun { .. } => FaultId::CurrentLoopOverrun,
-        }
-    }
-
-    /// The detail value of the trip's snapshot: the overrunning tick's cost, the invalid Hall state, else 0.
-    #[must_use]
-    pub fn fault_detail(self) -> i32 {
-        match self {
-            Self::Overrun { cost } => i32::try_from(cost).unwrap_or(i32::MAX),
-            Self::Commutation(CommutationError::InvalidHallState(h)) => i32::from(h),
-            Self::Calibration(_) | Self::Protection(_) => 0,
-        }
-    }
-}
 
 /// Why a power-stage request was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum RequestError {
     /// The request is not allowed in the present state (e.g. enable before the calibration has finished).
     WrongState(PowerState),
-}
-
-/// The power-stage state (the part of CiA 402 this issue needs).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum PowerState {
-    /// Outputs off, not calibrated for this switch-on (CiA 402 switch on disabled / ready to switch on).
-    Off,
-    /// Transition 3 in progress: outputs at 50 % duty, offsets being measured.
-    Calibrating,
-    /// Calibrated, outputs off (CiA 402 switched on).
-    SwitchedOn,
-    /// Current loop running (CiA 402 operation enabled), including forced alignment.
-    OperationEnabled,
-    /// Outputs off after a fault, until [`Drive::fault_reset`].
-    Fault(DriveError),
 }
 
 /// Where the q-current reference comes from.
@@ -643,7 +581,7 @@ impl Drive {
                 protection::cause_present(t, self.last_break_input, self.signals.v_bus.to_millivolts())
             }
             // Tier 1 keeps sampling the Halls in «Fault»: the invalid state persists while they still read it.
-            Some(DriveError::Commutation(_)) => commutation::HallSector::from_state(self.signals.hall).is_err(),
+            Some(DriveError::Commutation(_)) => HallSector::from_state(self.signals.hall).is_err(),
             _ => false,
         };
         let input = AxisInputs {

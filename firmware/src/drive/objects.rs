@@ -30,7 +30,7 @@
 //!
 //! On the target the flash work happens in tier 3 inside `rt::tier1::with_drive` (see `rt::app`).
 
-use super::{Drive, DriveConfig, PowerState};
+use super::{Drive, DriveConfig};
 use crate::hal::flash::NorFlash;
 use crate::od::abort::SdoAbort;
 use crate::od::access::{AccessContext, ApplicationObjects, Dictionary, NoApplicationObjects, ReadOutcome, Table};
@@ -38,6 +38,7 @@ use crate::od::entry::Entry;
 use crate::od::store::{
     LoadReport, ParamStore, Selection, StoreError, StoreObjects, RESTORE_DEFAULT_PARAMETERS, STORE_PARAMETERS,
 };
+use crate::power_state::PowerState;
 
 /// 0x1F50 *Program data* (CiA 302-3, IDX L3326).
 pub const PROGRAM_DATA: u16 = 0x1F50;

@@ -18,21 +18,7 @@
 //! 2, so nothing converts or divides here.
 
 use crate::control::frames::{Abc, Amps, Volts};
-
-/// A condition that switched the power stage off.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Trip {
-    /// The hardware break input (over-current comparator) tripped.
-    BreakInput,
-    /// DC bus above the over-voltage limit.
-    BusOverVoltage,
-    /// DC bus below the under-voltage limit while switching.
-    BusUnderVoltage,
-    /// A phase current beyond the software over-current limit.
-    OverCurrent,
-    /// The phase currents do not sum to zero.
-    PhaseSum,
-}
+use crate::power_state::Trip;
 
 /// Over-voltage trip of the reference power stage, mV. The reference bus has no braking chopper: braking the
 /// reference load from 2,450 rpm returns about 0.6 J into the 470 uF capacitor and lifts the 24 V bus to 49.8 V

@@ -13,10 +13,9 @@
 //! with the error-generating code feeds the switch; among inputs with the same code the lowest-numbered one wins
 //! (IDX L4958: "Each function can only be mapped once").
 
-use crate::drive::latch::{PinLatches, DIGITAL_INPUTS};
-use crate::motion::{EdgeLatch, SwitchEdges};
 use crate::od::access::Dictionary;
 use crate::od::generated::handles as h;
+use crate::sensors::latch::{EdgeLatch, PinLatches, SwitchEdges, DIGITAL_INPUTS};
 
 use super::InputState;
 

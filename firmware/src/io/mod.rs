@@ -12,9 +12,8 @@ pub mod outputs;
 pub mod touch_probe;
 
 use crate::cia402::machine::Brake;
-use crate::drive::latch::PinLatches;
-use crate::motion::SwitchEdges;
 use crate::od::access::Dictionary;
+use crate::sensors::latch::{PinLatches, SwitchEdges};
 
 /// The input functions the drive acts on, in the coordinates of 0x6064.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
@@ -122,8 +121,8 @@ impl Io {
 mod rig {
     use super::{Io, IoState};
     use crate::cia402::machine::Brake;
-    use crate::drive::latch::PinLatches;
     use crate::od::access::Dictionary;
+    use crate::sensors::latch::PinLatches;
 
     pub(super) struct Rig {
         pub io: Io,

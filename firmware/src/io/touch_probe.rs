@@ -27,9 +27,9 @@
 //!   probe latches the last one rather than the first.
 //! * Homing clears all probe states and positions (IDX L6362): [`TouchProbes::clear`].
 
-use crate::drive::latch::{PinLatches, DIGITAL_INPUTS};
 use crate::od::access::Dictionary;
 use crate::od::generated::handles as h;
+use crate::sensors::latch::{PinLatches, DIGITAL_INPUTS};
 
 use super::inputs::{function, InputConfig};
 
@@ -261,14 +261,14 @@ impl TouchProbes {
             let bits = bits & 0b0011_1111;
             let (positive, negative) = match ProbeSource::select(p, bits, inputs, object) {
                 ProbeSource::Input(i) => {
-                    let edges =
-                        |latches: &[crate::motion::EdgeLatch; DIGITAL_INPUTS], seen: &[u16; DIGITAL_INPUTS]| match (
-                            latches.get(i),
-                            seen.get(i),
-                        ) {
-                            (Some(l), Some(&s)) => NewEdges { count: l.count.wrapping_sub(s), position: l.position },
-                            _ => NewEdges::default(),
-                        };
+                    let edges = |latches: &[crate::sensors::latch::EdgeLatch; DIGITAL_INPUTS],
+                                 seen: &[u16; DIGITAL_INPUTS]| match (
+                        latches.get(i),
+                        seen.get(i),
+                    ) {
+                        (Some(l), Some(&s)) => NewEdges { count: l.count.wrapping_sub(s), position: l.position },
+                        _ => NewEdges::default(),
+                    };
                     let rising = edges(&pins.rising, &seen.rising);
                     let falling = edges(&pins.falling, &seen.falling);
                     if inputs.active_low(i) {

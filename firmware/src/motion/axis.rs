@@ -30,16 +30,14 @@ use super::monitor::{ticks_from_ms, Monitor};
 use super::params::MotionParams;
 use super::profile_position::{PpmInput, ProfilePosition};
 use super::profile_velocity::{ProfileVelocity, PvmInput};
-use super::{AxisFeedback, EdgeLatch, LoopDemand, ModeStatus, ModeStep};
+use super::{AxisFeedback, LoopDemand, ModeStatus, ModeStep};
 use crate::cia402::machine::{Config, Inputs, Motion, PowerStage, StateMachine, StatusInputs, Stop, StopThen};
 use crate::cia402::{Controlword, Mode, State, StatusFlags, Statusword, StopRamp, Ticks, Transition};
+use crate::control::demand::DemandScale;
 use crate::control::frames::Amps;
 use crate::control::interpolator::CyclicSetpoint;
 use crate::control::trajectory::{Acceleration, ProfileGenerator, Setpoint, Velocity};
 use crate::control::velocity_estimate::PositionWindow;
-use crate::drive::demand::DemandScale;
-use crate::drive::latch::PinLatches;
-use crate::drive::PowerState;
 use crate::fault::i2t::{I2tConfig, MotorI2t};
 use crate::fault::snapshot::DiagnosisSnapshot;
 use crate::fault::table::FaultId;
@@ -47,6 +45,8 @@ use crate::fault::FaultManager;
 use crate::io::{InputState, Io};
 use crate::od::access::Dictionary;
 use crate::od::generated::handles as h;
+use crate::power_state::PowerState;
+use crate::sensors::latch::{EdgeLatch, PinLatches};
 
 /// What the drive hands the axis every slow tick.
 #[derive(Clone, Copy, Debug)]

@@ -12,13 +12,13 @@
 //! loads and compares per tick), never per tick.
 
 use super::LoopDemand;
+use crate::control::demand::DemandScale;
 use crate::control::frames::Amps;
 use crate::control::observer::{ObserverGains, VelocityObserver};
 use crate::control::position::{Increments, PositionController, PositionGains};
 use crate::control::trajectory::Velocity;
 use crate::control::velocity::{IncPerTick, IncPerTick2, VelocityController, VelocityGains};
 use crate::control::velocity_estimate::{LowPassVelocityEstimator, PositionWindow};
-use crate::drive::demand::DemandScale;
 use crate::od::access::Dictionary;
 use crate::od::generated::handles as h;
 

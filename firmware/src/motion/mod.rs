@@ -26,31 +26,7 @@ pub mod profile_velocity;
 
 use crate::cia402::Ticks;
 use crate::control::trajectory::{Acceleration, Setpoint, Velocity};
-
-/// One captured edge of a position-latching signal (a digital input or the encoder index).
-///
-/// The fast tick records the encoder position at the edge (an input is sampled every 40 us, the index is latched
-/// by the encoder timer in hardware). `count` increments with every edge (wrapping), so a mode sees a new edge as
-/// a changed count and never misses one between two slow ticks (only the latest position of a burst is kept).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
-pub struct EdgeLatch {
-    /// Edges seen since start-up (wrapping).
-    pub count: u16,
-    /// Position actual value (increments, the coordinates of [`AxisFeedback::position`]) at the latest edge.
-    pub position: i32,
-}
-
-/// A switch function (limit or home switch) with its level and its latched edges, polarity already applied:
-/// "activated" is the edge into the active level, whatever the wiring.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
-pub struct SwitchEdges {
-    /// The switch is active now.
-    pub active: bool,
-    /// The latest edge into the active level.
-    pub activated: EdgeLatch,
-    /// The latest edge out of the active level.
-    pub released: EdgeLatch,
-}
+use crate::sensors::latch::{EdgeLatch, SwitchEdges};
 
 /// What the modes know about the axis in one slow tick.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]

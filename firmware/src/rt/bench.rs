@@ -47,9 +47,10 @@ use crate::cia402::{State, Statusword};
 use crate::control::angle::ElectricalAngle;
 use crate::control::current_loop::{foc_step, CurrentController, FocInput, FocOutput};
 use crate::control::frames::{Abc, Amps, Dq, Volts};
-use crate::drive::{DemandSource, PowerState};
+use crate::drive::DemandSource;
 use crate::hal::power::SLOW_TICK_DIVIDER;
 use crate::od::generated::handles as h;
+use crate::power_state::PowerState;
 
 /// Fast ticks of the profile part: the standstill hold (calibration) and one pass through the speed profile.
 pub const FAST_TICKS: u32 = HOLD_TICKS + PROFILE_TICKS;

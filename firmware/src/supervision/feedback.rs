@@ -66,12 +66,12 @@
 
 use super::SupervisionInputs;
 use crate::control::angle::ElectricalAngle;
-use crate::drive::commutation::{CommutationStage, HallSector};
-use crate::drive::PowerState;
 use crate::fault::{FaultId, FaultManager};
 use crate::hal::power::PWM_FREQUENCY_HZ;
 use crate::od::access::Dictionary;
 use crate::od::generated::handles as h;
+use crate::power_state::{CommutationStage, PowerState};
+use crate::sensors::hall::HallSector;
 
 /// Consecutive slow ticks of an invalid Hall state before [`FaultId::HallInvalidState`] (0.4 to 0.8 ms).
 pub const INVALID_HALL_TICKS: u8 = 2;

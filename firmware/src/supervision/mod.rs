@@ -25,11 +25,10 @@ use crate::cia402::{State, Ticks};
 use crate::control::angle::ElectricalAngle;
 use crate::control::frames::{Abc, Amps, Dq, Volts};
 use crate::control::trajectory::Velocity;
-use crate::drive::commutation::CommutationStage;
-use crate::drive::PowerState;
 use crate::fault::snapshot::DiagnosisSnapshot;
 use crate::fault::FaultManager;
 use crate::od::access::Dictionary;
+use crate::power_state::{CommutationStage, PowerState};
 
 /// What the drive hands the supervision every slow tick: the last fast tick's measurements and the axis's state.
 #[derive(Clone, Copy, Debug)]

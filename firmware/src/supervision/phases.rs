@@ -248,7 +248,7 @@ mod tests {
     use super::*;
     use crate::cia402::Ticks;
     use crate::control::frames::{Abc, Dq};
-    use crate::drive::commutation::CommutationStage;
+    use crate::power_state::CommutationStage;
 
     const TURN: f64 = 4_294_967_296.0;
 

@@ -4,7 +4,7 @@
 //! Each slow tick (2.5 kHz) takes the two raw 12-bit codes tier 1 sampled ([`SupervisionInputs`]):
 //! 1. **Filtering.** A median of the last three codes removes a single wild sample completely, then a first-order
 //!    low-pass `y += (x - y) / 8` (time constant 8 slow ticks = 3.2 ms) averages the 1 LSB (0.08 K) noise down to
-//!    about 0.02 K rms. The result, converted with [`crate::drive::scaling::temperature_ddegc`], is published in
+//!    about 0.02 K rms. The result, converted with [`crate::sensors::temperature::temperature_ddegc`], is published in
 //!    0x3201:01 (power stage) and 0x3201:02 (motor) every step. 3.2 ms is nothing against the thermal time
 //!    constants it watches (heat sink: minutes; winding: 20 s on the reference motor).
 //! 2. **Power stage** (limit `T_max` = 0x3201:03, 100.0 degC; hysteresis `H` = 0x3201:05, 5.0 K):
@@ -37,12 +37,12 @@
 
 use super::SupervisionInputs;
 use crate::control::frames::Amps;
-use crate::drive::scaling::temperature_ddegc;
 use crate::fault::table::FaultId;
 use crate::fault::FaultManager;
 use crate::od::access::Dictionary;
 use crate::od::entry::Storage;
 use crate::od::generated::handles as h;
+use crate::sensors::temperature::temperature_ddegc;
 
 /// 0x3201 "thermal controller protection" (device.toml; IDX L5455).
 const THERMAL_OBJECT: u16 = 0x3201;
@@ -269,7 +269,7 @@ fn derating(base: Amps, nominal: Amps, t: i16, start: i16) -> Amps {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::drive::commutation::CommutationStage;
+    use crate::power_state::CommutationStage;
 
     /// The code of `ddegc` on the sensor (inverse of [`temperature_ddegc`], rounded).
     fn code(ddegc: f64) -> u16 {

@@ -605,7 +605,7 @@ pub fn run_case(case: &Case, seed: u64) -> Outcome {
         }
         // Tier 1 trips the power stage before the fault manager hears of it (at the next slow tick).
         let tripped =
-            matches!(b.sim.drive.state(), firmware::drive::PowerState::Fault(e) if e.fault_id() == case.fault);
+            matches!(b.sim.drive.state(), firmware::power_state::PowerState::Fault(e) if e.fault_id() == case.fault);
         // The overflow is not an active fault: the producer counts the messages it lost.
         let overflowed = case.fault == FaultId::EmcyOverflow && b.sim.drive.axis().faults().emcy().stats().lost > 0;
         if detected_at.is_none() && (is_active(&b, case.fault) || tripped || overflowed) {

@@ -19,10 +19,10 @@ pub mod trace;
 pub mod update;
 
 use firmware::cia402::State;
-use firmware::drive::commutation::CommutationStage;
-use firmware::drive::{Drive, DriveConfig, DriveError, PowerState};
+use firmware::drive::{Drive, DriveConfig};
 use firmware::hal::power::{Measurements, PwmCommand};
 use firmware::od::generated::handles as h;
+use firmware::power_state::{CommutationStage, DriveError, PowerState};
 
 use crate::plant::{Plant, PlantParams, PERIOD_S};
 

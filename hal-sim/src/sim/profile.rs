@@ -23,8 +23,8 @@ use firmware::control::trajectory::{
     planned_duration_ticks, planned_velocity_duration_ticks, MotionScale, ProfileObjects, ProfileParams, Velocity,
     SLOW_TICK_HZ,
 };
-use firmware::drive::PowerState;
 use firmware::od::generated::handles as h;
+use firmware::power_state::PowerState;
 
 use super::motion::{prepare_motion, INC_PER_REV};
 use super::trace::Trace;

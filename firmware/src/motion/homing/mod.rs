@@ -31,7 +31,7 @@
 //!   crossed at search speed against `F`, the axis brakes beyond it and *approaches* `E` at zero-search speed in `F`;
 //!   when it is crossed in `F` (the axis started on the far side), the axis brakes, *leaves* back across `E` at
 //!   zero-search speed, and then approaches. So the reference crossing always happens at zero-search speed in `F`,
-//!   and its latched position ([`super::SwitchEdges`]) — not where the axis stopped — is the reference of the edge
+//!   and its latched position ([`SwitchEdges`]) — not where the axis stopped — is the reference of the edge
 //!   methods. (3) Index methods continue in `F` at zero-search speed to the first index pulse beyond the edge: its
 //!   latched position is the reference.
 //! - **Index methods 33 / 34**: zero-search speed negative / positive to the next index pulse (E3 L1952-1971).
@@ -71,11 +71,12 @@ mod tests;
 pub use methods::SUPPORTED_METHODS;
 use methods::{Direction, Layout, Method, Reference, Switch};
 
-use super::{AxisFeedback, LoopDemand, ModeStatus, ModeStep, SwitchEdges};
+use super::{AxisFeedback, LoopDemand, ModeStatus, ModeStep};
 use crate::cia402::controlword::Controlword;
 use crate::control::trajectory::{
     Acceleration, ChangeMode, ProfileGenerator, ProfileParams, ProfileType, Setpoint, Velocity,
 };
+use crate::sensors::latch::SwitchEdges;
 
 /// Slow ticks the search velocity of an end-stop search is held before the averaged current 0x30D1:01 is
 /// compared with 0x30B2: four time constants of its 50 Hz low-pass (8 ticks, `drive::Drive`), after which the

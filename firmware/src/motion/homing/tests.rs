@@ -6,7 +6,7 @@
 
 use super::*;
 use crate::cia402::Ticks;
-use crate::motion::EdgeLatch;
+use crate::sensors::latch::EdgeLatch;
 
 const PITCH: i64 = 4096;
 /// Controlword "enable operation" (0x000F), + bit 4, + bit 8.

@@ -4,12 +4,35 @@
 //! The inputs are sampled once per PWM period with the encoder count, so an input edge is placed within 40 us:
 //! at the homing zero-search speed (0x6099:02, default 10 rpm = 0.03 inc per period at 4096 inc/rev) that is
 //! exact to the increment. The index is captured by the encoder timer in hardware (TIM4 CCR3), so its position
-//! is exact at any speed. The positions are raw encoder positions ([`super::commutation::Encoder::position`]);
+//! is exact at any speed. The positions are raw encoder positions ([`crate::drive::commutation::Encoder::position`]);
 //! tier 2 moves them into the coordinates of 0x6064.
 //!
 //! Cost in tier 1: one compare when nothing changed; the latching itself is a cold path.
 
-use crate::motion::EdgeLatch;
+/// One captured edge of a position-latching signal (a digital input or the encoder index).
+///
+/// The fast tick records the encoder position at the edge (an input is sampled every 40 us, the index is latched
+/// by the encoder timer in hardware). `count` increments with every edge (wrapping), so a mode sees a new edge as
+/// a changed count and never misses one between two slow ticks (only the latest position of a burst is kept).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub struct EdgeLatch {
+    /// Edges seen since start-up (wrapping).
+    pub count: u16,
+    /// Position actual value (increments, the coordinates of [`crate::motion::AxisFeedback::position`]) at the latest edge.
+    pub position: i32,
+}
+
+/// A switch function (limit or home switch) with its level and its latched edges, polarity already applied:
+/// "activated" is the edge into the active level, whatever the wiring.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub struct SwitchEdges {
+    /// The switch is active now.
+    pub active: bool,
+    /// The latest edge into the active level.
+    pub activated: EdgeLatch,
+    /// The latest edge out of the active level.
+    pub released: EdgeLatch,
+}
 
 /// Number of digital inputs (0x3141, 0x3142: inputs 1..4).
 pub const DIGITAL_INPUTS: usize = 4;
