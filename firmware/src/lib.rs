@@ -28,6 +28,7 @@ pub mod ecat;
 pub mod fault;
 pub mod flash_map;
 pub mod hal;
+pub mod handoff;
 pub mod io;
 pub mod motion;
 pub mod od;
