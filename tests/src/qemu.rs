@@ -124,8 +124,26 @@ pub fn qemu_available() -> bool {
         .is_ok_and(|s| s.success())
 }
 
-/// Builds the release image with the `qemu` feature (plus `extra_features`) and returns the ELF's path.
+/// Serialises the image builds of one test process and the copies made of their ELFs: cargo writes every feature
+/// set of a binary to the same path, so a test that builds and then runs an image must not find it replaced by
+/// another test's build with other features (the tests of a file run on parallel threads).
+static BUILDS: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+/// A copy of the ELF cargo just built at `built`, named after its feature set (`<bin>.<features>.elf` beside it),
+/// which no later build with other features overwrites. Call with [`BUILDS`] held.
+fn keep(built: &Path, features: &[&str]) -> Result<PathBuf, Error> {
+    let name = built.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let key = if features.is_empty() { "plain".to_owned() } else { features.join("+") };
+    let copy = built.with_file_name(format!("{name}.{key}.elf"));
+    std::fs::copy(built, &copy)
+        .map_err(|e| Error::Build(format!("cannot copy {} to {}: {e}", built.display(), copy.display())))?;
+    Ok(copy)
+}
+
+/// Builds the release image with the `qemu` feature (plus `extra_features`) and returns the ELF's path (a copy
+/// of its own for this feature set: [`keep`]).
 pub fn build_image(extra_features: &[&str]) -> Result<PathBuf, Error> {
+    let _builds = BUILDS.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
     let target_dir = image_target_dir();
     let mut features = vec!["qemu"];
     features.extend_from_slice(extra_features);
@@ -145,7 +163,7 @@ pub fn build_image(extra_features: &[&str]) -> Result<PathBuf, Error> {
     if !output.status.success() {
         return Err(Error::Build(String::from_utf8_lossy(&output.stderr).into_owned()));
     }
-    Ok(target_dir.join(TARGET).join("release").join(IMAGE_BIN))
+    keep(&target_dir.join(TARGET).join("release").join(IMAGE_BIN), &features)
 }
 
 fn u16_at(b: &[u8], at: usize) -> Option<u16> {
@@ -307,8 +325,10 @@ pub fn package_of(bin: &str) -> &'static str {
 }
 
 /// Builds target binaries in the release profile, each in its package ([`package_of`]), with `--features`
-/// `features` (e.g. `qemu`, which both packages define), and returns their ELF paths in the order given.
+/// `features` (e.g. `qemu`, which both packages define), and returns their ELF paths in the order given (copies
+/// of their own for this feature set: [`keep`]).
 pub fn build_target_bins(bins: &[&str], features: &[&str]) -> Result<Vec<PathBuf>, Error> {
+    let _builds = BUILDS.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
     let target_dir = image_target_dir();
     let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
     let mut packages: Vec<&str> = bins.iter().map(|b| package_of(b)).collect();
@@ -335,7 +355,7 @@ pub fn build_target_bins(bins: &[&str], features: &[&str]) -> Result<Vec<PathBuf
             return Err(Error::Build(String::from_utf8_lossy(&output.stderr).into_owned()));
         }
     }
-    Ok(bins.iter().map(|b| target_dir.join(TARGET).join("release").join(b)).collect())
+    bins.iter().map(|b| keep(&target_dir.join(TARGET).join("release").join(b), features)).collect()
 }
 
 /// Builds the host tool `drive-image` (image-tool) into the image target directory and returns its path.

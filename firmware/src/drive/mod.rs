@@ -5,8 +5,9 @@
 //! - [`Drive::fast_tick`], 25 kHz: measurements in, PWM command out. Protection step, ADC scaling, commutation
 //!   angle, the d/q current loop ([`crate::control::current_loop`]) with the reference read from the dictionary by
 //!   typed handle, and the slow-tick divider: it returns [`FastTick::slow_tick_due`] every
-//!   [`SLOW_TICK_DIVIDER`]-th tick. On the target the runtime pends tier 2 when it is set; on the host the caller
-//!   (the simulation) calls [`Drive::slow_tick`] directly. No searches, no divisions, no loops, no panics.
+//!   [`crate::hal::power::SLOW_TICK_DIVIDER`]-th tick. On the target the runtime pends tier 2 when it is set; on
+//!   the host the caller (the simulation) calls [`Drive::slow_tick`] directly. No searches, no divisions, no
+//!   loops, no panics.
 //! - [`Drive::slow_tick`], 2.5 kHz: publishes the actual values (0x30D1, 0x6077, 0x6078, 0x30D0, 0x6074, averaged
 //!   values, DC link voltage, Hall pattern, index position) and re-reads the parameters tier 1 uses (current gains
 //!   0x30A0, motor data 0x3001, limits 0x6072/0x6073) when they change. The motion issue adds the velocity and
@@ -26,6 +27,12 @@
 //! generated typed handles (no search); SDO and PDO code reach it through [`Drive::dictionary`] and
 //! [`Drive::dictionary_mut`]. One owner keeps the single-writer rule of each value visible: the drive writes the
 //! actual values and derived objects (0x6075, 0x6076), everyone else the set-points and parameters.
+//!
+//! What tier 1 owns is one value, [`tier1::Tier1State`] (power-stage state, calibration, commutation, current
+//! controller, limits in force, latches and sums, trip sample, divider), and what tier 2 decides for its current
+//! reference another, [`tier1::DemandCommand`]; the power-stage requests above are `Tier1State` methods. These are
+//! the shapes the tier split hands across (`docs/design/tier-ownership.md`); today the drive holds both, and the
+//! tier-2 code still reads tier 1's fields directly.
 
 pub mod calibration;
 pub mod commutation;
@@ -33,30 +40,30 @@ pub mod hall_position;
 pub mod objects;
 pub mod protection;
 pub mod scaling;
+pub mod tier1;
 
 use crate::control::angle::ElectricalAngle;
-use crate::control::current_loop::{foc_step, CurrentController, CurrentLoopConfig, FocInput};
+use crate::control::current_loop::{CurrentController, CurrentLoopConfig};
 use crate::control::demand::{rated_torque_micro_nm, DemandScale};
 use crate::control::frames::{Abc, Amps, Dq, Volts};
 use crate::control::pi::PiGains;
-use crate::control::velocity_estimate::PositionSum;
 use crate::fault::emcy::InhibitTime;
 use crate::fault::table::FaultId;
-use crate::hal::power::{FeedbackSample, Measurements, PwmCommand, SLOW_TICK_DIVIDER};
+use crate::hal::power::{Measurements, PwmCommand};
 use crate::motion::axis::{Axis, AxisInputs, AxisOutputs, CurrentDemand};
 use crate::od::access::Dictionary;
 use crate::od::generated::handles as h;
-use crate::power_state::{CommutationStage, DriveError, PowerState, Trip};
+use crate::power_state::{DriveError, PowerState};
 use crate::sensors::hall::HallSector;
 use crate::sensors::latch::PinLatches;
 use crate::supervision::communication::LinkLoss;
 use crate::supervision::{Supervision, SupervisionInputs};
 
-use calibration::{Calibration, CalibrationConfig, CalibrationStatus, CALIBRATION_COMMAND};
+use calibration::CalibrationConfig;
 use commutation::{hall_offset_from_od, AlignmentConfig, Commutation, CommutationMethod, EncoderConfig};
-use hall_position::HallPosition;
 use protection::Limits;
 use scaling::ShuntOffsets;
+use tier1::{DemandCommand, Tier1State};
 
 /// Why a power-stage request was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -160,40 +167,19 @@ struct GainSource {
 // (measured in the QEMU image: 608 -> 548 instructions in the worst fast tick).
 #[repr(C)]
 pub struct Drive {
-    state: PowerState,
-    divider: u32,
-    hall_mask: u8,
-    /// 0x3000:01 sensor 1 is the incremental encoder; without it the Halls are the position sensor.
-    encoder_present: bool,
-    /// The last sample's break input (whether a trip's cause persists).
-    last_break_input: bool,
-    source: DemandSource,
-    internal_demand: Amps,
-    /// Tier-1 trip limits (from 0x3001:02, converted in tier 2).
-    limits: Limits,
-    offsets: ShuntOffsets,
-    commutation: Commutation,
-    controller: CurrentController,
-    signals: FastSignals,
-    /// Encoder positions at the input edges and the index (written by tier 1, read by tier 2).
-    latches: PinLatches,
-    /// Position counted from the Hall states (the main position without an encoder).
-    hall_position: HallPosition,
-    calibration: Calibration,
-    scale: DemandScale,
+    /// Tier 1's state: first, so that the 25 kHz path reaches its fields with short offsets from the drive's base.
+    t1: Tier1State,
+    /// Tier 2's decision for tier 1's current reference.
+    demand: DemandCommand,
     /// The scale from the dictionary, before the I2t limit.
     base_scale: DemandScale,
     /// The I2t protection's current limit (tier 2).
     i2t_limit: Amps,
     config: DriveConfig,
     gain_source: GainSource,
-    /// What the fast tick that tripped measured (the fault's diagnosis data).
-    trip_sample: FastSignals,
     /// 50 Hz low-pass states (`I16F16` bits) of the q current and the bus voltage.
     i_q_average: i32,
     v_bus_average: i32,
-    /// Tier 1's encoder positions summed and latched per slow tick (the averaged velocity estimate).
-    position_sum: PositionSum,
     /// The machine's last power-stage request, to act on its changes.
     last_power_request: crate::cia402::PowerStage,
     /// Output pin levels from tier 2.
@@ -227,41 +213,33 @@ impl Drive {
             i: dictionary.get(h::CURRENT_CONTROLLER_I_GAIN),
         };
         let mut drive = Self {
-            config,
-            state: PowerState::Off,
-            calibration: Calibration::new(config.calibration),
-            offsets: ShuntOffsets::NOMINAL,
-            commutation: Commutation::new(
-                CommutationMethod::Hall,
-                EncoderConfig::REFERENCE,
-                ElectricalAngle::ZERO,
-                config.index_offset,
+            t1: Tier1State::new(
+                config.calibration,
+                Commutation::new(
+                    CommutationMethod::Hall,
+                    EncoderConfig::REFERENCE,
+                    ElectricalAngle::ZERO,
+                    config.index_offset,
+                ),
+                CurrentController::new(CurrentLoopConfig::from_idx_0x30a0(gain_source.p, gain_source.i)),
             ),
-            hall_mask: 0,
-            controller: CurrentController::new(CurrentLoopConfig::from_idx_0x30a0(gain_source.p, gain_source.i)),
+            demand: DemandCommand {
+                source: DemandSource::TargetTorque,
+                internal: Amps::ZERO,
+                scale: DemandScale::reference(),
+            },
+            config,
             gain_source,
             motor_source: None,
-            scale: DemandScale::reference(),
             base_scale: DemandScale::reference(),
             i2t_limit: Amps::from_bits(i32::MAX),
-            source: DemandSource::TargetTorque,
-            internal_demand: Amps::ZERO,
-            signals: FastSignals::default(),
-            divider: SLOW_TICK_DIVIDER,
             i_q_average: 0,
             v_bus_average: 0,
-            position_sum: PositionSum::default(),
-            latches: PinLatches::default(),
             axis: Axis::new(&dictionary),
             supervision: Supervision::new(&dictionary),
             thermal_limit: Amps::from_bits(i32::MAX),
             last_power_request: crate::cia402::PowerStage::OFF,
             output_pins: 0,
-            encoder_present: true,
-            hall_position: HallPosition::default(),
-            limits: Limits::default(),
-            last_break_input: false,
-            trip_sample: FastSignals::default(),
             dictionary,
         };
         drive.configure_commutation();
@@ -273,155 +251,12 @@ impl Drive {
     // Tier 1
     // ---------------------------------------------------------------------------------------------------------
 
-    /// One 25 kHz tick: protection, scaling, angle, current loop; the command for the next PWM period and whether a
-    /// slow tick is due. Never panics; `PwmCommand::OFF` whenever the drive is not calibrating or enabled.
+    /// One 25 kHz tick ([`Tier1State::fast_tick`]): protection, scaling, angle, current loop; the command for the
+    /// next PWM period and whether a slow tick is due. Never panics; `PwmCommand::OFF` whenever the drive is not
+    /// calibrating or enabled.
     #[inline]
     pub fn fast_tick(&mut self, m: &Measurements) -> FastTick {
-        // Counts down: one subtraction and one compare with zero.
-        let slow_tick_due = self.divider <= 1;
-        self.divider = if slow_tick_due { SLOW_TICK_DIVIDER } else { self.divider.wrapping_sub(1) };
-        FastTick { pwm: self.fast_step(m, slow_tick_due), slow_tick_due }
-    }
-
-    #[inline(always)]
-    fn fast_step(&mut self, m: &Measurements, slow_tick_due: bool) -> PwmCommand {
-        // 1. Protection: acts before anything else, in every state (the current checks run with the loop below).
-        if m.break_input {
-            self.last_break_input = true;
-            return self.trip(DriveError::Protection(Trip::BreakInput));
-        }
-        let v_bus = scaling::bus_voltage(m.adc.bus_voltage);
-        // 2. Scaling and the position sensors (the encoder is tracked in every state).
-        let mut feedback = FeedbackSample { hall: m.feedback.hall ^ self.hall_mask, ..m.feedback };
-        if !self.encoder_present {
-            // No encoder configured: the Halls count the position, whatever the counter input shows is ignored,
-            // and the angle comes from the Halls.
-            self.hall_position.update(feedback.hall);
-            feedback.encoder_count = 0;
-            feedback.index_latch = None;
-        }
-        self.signals.v_bus = v_bus;
-        self.signals.hall = feedback.hall;
-        self.signals.temperature_codes = [m.adc.temperature, m.adc.motor_temperature];
-        let angle = match self.commutation.update(&feedback) {
-            Ok(a) => a,
-            Err(e) => return self.trip(DriveError::Commutation(e)),
-        };
-        let encoder = self.commutation.encoder();
-        // Every sample of the encoder feeds the velocity estimate's window average (velocity_estimate docs).
-        self.position_sum.add(encoder.position(), slow_tick_due);
-        self.latches.sample_inputs(feedback.digital_inputs, encoder.position());
-        if let Some(latch) = feedback.index_latch {
-            let at = encoder.position_at(latch);
-            self.latches.latch_index(at);
-        }
-        // 3. The bus limits (with the phase-current limits in the current loop): over-voltage in every state,
-        // under-voltage while the power stage switches. Checked here, after the sensors, so that the tracking
-        // above never waits on it; the outputs of this period are still decided below.
-        match self.state {
-            PowerState::OperationEnabled => {
-                if self.limits.bus_outside(v_bus, true) {
-                    return self.trip_bus(v_bus);
-                }
-                self.run_current_loop(m, &feedback, angle, v_bus)
-            }
-            PowerState::Calibrating if self.limits.bus_outside(v_bus, true) => self.trip_bus(v_bus),
-            // A latched fault keeps its first cause; over-voltage with the outputs off is a fault of its own.
-            PowerState::Off | PowerState::SwitchedOn if self.limits.bus_outside(v_bus, false) => self.trip_bus(v_bus),
-            PowerState::Fault(_) => {
-                // The break input is not set here (it trips above): its cause has gone.
-                self.last_break_input = false;
-                PwmCommand::OFF
-            }
-            PowerState::Calibrating => match self.calibration.step(&m.adc) {
-                CalibrationStatus::Running => CALIBRATION_COMMAND,
-                CalibrationStatus::Done(offsets) => {
-                    self.offsets = offsets;
-                    self.state = PowerState::SwitchedOn;
-                    PwmCommand::OFF
-                }
-                CalibrationStatus::Failed(e) => self.trip(DriveError::Calibration(e)),
-            },
-            PowerState::Off | PowerState::SwitchedOn => PwmCommand::OFF,
-        }
-    }
-
-    /// Operation enabled: commutation start or alignment, reference, FOC step.
-    #[inline(always)]
-    fn run_current_loop(
-        &mut self,
-        m: &Measurements,
-        feedback: &FeedbackSample,
-        mut angle: ElectricalAngle,
-        v_bus: Volts,
-    ) -> PwmCommand {
-        if self.commutation.stage() == CommutationStage::Unknown {
-            if let Err(e) = self.commutation.start(feedback) {
-                return self.trip(DriveError::Commutation(e));
-            }
-            angle = self.commutation.angle();
-        }
-        let i_ref = if let Some(align) = self.commutation.alignment_demand() {
-            angle = align.angle;
-            self.signals.torque_demand_permille = 0;
-            Dq::new(align.i_d, align.i_q)
-        } else if self.commutation.stage().is_valid() {
-            let i_q = match self.source {
-                DemandSource::TargetTorque => {
-                    let (permille, i_q) = self.scale.torque_to_current(
-                        self.dictionary.get(h::TARGET_TORQUE),
-                        self.dictionary.get(h::TORQUE_OFFSET),
-                    );
-                    self.signals.torque_demand_permille = permille;
-                    i_q
-                }
-                DemandSource::Internal => self.internal_demand,
-            };
-            Dq::new(Amps::ZERO, i_q)
-        } else {
-            // The alignment just finished this tick: the angle is valid from the next one; hold zero current.
-            Dq::new(Amps::ZERO, Amps::ZERO)
-        };
-        let i_abc = scaling::phase_currents(&m.adc, &self.offsets);
-        if self.limits.currents_outside(&i_abc) {
-            return self.trip_currents(&i_abc);
-        }
-        let out = foc_step(&mut self.controller, &FocInput { i_abc, angle, i_ref, v_bus });
-        self.signals.i_abc = i_abc;
-        self.signals.i_dq = out.i_dq;
-        self.signals.i_ref = i_ref;
-        self.signals.v_dq = out.v_dq;
-        self.signals.saturated = out.saturated;
-        out.pwm_command()
-    }
-
-    /// A bus trip; the tripping sample is what the fault snapshot reports.
-    #[cold]
-    #[inline(never)]
-    fn trip_bus(&mut self, v_bus: Volts) -> PwmCommand {
-        self.signals.v_bus = v_bus;
-        let trip = self.limits.bus_trip(v_bus);
-        self.trip(DriveError::Protection(trip))
-    }
-
-    /// A current trip; the tripping sample is what the fault snapshot reports.
-    #[cold]
-    #[inline(never)]
-    fn trip_currents(&mut self, i_abc: &Abc<Amps>) -> PwmCommand {
-        self.signals.i_abc = *i_abc;
-        let trip = self.limits.current_trip(i_abc);
-        self.trip(DriveError::Protection(trip))
-    }
-
-    /// Latches a fault and switches the outputs off.
-    #[cold]
-    fn trip(&mut self, error: DriveError) -> PwmCommand {
-        self.state = PowerState::Fault(error);
-        self.trip_sample = self.signals;
-        self.commutation.stop();
-        self.controller.reset();
-        self.signals.i_ref = Dq::default();
-        PwmCommand::OFF
+        self.t1.fast_tick(m, &self.demand, &self.dictionary)
     }
 
     // ---------------------------------------------------------------------------------------------------------
@@ -451,7 +286,7 @@ impl Drive {
         if i2t_limit != self.i2t_limit || supervised.current_limit != self.thermal_limit {
             self.i2t_limit = i2t_limit;
             self.thermal_limit = supervised.current_limit;
-            self.scale = self.limited_scale(self.base_scale);
+            self.demand.scale = self.limited_scale(self.base_scale);
         }
     }
 
@@ -462,30 +297,31 @@ impl Drive {
 
     /// What the supervision reads: the last fast tick's measurements and the axis's state.
     fn supervision_inputs(&self) -> SupervisionInputs {
-        let s = &self.signals;
-        let encoder = self.commutation.encoder();
+        let s = &self.t1.signals;
+        let encoder = self.t1.commutation.encoder();
         SupervisionInputs {
             now: self.axis.now(),
             state: self.axis.state(),
-            operation_enabled: self.state == PowerState::OperationEnabled,
-            power: self.state,
-            loops_drive_motor: self.state == PowerState::OperationEnabled && self.source == DemandSource::Internal,
+            operation_enabled: self.t1.state == PowerState::OperationEnabled,
+            power: self.t1.state,
+            loops_drive_motor: self.t1.state == PowerState::OperationEnabled
+                && self.demand.source == DemandSource::Internal,
             power_stage_temperature_code: s.temperature_codes[0],
             motor_temperature_code: s.temperature_codes[1],
             hall: s.hall,
-            halls_present: self.commutation.method() == CommutationMethod::Hall,
-            encoder_present: self.encoder_present,
+            halls_present: self.t1.commutation.method() == CommutationMethod::Hall,
+            encoder_present: self.t1.encoder_present,
             encoder_has_index: encoder.config().has_index,
             encoder_position: encoder.position(),
             encoder_counts_per_turn: encoder.config().counts_per_rev,
             pole_pairs: encoder.config().pole_pairs,
             // The latch counts every index pulse (the commutation only those while it runs): the same source as
             // `index_position`, so the feedback supervision sees the pulses in every state.
-            index_pulses: u32::from(self.latches.index.count),
-            index_position: self.latches.index.position,
-            electrical_angle: self.commutation.angle(),
-            hall_offset: self.commutation.hall_offset(),
-            commutation: self.commutation.stage(),
+            index_pulses: u32::from(self.t1.latches.index.count),
+            index_position: self.t1.latches.index.position,
+            electrical_angle: self.t1.commutation.angle(),
+            hall_offset: self.t1.commutation.hall_offset(),
+            commutation: self.t1.commutation.stage(),
             i_abc: s.i_abc,
             i_dq: s.i_dq,
             i_ref: s.i_ref,
@@ -504,7 +340,7 @@ impl Drive {
     /// 0xFF0B with `cost` as its detail.
     #[cold]
     pub fn current_loop_overrun(&mut self, cost: u32) -> PwmCommand {
-        self.trip(DriveError::Overrun { cost })
+        self.t1.current_loop_overrun(cost)
     }
 
     /// The runtime found `missed` slow ticks that could not run because the previous one had not finished: the
@@ -567,38 +403,38 @@ impl Drive {
 
     /// The 2.5 kHz hook: updates the averages and runs the CiA 402 axis (state machine, modes, loops, monitoring)
     /// with the parameters [`Self::background`] converted. Called after every
-    /// [`SLOW_TICK_DIVIDER`]-th fast tick (see [`FastTick::slow_tick_due`]).
+    /// [`crate::hal::power::SLOW_TICK_DIVIDER`]-th fast tick (see [`FastTick::slow_tick_due`]).
     pub fn slow_tick(&mut self) {
         self.update_averages();
         // A fault reports what the tripping tick measured, not what came after.
-        let fault = match self.state {
+        let fault = match self.t1.state {
             PowerState::Fault(e) => Some(e),
             _ => None,
         };
-        let s = if fault.is_some() { self.trip_sample } else { self.signals };
+        let s = if fault.is_some() { self.t1.trip_sample } else { self.t1.signals };
         let power_fault_present = match fault {
             Some(DriveError::Protection(t)) => {
-                protection::cause_present(t, self.last_break_input, self.signals.v_bus.to_millivolts())
+                protection::cause_present(t, self.t1.last_break_input, self.t1.signals.v_bus.to_millivolts())
             }
             // Tier 1 keeps sampling the Halls in «Fault»: the invalid state persists while they still read it.
-            Some(DriveError::Commutation(_)) => HallSector::from_state(self.signals.hall).is_err(),
+            Some(DriveError::Commutation(_)) => HallSector::from_state(self.t1.signals.hall).is_err(),
             _ => false,
         };
         let input = AxisInputs {
-            encoder_position: if self.encoder_present {
-                self.commutation.encoder().position()
+            encoder_position: if self.t1.encoder_present {
+                self.t1.commutation.encoder().position()
             } else {
-                self.hall_position.position()
+                self.t1.hall_position.position()
             },
-            encoder_window: self.encoder_present.then(|| self.position_sum.latched()),
+            encoder_window: self.t1.encoder_present.then(|| self.t1.position_sum.latched()),
             current: s.i_dq.q,
             current_average_ma: Amps::from_bits(self.i_q_average).to_milliamps(),
             phase_currents_ma: [s.i_abc.a.to_milliamps(), s.i_abc.b.to_milliamps(), s.i_abc.c.to_milliamps()],
             bus_voltage_mv: s.v_bus.to_millivolts(),
-            pins: &self.latches,
-            power: self.state,
+            pins: &self.t1.latches,
+            power: self.t1.state,
             power_fault_present,
-            scale: &self.scale,
+            scale: &self.demand.scale,
         };
         let out = self.axis.step(&input, &mut self.dictionary);
         self.apply(&out);
@@ -618,27 +454,27 @@ impl Drive {
         self.last_power_request = out.power;
         if changed || enforce {
             if !out.power.enabled {
-                if !matches!(self.state, PowerState::Off | PowerState::Fault(_)) {
+                if !matches!(self.t1.state, PowerState::Off | PowerState::Fault(_)) {
                     self.shutdown();
                 }
             } else if out.start_calibration {
                 // Refused only in a fault or while calibrating: the machine then waits (and the fault is reported).
                 let _ = self.switch_on();
             } else if out.power.controllers_enabled {
-                if self.state == PowerState::SwitchedOn {
+                if self.t1.state == PowerState::SwitchedOn {
                     let _ = self.enable_operation();
                 }
-            } else if self.state == PowerState::OperationEnabled {
+            } else if self.t1.state == PowerState::OperationEnabled {
                 self.disable_operation();
             }
         }
         match out.demand {
             CurrentDemand::Off => {}
             CurrentDemand::Internal(i) => {
-                self.source = DemandSource::Internal;
+                self.demand.source = DemandSource::Internal;
                 self.set_current_demand(i);
             }
-            CurrentDemand::TargetTorque => self.source = DemandSource::TargetTorque,
+            CurrentDemand::TargetTorque => self.demand.source = DemandSource::TargetTorque,
         }
         self.output_pins = out.output_pins;
     }
@@ -661,7 +497,7 @@ impl Drive {
         if gains != self.gain_source {
             self.gain_source = gains;
             let g = PiGains::from_idx_0x30a0(gains.p, gains.i);
-            self.controller.set_gains(g, g);
+            self.t1.controller.set_gains(g, g);
         }
         let motor = MotorSource {
             nominal_ma: d.get(h::MOTOR_NOMINAL_CURRENT),
@@ -676,7 +512,7 @@ impl Drive {
         }
         self.motor_source = Some(motor);
         let nominal = motor.nominal_ma;
-        self.limits = Limits::new(motor.output_limit_ma);
+        self.t1.limits = Limits::new(motor.output_limit_ma);
         let scale =
             DemandScale::from_od(nominal, motor.output_limit_ma, motor.max_current_permille, motor.max_torque_permille);
         self.base_scale = scale;
@@ -685,12 +521,12 @@ impl Drive {
         d.set(h::MOTOR_RATED_TORQUE, rated_torque_micro_nm(nominal, motor.torque_constant));
         // The protections' limits stay in force across the re-read (the thermal derating's would otherwise hold
         // only in the slow tick it changed).
-        self.scale = self.limited_scale(scale);
+        self.demand.scale = self.limited_scale(scale);
     }
 
     /// Updates the 50 Hz averages of the q current and the bus voltage (0x30D1:01, 0x30D2:01, homing -1..-4).
     fn update_averages(&mut self) {
-        let s = &self.signals;
+        let s = &self.t1.signals;
         // First-order low-pass y += (x - y) / 8 at 2.5 kHz: cut-off 1/8 * 2500 / (2 pi) = 49.7 Hz, the 50 Hz of
         // IDX 0x30D1:01 / 0x30D2:01 (spec §1.3). |x|, |y| < 2^30: no wrap.
         self.i_q_average = self.i_q_average.wrapping_add(s.i_dq.q.to_bits().wrapping_sub(self.i_q_average) >> 3);
@@ -700,7 +536,7 @@ impl Drive {
     /// Writes the actual values of the last fast tick and their averages into the dictionary (run by
     /// [`Self::background`] at the start of each slow period, so a TxPDO sampled in the slow tick carries them).
     fn publish_actual_values(&mut self) {
-        let s = self.signals;
+        let s = self.t1.signals;
         let i_q = s.i_dq.q;
         let avg = Amps::from_bits(self.i_q_average);
         let d = &mut self.dictionary;
@@ -708,15 +544,15 @@ impl Drive {
         d.set(h::CURRENT_ACTUAL_VALUE_AVERAGED, avg.to_milliamps());
         d.set(h::CURRENT_DEMAND_VALUE, s.i_ref.q.to_milliamps());
         d.set(h::TORQUE_DEMAND_VALUE, s.torque_demand_permille);
-        let permille = self.scale.current_to_permille(i_q);
+        let permille = self.demand.scale.current_to_permille(i_q);
         d.set(h::CURRENT_ACTUAL_VALUE_PER_MILLE, permille);
         d.set(h::TORQUE_ACTUAL_VALUE, permille);
-        d.set(h::TORQUE_ACTUAL_VALUE_AVERAGED, self.scale.current_to_permille(avg));
+        d.set(h::TORQUE_ACTUAL_VALUE_AVERAGED, self.demand.scale.current_to_permille(avg));
         let mv = Volts::from_bits(self.v_bus_average).to_millivolts().max(0);
         d.set(h::DC_LINK_CIRCUIT_VOLTAGE, mv.unsigned_abs());
         d.set(h::POWER_SUPPLY_VOLTAGE, u16::try_from(mv / 100).unwrap_or(u16::MAX));
         d.set(h::HALL_PATTERN, s.hall);
-        if let Some(latch) = self.commutation.last_index_latch() {
+        if let Some(latch) = self.t1.commutation.last_index_latch() {
             d.set(h::ENCODER_INDEX_POSITION, u32::from(latch));
         }
     }
@@ -729,12 +565,11 @@ impl Drive {
     /// calibration (outputs at 50 % duty); the state becomes [`PowerState::SwitchedOn`] when it succeeds (within
     /// `CalibrationConfig::timeout_ticks`), or [`PowerState::Fault`] when it fails.
     pub fn switch_on(&mut self) -> Result<(), RequestError> {
-        match self.state {
+        match self.t1.state {
             PowerState::Off | PowerState::SwitchedOn => {
                 self.configure_commutation();
                 self.refresh_parameters();
-                self.calibration = Calibration::new(self.config.calibration);
-                self.state = PowerState::Calibrating;
+                self.t1.begin_calibration(self.config.calibration);
                 Ok(())
             }
             other => Err(RequestError::WrongState(other)),
@@ -744,11 +579,9 @@ impl Drive {
     /// CiA 402 transition 4 "enable operation": starts the commutation (from the next fast tick's sensors) and the
     /// current loop with empty integrators.
     pub fn enable_operation(&mut self) -> Result<(), RequestError> {
-        match self.state {
+        match self.t1.state {
             PowerState::SwitchedOn => {
-                self.controller.reset();
-                self.commutation.stop();
-                self.state = PowerState::OperationEnabled;
+                self.t1.enable_operation();
                 Ok(())
             }
             PowerState::OperationEnabled => Ok(()),
@@ -758,40 +591,30 @@ impl Drive {
 
     /// CiA 402 transition 5 "disable operation": outputs off, stays calibrated.
     pub fn disable_operation(&mut self) {
-        if self.state == PowerState::OperationEnabled {
-            self.state = PowerState::SwitchedOn;
-        }
-        self.commutation.stop();
-        self.controller.reset();
+        self.t1.disable_operation();
     }
 
     /// CiA 402 transitions 6/8/9 "shutdown"/"disable voltage": outputs off, calibration to be redone at the next
     /// switch-on. A latched fault stays latched.
     pub fn shutdown(&mut self) {
-        if !matches!(self.state, PowerState::Fault(_)) {
-            self.state = PowerState::Off;
-        }
-        self.commutation.stop();
-        self.controller.reset();
+        self.t1.shutdown();
     }
 
     /// CiA 402 transition 15 "fault reset": back to [`PowerState::Off`].
     pub fn fault_reset(&mut self) {
-        if matches!(self.state, PowerState::Fault(_)) {
-            self.state = PowerState::Off;
-        }
+        self.t1.fault_reset();
     }
 
     /// Selects where the q-current reference comes from.
     pub fn set_demand_source(&mut self, source: DemandSource) {
-        self.source = source;
+        self.demand.source = source;
     }
 
     /// The q-current demand for [`DemandSource::Internal`] (tier 2's velocity/position loops), clamped to the
     /// current limit.
     pub fn set_current_demand(&mut self, i_q: Amps) {
-        let limit = self.scale.current_limit().to_bits();
-        self.internal_demand = Amps::from_bits(i_q.to_bits().clamp(limit.wrapping_neg(), limit));
+        let limit = self.demand.scale.current_limit().to_bits();
+        self.demand.internal = Amps::from_bits(i_q.to_bits().clamp(limit.wrapping_neg(), limit));
     }
 
     /// Reads encoder, pole pairs and Hall objects (writable only with the power disabled) into the commutation.
@@ -804,8 +627,8 @@ impl Drive {
         // encoder (device.toml).
         let sensors = d.get(h::SENSORS_CONFIGURATION);
         let encoder_present = sensors & 0xFF == 1;
-        let sensor_changed = encoder_present != self.encoder_present;
-        self.encoder_present = encoder_present;
+        let sensor_changed = encoder_present != self.t1.encoder_present;
+        self.t1.encoder_present = encoder_present;
         if sensor_changed {
             self.axis.position_sensor_changed();
         }
@@ -815,22 +638,22 @@ impl Drive {
             CommutationMethod::ForcedAlignment(self.config.alignment)
         };
         // 0x301A:01 bit 0: invert all Hall signals.
-        self.hall_mask = if d.get(h::HALL_CONFIGURATION) & 1 != 0 { 0b111 } else { 0 };
+        self.t1.hall_mask = if d.get(h::HALL_CONFIGURATION) & 1 != 0 { 0b111 } else { 0 };
         let hall_offset = hall_offset_from_od(d.get(h::HALL_COMMUTATION_OFFSET));
         let same = !sensor_changed
-            && self.commutation.encoder().config() == &encoder
-            && self.commutation.method() == method
-            && self.commutation.hall_offset() == hall_offset;
+            && self.t1.commutation.encoder().config() == &encoder
+            && self.t1.commutation.method() == method
+            && self.t1.commutation.hall_offset() == hall_offset;
         // 0x3010:05, the electrical angle at the index (1/65536 turn as 0x301A:03; -1 = not known): a configured
         // one wins over a learned one and over `DriveConfig::index_offset`.
         let configured = u16::try_from(d.get(h::INDEX_COMMUTATION_OFFSET)).ok().map(hall_offset_from_od);
-        let index_offset = configured.or(self.commutation.index_offset()).or(self.config.index_offset);
+        let index_offset = configured.or(self.t1.commutation.index_offset()).or(self.config.index_offset);
         if same {
-            self.commutation.set_index_offset(index_offset);
+            self.t1.commutation.set_index_offset(index_offset);
         } else {
-            self.commutation = Commutation::new(method, encoder, hall_offset, index_offset);
+            self.t1.commutation = Commutation::new(method, encoder, hall_offset, index_offset);
         }
-        self.commutation.set_hall_only(!self.encoder_present);
+        self.t1.commutation.set_hall_only(!self.t1.encoder_present);
     }
 
     // ---------------------------------------------------------------------------------------------------------
@@ -840,37 +663,37 @@ impl Drive {
     /// The power-stage state.
     #[must_use]
     pub const fn state(&self) -> PowerState {
-        self.state
+        self.t1.state
     }
 
     /// The shunt offsets in use (nominal until the first successful calibration).
     #[must_use]
     pub const fn offsets(&self) -> &ShuntOffsets {
-        &self.offsets
+        &self.t1.offsets
     }
 
     /// The commutation state.
     #[must_use]
     pub const fn commutation(&self) -> &Commutation {
-        &self.commutation
+        &self.t1.commutation
     }
 
     /// The current controller.
     #[must_use]
     pub const fn controller(&self) -> &CurrentController {
-        &self.controller
+        &self.t1.controller
     }
 
     /// What the last fast tick measured and commanded.
     #[must_use]
     pub const fn signals(&self) -> &FastSignals {
-        &self.signals
+        &self.t1.signals
     }
 
     /// The demand scale and limits in force.
     #[must_use]
     pub const fn demand_scale(&self) -> &DemandScale {
-        &self.scale
+        &self.demand.scale
     }
 
     /// Tier 2: the CiA 402 machine, the modes, loops, supervision and faults.
@@ -887,7 +710,7 @@ impl Drive {
     /// The input edges and index latched by tier 1.
     #[must_use]
     pub const fn latches(&self) -> &PinLatches {
-        &self.latches
+        &self.t1.latches
     }
 
     /// Output pin levels (bit n = output n+1), set by tier 2.

@@ -181,7 +181,7 @@ impl Drive {
     /// between them): the state in which 0x1010/0x1011 refuse with 0x0800_0022.
     #[must_use]
     pub const fn power_stage_enabled(&self) -> bool {
-        !matches!(self.state, PowerState::Off | PowerState::Fault(_))
+        !matches!(self.t1.state, PowerState::Off | PowerState::Fault(_))
     }
 
     /// The drive's application objects over `store` for one SDO transfer, without program control (0x1F5x

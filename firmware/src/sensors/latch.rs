@@ -18,7 +18,8 @@
 pub struct EdgeLatch {
     /// Edges seen since start-up (wrapping).
     pub count: u16,
-    /// Position actual value (increments, the coordinates of [`crate::motion::AxisFeedback::position`]) at the latest edge.
+    /// Position actual value (increments, the coordinates of [`crate::motion::AxisFeedback::position`]) at the
+    /// latest edge.
     pub position: i32,
 }
 
