@@ -26,7 +26,7 @@
 //!   level; the firmware library it uses keeps the release settings of the drive image). The plain release build
 //!   makes it: `cargo build --release -p bootloader --target thumbv7em-none-eabihf` (or the workspace-wide
 //!   `cargo build --release --target thumbv7em-none-eabihf`, whose default members are the two images).
-//!   29,144 bytes with the CAN service, 32,324 with defmt, 27,604 for QEMU, of the 32,768 (the linker script
+//!   29,084 bytes with the CAN service, 32,324 with defmt, 27,544 for QEMU, of the 32,768 (the linker script
 //!   refuses an image that does not fit; `tests/tests/qemu_boot.rs` checks all three builds).
 //!
 //! With the `qemu` feature (QEMU's `netduinoplus2`): reports on semihosting stdout (`boot.*` lines and
