@@ -10,6 +10,13 @@ fn main() -> ! {
     firmware::rt::run()
 }
 
+/// QEMU image: the bench's period timer drives tier 1 (`firmware::rt::tier1::on_period_timer`).
+#[cfg(all(target_os = "none", feature = "qemu"))]
+#[cortex_m_rt::exception]
+fn SysTick() {
+    firmware::rt::tier1::on_period_timer();
+}
+
 #[cfg(not(target_os = "none"))]
 fn main() {
     eprintln!(

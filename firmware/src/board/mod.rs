@@ -39,6 +39,8 @@ pub mod sync_timer;
 pub mod vectors;
 
 #[cfg(feature = "qemu")]
+pub mod period_timer;
+#[cfg(feature = "qemu")]
 pub mod plant;
 #[cfg(feature = "qemu")]
 pub mod semihosting;

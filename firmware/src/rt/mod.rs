@@ -14,6 +14,9 @@
 //! | `tier1::FAST_TICK_MAX`      | `AtomicU32`                  | tier 1            | tier 3, QEMU bench      |
 //! | `tier1::FAST_TICKS`         | `AtomicU32`                  | tier 1            | tier 3, QEMU bench      |
 //! | `tier1::OVERRUN`            | `AtomicBool`, latched        | tier 1            | tier 2, tier 3          |
+//! | `tier1::MASKED_MAX`         | `AtomicU32`                  | the holder of the mask (`with_drive_timed`, one at a time) | QEMU bench |
+//! | `tier1::TIER1_LATENCY_MAX`, `tier1::FAST_MISSED`, `tier1::LAST_UPDATE` | `AtomicU32` (QEMU image) | tier 1 (period timer); the bench before it starts the timer | QEMU bench |
+//! | `tier1::TIMER_PERIOD`       | `AtomicU32` (QEMU image)     | the QEMU bench, timer stopped | tier 1       |
 //! | `tier2::SLOW_TICK`          | [`signal::TickSignal`]       | tier 1 (raise)    | tier-2 slow loop (wait) |
 //! | `tier2::SLOW_TICKS`         | `AtomicU32`                  | tier 2            | tier 3, QEMU bench      |
 //! | `tier2::SLOW_TICK_MAX`      | `AtomicU32`                  | tier 2            | tier 3, QEMU bench      |
@@ -74,6 +77,10 @@ pub fn run() -> ! {
     unsafe {
         peripherals.NVIC.set_priority(Interrupt::Adc, TIER1_PRIORITY);
         peripherals.NVIC.set_priority(Interrupt::Tier2, TIER2_PRIORITY);
+        // The QEMU bench's period timer (SysTick) stands in for the ADC interrupt at the real period: tier 1's
+        // priority.
+        #[cfg(feature = "qemu")]
+        peripherals.SCB.set_priority(cortex_m::peripheral::scb::SystemHandler::SysTick, TIER1_PRIORITY);
         // The EtherCAT cycle sources share tier 2's priority: serialised with the slow loop (`ethercat`).
         #[cfg(all(feature = "ethercat", not(feature = "qemu")))]
         {

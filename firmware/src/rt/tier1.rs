@@ -28,6 +28,20 @@ pub static FAST_TICK_MAX: AtomicU32 = AtomicU32::new(0);
 pub static FAST_TICKS: AtomicU32 = AtomicU32::new(0);
 /// Latched when a fast tick exceeded `FAST_TICK_BUDGET`. Writer: tier 1 (sets only).
 pub static OVERRUN: AtomicBool = AtomicBool::new(false);
+/// Longest section with tier 1 masked ([`with_drive`]), counter units, from before the mask to after it. Writer:
+/// whoever holds the mask (only one context can).
+pub static MASKED_MAX: AtomicU32 = AtomicU32::new(0);
+/// Largest time from the period timer's wrap to tier 1's handler (QEMU bench, its SysTick handler).
+/// Writer: tier 1.
+pub static TIER1_LATENCY_MAX: AtomicU32 = AtomicU32::new(0);
+/// Periods of the period timer in which tier 1 did not run (QEMU bench). Writer: tier 1.
+pub static FAST_MISSED: AtomicU32 = AtomicU32::new(0);
+/// The period timer's period (counter units) while it drives tier 1, 0 otherwise. Writer: the QEMU bench, with
+/// the timer stopped.
+pub static TIMER_PERIOD: AtomicU32 = AtomicU32::new(0);
+/// Counter time of the start of the last period tier 1 ran in (QEMU bench). Writer: tier 1, and the bench
+/// with the timer stopped.
+pub static LAST_UPDATE: AtomicU32 = AtomicU32::new(0);
 
 /// What tier 1 owns.
 struct Tier1 {
@@ -125,13 +139,64 @@ pub unsafe extern "C" fn on_adc() {
 /// ends meanwhile is served right after). For tier 2's slow tick and tier 3's commands. `None` before `start`.
 ///
 /// This is the interim answer to the drive being one object with a tier-1 and a tier-2 entry point: keep `f` short
-/// (its duration adds to tier 1's latency); the QEMU bench reports the slow tick's cost as `insn.slow_tick_max`.
+/// (its duration adds to tier 1's latency); the QEMU bench reports the slow tick's cost as `insn.slow_tick_max`
+/// and the longest such section as `insn.masked_max` ([`MASKED_MAX`]).
 pub fn with_drive<R>(f: impl FnOnce(&mut FastState) -> R) -> Option<R> {
-    cortex_m::interrupt::free(|_| {
+    with_drive_timed(f).map(|(r, _)| r)
+}
+
+/// [`with_drive`], also returning how long tier 1 was masked (counter units, the two counter reads around the
+/// section included; recorded in [`MASKED_MAX`]).
+pub fn with_drive_timed<R>(f: impl FnOnce(&mut FastState) -> R) -> Option<(R, u32)> {
+    let start = counter::now();
+    let result = cortex_m::interrupt::free(|_| {
         // SAFETY: interrupts are disabled, so the ADC handler cannot run, and no other `with_drive` is active (it
         // would have to be an interrupted one, and nothing interrupts this closure).
         unsafe { TIER1.get() }.map(|t| f(&mut t.fast))
-    })
+    });
+    let masked = counter::now().wrapping_sub(start);
+    // Every masked section ends here, one at a time: a plain load and store cannot lose a larger value (a section
+    // that preempts this one would have had to run while this one held the mask).
+    if masked > MASKED_MAX.load(Ordering::Relaxed) {
+        MASKED_MAX.store(masked, Ordering::Relaxed);
+    }
+    result.map(|r| (r, masked))
+}
+
+/// The QEMU bench's period timer (SysTick, `board::period_timer`): one current-loop period at the real rate.
+/// Reads the time since the period began first (`insn.tier1_latency_max`, to one SysTick tick), counts the
+/// periods that passed without a tier-1 run (`fast_missed`: the period starts between this run's and the last
+/// one's, less one), then runs the period as the ADC interrupt does on the board.
+///
+/// Called from the drive image's SysTick exception (`src/bin/drive.rs`): defined there, not here, so that the
+/// bootloader, which links this library with SysTick in its exception table, does not pull in tier 1. Does
+/// nothing when called from anywhere else (it checks the active exception).
+#[cfg(feature = "qemu")]
+pub fn on_period_timer() {
+    use crate::board::period_timer;
+    use cortex_m::peripheral::scb::{Exception, VectActive};
+    if cortex_m::peripheral::SCB::vect_active() != VectActive::Exception(Exception::SysTick) {
+        return;
+    }
+    let since = period_timer::ticks_since_wrap();
+    let now = counter::now();
+    let latency = period_timer::ticks_to_instructions(since);
+    let start = now.wrapping_sub(latency);
+    let period = TIMER_PERIOD.load(Ordering::Relaxed);
+    let elapsed = start.wrapping_sub(LAST_UPDATE.load(Ordering::Relaxed));
+    LAST_UPDATE.store(start, Ordering::Relaxed);
+    // Period starts since the last run, rounded (the two starts are whole periods apart, to a tick).
+    let periods = elapsed.saturating_add(period / 2).checked_div(period).unwrap_or(1);
+    if periods > 1 {
+        FAST_MISSED
+            .store(FAST_MISSED.load(Ordering::Relaxed).saturating_add(periods.wrapping_sub(1)), Ordering::Relaxed);
+    }
+    if latency > TIER1_LATENCY_MAX.load(Ordering::Relaxed) {
+        TIER1_LATENCY_MAX.store(latency, Ordering::Relaxed);
+    }
+    // SAFETY: this runs in the SysTick exception (checked above), which has tier 1's priority (`rt::run`), so the
+    // contract of `on_adc` holds here as in the ADC vector.
+    unsafe { on_adc() }
 }
 
 /// An empty call with the fast tick's shape (result pointer, measurements, state), for calibration. Its body is an

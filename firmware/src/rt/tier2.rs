@@ -57,15 +57,11 @@ async fn slow_loop() {
             // The loops lost their period: a fault (0xFF0B), not only a counter.
             let _ = super::tier1::with_drive(|drive| drive.motion_loop_overrun(missed));
         }
-        let start = crate::board::counter::now();
-        let _ = super::tier1::with_drive(app::background);
-        let cost = crate::board::counter::now().wrapping_sub(start);
+        let cost = super::tier1::with_drive_timed(app::background).map_or(0, |(_, cost)| cost);
         if cost > BACKGROUND_MAX.load(Ordering::Relaxed) {
             BACKGROUND_MAX.store(cost, Ordering::Relaxed);
         }
-        let start = crate::board::counter::now();
-        let _ = super::tier1::with_drive(app::slow_tick);
-        let cost = crate::board::counter::now().wrapping_sub(start);
+        let cost = super::tier1::with_drive_timed(app::slow_tick).map_or(0, |(_, cost)| cost);
         if cost > SLOW_TICK_MAX.load(Ordering::Relaxed) {
             SLOW_TICK_MAX.store(cost, Ordering::Relaxed);
         }
