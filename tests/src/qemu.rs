@@ -141,7 +141,7 @@ fn keep(built: &Path, features: &[&str]) -> Result<PathBuf, Error> {
 }
 
 /// Builds the release image with the `qemu` feature (plus `extra_features`) and returns the ELF's path (a copy
-/// of its own for this feature set: [`keep`]).
+/// of its own for this feature set, see `keep`).
 pub fn build_image(extra_features: &[&str]) -> Result<PathBuf, Error> {
     let _builds = BUILDS.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
     let target_dir = image_target_dir();
@@ -326,7 +326,7 @@ pub fn package_of(bin: &str) -> &'static str {
 
 /// Builds target binaries in the release profile, each in its package ([`package_of`]), with `--features`
 /// `features` (e.g. `qemu`, which both packages define), and returns their ELF paths in the order given (copies
-/// of their own for this feature set: [`keep`]).
+/// of their own for this feature set, see `keep`).
 pub fn build_target_bins(bins: &[&str], features: &[&str]) -> Result<Vec<PathBuf>, Error> {
     let _builds = BUILDS.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
     let target_dir = image_target_dir();
