@@ -434,7 +434,8 @@ fn timed_phase() -> TimedRun {
         d.set_current_demand(Amps::ZERO);
         d.dictionary_mut().set(h::CONTROLWORD, 0);
     });
-    tier1::MASKED_MAX.store(0, Ordering::Relaxed);
+    tier1::MASKED_MAX_TIER2.store(0, Ordering::Relaxed);
+    tier1::MASKED_MAX_TIER3.store(0, Ordering::Relaxed);
     tier1::TIER1_LATENCY_MAX.store(0, Ordering::Relaxed);
     tier1::FAST_MISSED.store(0, Ordering::Relaxed);
     let slow_missed_before = tier2::SLOW_MISSED.load(Ordering::Relaxed);
@@ -458,7 +459,7 @@ fn timed_phase() -> TimedRun {
     tier1::TIMER_PERIOD.store(0, Ordering::Relaxed);
     TimedRun {
         latency_max: tier1::TIER1_LATENCY_MAX.load(Ordering::Relaxed),
-        masked_max: tier1::MASKED_MAX.load(Ordering::Relaxed),
+        masked_max: tier1::masked_max(),
         fast_missed: tier1::FAST_MISSED.load(Ordering::Relaxed),
         slow_missed: tier2::SLOW_MISSED.load(Ordering::Relaxed).wrapping_sub(slow_missed_before),
         periods: periods.pended,

@@ -109,14 +109,20 @@ static STATE_READY: AtomicBool = AtomicBool::new(false);
 /// `None` before [`start`], before tier 1 has the drive, or if the state is already borrowed (cannot happen: all
 /// users hold interrupts off).
 fn with_slave<R>(f: impl FnOnce(&mut Ethercat, &mut Drive) -> R) -> Option<R> {
-    super::tier1::with_drive(|drive| {
-        cortex_m::interrupt::free(|cs| {
-            let mut slot = STATE.borrow(cs).try_borrow_mut().ok()?;
-            // SAFETY: `STATE_READY` is set only after `start` wrote the state (inside a critical section).
-            STATE_READY.load(Ordering::Relaxed).then(|| f(unsafe { slot.assume_init_mut() }, drive))
-        })
-    })
-    .flatten()
+    // Called from tier 3 (the poll) and at tier 2's priority (the cycle): the masked time goes to the caller's
+    // level.
+    let max = super::tier1::masked_max_of_caller();
+    super::tier1::with_drive_timed(
+        |drive| {
+            cortex_m::interrupt::free(|cs| {
+                let mut slot = STATE.borrow(cs).try_borrow_mut().ok()?;
+                // SAFETY: `STATE_READY` is set only after `start` wrote the state (inside a critical section).
+                STATE_READY.load(Ordering::Relaxed).then(|| f(unsafe { slot.assume_init_mut() }, drive))
+            })
+        },
+        max,
+    )
+    .and_then(|(r, _)| r)
 }
 
 /// Sets the ESC's SPI bus, the PDI interrupt pin and the SYNC0 capture up, and places the slave (INIT). Call once

@@ -28,9 +28,13 @@ pub static FAST_TICK_MAX: AtomicU32 = AtomicU32::new(0);
 pub static FAST_TICKS: AtomicU32 = AtomicU32::new(0);
 /// Latched when a fast tick exceeded `FAST_TICK_BUDGET`. Writer: tier 1 (sets only).
 pub static OVERRUN: AtomicBool = AtomicBool::new(false);
-/// Longest section with tier 1 masked ([`with_drive`]), counter units, from before the mask to after it. Writer:
-/// whoever holds the mask (only one context can).
-pub static MASKED_MAX: AtomicU32 = AtomicU32::new(0);
+/// Longest section with tier 1 masked ([`with_drive`]) entered from thread mode (tier 3), counter units, from
+/// before the mask to after it. Writer: tier 3. [`masked_max`] gives the longest of all.
+pub static MASKED_MAX_TIER3: AtomicU32 = AtomicU32::new(0);
+/// The same for sections entered from an interrupt below tier 1: tier 2's executor and the EtherCAT cycle
+/// interrupts, which share tier 2's priority and so never preempt one another. Writer: tier 2's priority (and
+/// the QEMU bench, which resets both while tiers 1 and 2 are idle).
+pub static MASKED_MAX_TIER2: AtomicU32 = AtomicU32::new(0);
 /// Largest time from the period timer's wrap to tier 1's handler (QEMU bench, its SysTick handler).
 /// Writer: tier 1.
 pub static TIER1_LATENCY_MAX: AtomicU32 = AtomicU32::new(0);
@@ -140,14 +144,15 @@ pub unsafe extern "C" fn on_adc() {
 ///
 /// This is the interim answer to the drive being one object with a tier-1 and a tier-2 entry point: keep `f` short
 /// (its duration adds to tier 1's latency); the QEMU bench reports the slow tick's cost as `insn.slow_tick_max`
-/// and the longest such section as `insn.masked_max` ([`MASKED_MAX`]).
+/// and the longest such section as `insn.masked_max` ([`masked_max`]).
 pub fn with_drive<R>(f: impl FnOnce(&mut FastState) -> R) -> Option<R> {
-    with_drive_timed(f).map(|(r, _)| r)
+    with_drive_timed(f, &MASKED_MAX_TIER3).map(|(r, _)| r)
 }
 
-/// [`with_drive`], also returning how long tier 1 was masked (counter units, the two counter reads around the
-/// section included; recorded in [`MASKED_MAX`]).
-pub fn with_drive_timed<R>(f: impl FnOnce(&mut FastState) -> R) -> Option<(R, u32)> {
+/// [`with_drive`] for a caller at tier 2's priority or in tier 3 that also wants to know how long tier 1 was masked
+/// (counter units, the two counter reads around the section included), which is recorded in `max`: the caller's
+/// own maximum, [`MASKED_MAX_TIER2`] or [`MASKED_MAX_TIER3`], so that each has one writer.
+pub fn with_drive_timed<R>(f: impl FnOnce(&mut FastState) -> R, max: &AtomicU32) -> Option<(R, u32)> {
     let start = counter::now();
     let result = cortex_m::interrupt::free(|_| {
         // SAFETY: interrupts are disabled, so the ADC handler cannot run, and no other `with_drive` is active (it
@@ -155,12 +160,26 @@ pub fn with_drive_timed<R>(f: impl FnOnce(&mut FastState) -> R) -> Option<(R, u3
         unsafe { TIER1.get() }.map(|t| f(&mut t.fast))
     });
     let masked = counter::now().wrapping_sub(start);
-    // Every masked section ends here, one at a time: a plain load and store cannot lose a larger value (a section
-    // that preempts this one would have had to run while this one held the mask).
-    if masked > MASKED_MAX.load(Ordering::Relaxed) {
-        MASKED_MAX.store(masked, Ordering::Relaxed);
+    // Only the callers of one priority level write `max`, and they do not preempt one another.
+    if masked > max.load(Ordering::Relaxed) {
+        max.store(masked, Ordering::Relaxed);
     }
     result.map(|r| (r, masked))
+}
+
+/// The masked-section maximum of the calling context's priority level ([`MASKED_MAX_TIER3`] in thread mode,
+/// [`MASKED_MAX_TIER2`] in an interrupt), for code that runs at either level.
+pub fn masked_max_of_caller() -> &'static AtomicU32 {
+    if cortex_m::peripheral::SCB::vect_active() == cortex_m::peripheral::scb::VectActive::ThreadMode {
+        &MASKED_MAX_TIER3
+    } else {
+        &MASKED_MAX_TIER2
+    }
+}
+
+/// The longest section with tier 1 masked so far, from any tier (`insn.masked_max` in the QEMU bench).
+pub fn masked_max() -> u32 {
+    MASKED_MAX_TIER2.load(Ordering::Relaxed).max(MASKED_MAX_TIER3.load(Ordering::Relaxed))
 }
 
 /// The QEMU bench's period timer (SysTick, `board::period_timer`): one current-loop period at the real rate.

@@ -55,13 +55,18 @@ async fn slow_loop() {
             let missed = new.wrapping_sub(1);
             SLOW_MISSED.store(SLOW_MISSED.load(Ordering::Relaxed).wrapping_add(missed), Ordering::Relaxed);
             // The loops lost their period: a fault (0xFF0B), not only a counter.
-            let _ = super::tier1::with_drive(|drive| drive.motion_loop_overrun(missed));
+            let _ = super::tier1::with_drive_timed(
+                |drive| drive.motion_loop_overrun(missed),
+                &super::tier1::MASKED_MAX_TIER2,
+            );
         }
-        let cost = super::tier1::with_drive_timed(app::background).map_or(0, |(_, cost)| cost);
+        let cost = super::tier1::with_drive_timed(app::background, &super::tier1::MASKED_MAX_TIER2)
+            .map_or(0, |(_, cost)| cost);
         if cost > BACKGROUND_MAX.load(Ordering::Relaxed) {
             BACKGROUND_MAX.store(cost, Ordering::Relaxed);
         }
-        let cost = super::tier1::with_drive_timed(app::slow_tick).map_or(0, |(_, cost)| cost);
+        let cost =
+            super::tier1::with_drive_timed(app::slow_tick, &super::tier1::MASKED_MAX_TIER2).map_or(0, |(_, cost)| cost);
         if cost > SLOW_TICK_MAX.load(Ordering::Relaxed) {
             SLOW_TICK_MAX.store(cost, Ordering::Relaxed);
         }
