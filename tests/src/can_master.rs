@@ -24,14 +24,7 @@ pub const IDLE_EXIT_MS: u64 = 2_000;
 /// Why the machine cannot run the tests, if it cannot: python3 or PyPI canopen missing (scripts/setup.sh
 /// installs tests/python/requirements.txt).
 pub fn cannot_run() -> Option<String> {
-    match Command::new("python3").args(["-c", "import canopen, can"]).output() {
-        Ok(o) if o.status.success() => None,
-        Ok(o) => Some(format!(
-            "python3 cannot import canopen (scripts/setup.sh installs tests/python/requirements.txt): {}",
-            String::from_utf8_lossy(&o.stderr).trim().lines().last().unwrap_or_default()
-        )),
-        Err(e) => Some(format!("cannot run python3 ({e}); run scripts/setup.sh")),
-    }
+    crate::prerequisite::python_cannot_import("canopen, can", "canopen")
 }
 
 /// A temporary directory for one test's files (EDS, expectations, set-points), removed on drop.

@@ -8,6 +8,7 @@
 
 use std::io::Write as _;
 use std::path::PathBuf;
+use std::process::Command;
 
 /// What a test does about a prerequisite.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -29,6 +30,20 @@ pub fn verdict(test: &str, missing: Option<String>, ci: bool) -> Verdict {
              (scripts/setup.sh installs it)"
         )),
         Some(why) => Verdict::Skip(why),
+    }
+}
+
+/// Why python3 cannot run `import <modules>` (`modules` as Python writes them, e.g. `"canopen, can"`), if it
+/// cannot: the last line of Python's error (the exception, not the traceback above it), naming `package` as what
+/// `scripts/setup.sh` installs from tests/python/requirements.txt.
+pub fn python_cannot_import(modules: &str, package: &str) -> Option<String> {
+    match Command::new("python3").args(["-c", &format!("import {modules}")]).output() {
+        Ok(o) if o.status.success() => None,
+        Ok(o) => Some(format!(
+            "python3 cannot import {package} (scripts/setup.sh installs tests/python/requirements.txt): {}",
+            String::from_utf8_lossy(&o.stderr).trim().lines().last().unwrap_or_default()
+        )),
+        Err(e) => Some(format!("cannot run python3 ({e}); run scripts/setup.sh")),
     }
 }
 

@@ -35,14 +35,7 @@ pub fn cannot_run_soem() -> Option<String> {
     if let Some(why) = cannot_make_namespace() {
         return Some(why);
     }
-    match Command::new("python3").args(["-c", "import pysoem"]).output() {
-        Ok(o) if o.status.success() => None,
-        Ok(o) => Some(format!(
-            "python3 cannot import pysoem (scripts/setup.sh installs tests/python/requirements.txt): {}",
-            String::from_utf8_lossy(&o.stderr).trim().lines().last().unwrap_or_default()
-        )),
-        Err(e) => Some(format!("cannot run python3 ({e}); run scripts/setup.sh")),
-    }
+    crate::prerequisite::python_cannot_import("pysoem", "pysoem")
 }
 
 /// Builds a binary or example target of the workspace in the dev profile (the artifacts `cargo test` already

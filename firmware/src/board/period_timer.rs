@@ -24,6 +24,8 @@ const SYST_CVR: Reg = Reg::at(0xE000_E010, 0x08);
 pub const TICK_HZ: u32 = 168_000_000;
 /// Ticks of one current-loop period (40 us at 168 MHz: 6,720 cycles).
 pub const PERIOD_TICKS: u32 = 1_129;
+/// One period in instructions under QEMU: [`PERIOD_TICKS`] rounded down (6,720; the board's 6,720 cycles to a tick).
+pub const PERIOD_INSTRUCTIONS: u32 = ticks_to_instructions(PERIOD_TICKS);
 
 /// Instructions (ns under `-icount shift=0`) of `ticks` SysTick ticks, rounded down.
 #[must_use]
@@ -36,10 +38,10 @@ pub const fn ticks_to_instructions(ticks: u32) -> u32 {
     }
 }
 
-/// Starts SysTick with a wrap (and its exception) every `ticks`. The exception's priority is the caller's.
-pub fn start(ticks: u32) {
+/// Starts SysTick with a wrap (and its exception) every [`PERIOD_TICKS`]. The exception's priority is the caller's.
+pub fn start() {
     SYST_CSR.write(0);
-    SYST_RVR.write(ticks.saturating_sub(1) & 0x00FF_FFFF);
+    SYST_RVR.write(PERIOD_TICKS - 1);
     SYST_CVR.write(0);
     SYST_CSR.write(0b111); // CLKSOURCE = core clock, TICKINT, ENABLE
 }

@@ -17,7 +17,6 @@
 //! | `tier1::MASKED_MAX_TIER2`   | `AtomicU32`                  | tier 2's priority (`with_drive_timed`); the QEMU bench resets it with tiers 1 and 2 idle | QEMU bench |
 //! | `tier1::MASKED_MAX_TIER3`   | `AtomicU32`                  | tier 3 (`with_drive_timed`) | QEMU bench |
 //! | `tier1::TIER1_LATENCY_MAX`, `tier1::FAST_MISSED`, `tier1::LAST_UPDATE` | `AtomicU32` (QEMU image) | tier 1 (period timer); the bench before it starts the timer | QEMU bench |
-//! | `tier1::TIMER_PERIOD`       | `AtomicU32` (QEMU image)     | the QEMU bench, timer stopped | tier 1       |
 //! | `tier2::SLOW_TICK`          | [`signal::TickSignal`]       | tier 1 (raise)    | tier-2 slow loop (wait) |
 //! | `tier2::SLOW_TICKS`         | `AtomicU32`                  | tier 2            | tier 3, QEMU bench      |
 //! | `tier2::SLOW_TICK_MAX`      | `AtomicU32`                  | tier 2            | tier 3, QEMU bench      |

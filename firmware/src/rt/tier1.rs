@@ -40,9 +40,6 @@ pub static MASKED_MAX_TIER2: AtomicU32 = AtomicU32::new(0);
 pub static TIER1_LATENCY_MAX: AtomicU32 = AtomicU32::new(0);
 /// Periods of the period timer in which tier 1 did not run (QEMU bench). Writer: tier 1.
 pub static FAST_MISSED: AtomicU32 = AtomicU32::new(0);
-/// The period timer's period (counter units) while it drives tier 1, 0 otherwise. Writer: the QEMU bench, with
-/// the timer stopped.
-pub static TIMER_PERIOD: AtomicU32 = AtomicU32::new(0);
 /// Counter time of the start of the last period tier 1 ran in (QEMU bench). Writer: tier 1, and the bench
 /// with the timer stopped.
 pub static LAST_UPDATE: AtomicU32 = AtomicU32::new(0);
@@ -201,10 +198,10 @@ pub fn on_period_timer() {
     let now = counter::now();
     let latency = period_timer::ticks_to_instructions(since);
     let start = now.wrapping_sub(latency);
-    let period = TIMER_PERIOD.load(Ordering::Relaxed);
     let elapsed = start.wrapping_sub(LAST_UPDATE.load(Ordering::Relaxed));
     LAST_UPDATE.store(start, Ordering::Relaxed);
     // Period starts since the last run, rounded (the two starts are whole periods apart, to a tick).
+    let period = period_timer::PERIOD_INSTRUCTIONS;
     let periods = elapsed.saturating_add(period / 2).checked_div(period).unwrap_or(1);
     if periods > 1 {
         FAST_MISSED
