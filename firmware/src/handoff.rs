@@ -92,13 +92,21 @@ impl<B: Words<N>, const N: usize> Command<B, N> {
     /// Never waits.
     #[must_use]
     pub fn read(&self) -> Stamped<B> {
+        let words = self.read_words();
+        Stamped { epoch: words.epoch, block: B::from_words(&words.block) }
+    }
+
+    /// [`Self::read`] without the decoding: for a reader that takes some words as they are and decodes the rest
+    /// only when they changed.
+    #[must_use]
+    pub fn read_words(&self) -> Stamped<[u32; N]> {
         let epoch = self.epoch.load(Ordering::Acquire);
         let front = slot_of(&self.slots, epoch);
         let mut words = [0u32; N];
         for (word, cell) in words.iter_mut().zip(front) {
             *word = cell.load(Ordering::Relaxed);
         }
-        Stamped { epoch, block: B::from_words(&words) }
+        Stamped { epoch, block: words }
     }
 
     /// The epoch of the last publication, without the block (for a reader that only checks for news).

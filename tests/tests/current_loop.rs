@@ -8,6 +8,7 @@
 //! each test says why its tolerance is what it is.
 
 use firmware::hal::power::PwmCommand;
+use firmware::od::generated::handles as h;
 use firmware::power_state::{CalibrationError, DriveError, PowerState, Trip};
 use hal_sim::plant::PlantParams;
 use hal_sim::sim::scenarios::{self, Setup, SpinConfig};
@@ -144,9 +145,11 @@ fn break_input_switches_the_outputs_off() {
     sim.plant.force_break();
     sim.step();
     assert_eq!(*sim.command(), PwmCommand::OFF);
-    assert_eq!(sim.drive.state(), PowerState::Fault(DriveError::Protection(Trip::BreakInput)));
+    let tripped = PowerState::Fault(DriveError::Protection(Trip::BreakInput));
+    assert_eq!(sim.tier1().state(), tripped, "tier 1 trips in the same period");
     sim.run(10);
     assert_eq!(*sim.command(), PwmCommand::OFF, "latched");
+    assert_eq!(sim.drive.state(), tripped, "the drive has the report of the next slow-tick boundary");
     sim.drive.fault_reset();
     assert_eq!(sim.drive.state(), PowerState::Off);
     assert!(sim.drive.enable_operation().is_err(), "enable needs a new switch-on (calibration)");
@@ -168,4 +171,34 @@ fn implausible_offset_fails_the_switch_on() {
     }
     sim.run(5);
     assert_eq!(*sim.command(), PwmCommand::OFF);
+}
+
+/// The tier hand-off of a CST torque (issue 16): 0x6071 written without a set-point event (an SDO download)
+/// reaches tier 1's q reference within one slow tick plus one period (11 periods: the next slow tick converts it,
+/// the period after it takes the set-point); with a set-point event (`Drive::setpoint_received`, as a SYNC or an
+/// SM2 event calls it) it is in the very next period. Exact counts: the simulation applies the hand-offs with the
+/// target's timing.
+#[test]
+fn a_target_torque_reaches_the_current_loop_within_one_slow_tick_and_one_period() {
+    let (mut sim, _) = scenarios::prepare(&Setup::default()).expect("prepared");
+    sim.plant.lock_rotor(true);
+    sim.drive.dictionary_mut().set(h::TARGET_TORQUE, 0);
+    sim.run(20);
+    let before = sim.tier1().setpoint().i_q;
+    for start in 0..10u64 {
+        // Every phase of the slow-tick grid.
+        sim.run(1);
+        let permille: i16 = if start % 2 == 0 { 400 } else { 150 };
+        sim.drive.dictionary_mut().set(h::TARGET_TORQUE, permille);
+        let reached = sim.run_until(100, |s| {
+            s.tier1().setpoint().i_q != before && s.tier1().setpoint().i_q == s.drive.setpoint().i_q
+        });
+        let periods = reached.expect("the torque reached tier 1");
+        assert!(periods <= 11, "phase {start}: {periods} periods, more than one slow tick plus one period");
+        sim.drive.dictionary_mut().set(h::TARGET_TORQUE, 0);
+        sim.run(20);
+    }
+    sim.drive.dictionary_mut().set(h::TARGET_TORQUE, 300);
+    sim.drive.setpoint_received();
+    assert_eq!(sim.run_until(5, |s| s.tier1().setpoint().i_q != before), Some(1), "a set-point event: next period");
 }

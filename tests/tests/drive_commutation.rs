@@ -26,12 +26,12 @@ fn hall_start_edge_and_index_refinement() {
         sim.enable().expect("enabled");
         sim.set_q_reference(0.5);
         sim.step();
-        assert_eq!(sim.drive.commutation().stage(), CommutationStage::HallSector);
+        assert_eq!(sim.tier1().commutation().stage(), CommutationStage::HallSector);
         assert!(angle_error_deg(&sim).abs() <= 30.5, "start {start}: {}", angle_error_deg(&sim));
-        sim.run_until(25_000, |s| s.drive.commutation().stage() != CommutationStage::HallSector).expect("edge");
-        assert_eq!(sim.drive.commutation().stage(), CommutationStage::HallEdge);
+        sim.run_until(25_000, |s| s.tier1().commutation().stage() != CommutationStage::HallSector).expect("edge");
+        assert_eq!(sim.tier1().commutation().stage(), CommutationStage::HallEdge);
         assert!(angle_error_deg(&sim).abs() <= 3.0, "start {start}: after edge {}", angle_error_deg(&sim));
-        sim.run_until(25_000, |s| s.drive.commutation().stage() == CommutationStage::Indexed).expect("index");
+        sim.run_until(25_000, |s| s.tier1().commutation().stage() == CommutationStage::Indexed).expect("index");
         sim.run(100);
         assert!(angle_error_deg(&sim).abs() <= 1.0, "start {start}: indexed {}", angle_error_deg(&sim));
     }
@@ -50,16 +50,16 @@ fn forced_alignment_without_halls() {
         sim.switch_on().expect("calibrated");
         sim.enable().expect("enabled");
         sim.step();
-        assert_eq!(sim.drive.commutation().stage(), CommutationStage::Aligning);
+        assert_eq!(sim.tier1().commutation().stage(), CommutationStage::Aligning);
         // 100 ms ramp + 2 x 200 ms hold.
         let ticks = sim
-            .run_until(13_000, |s| s.drive.commutation().stage() != CommutationStage::Aligning)
+            .run_until(13_000, |s| s.tier1().commutation().stage() != CommutationStage::Aligning)
             .expect("alignment ends");
         assert!((12_400..=12_600).contains(&ticks), "{ticks}");
-        assert_eq!(sim.drive.commutation().stage(), CommutationStage::Aligned);
+        assert_eq!(sim.tier1().commutation().stage(), CommutationStage::Aligned);
         assert!(angle_error_deg(&sim).abs() <= 5.0, "start {start}: aligned {}", angle_error_deg(&sim));
         sim.set_q_reference(0.5);
-        sim.run_until(25_000, |s| s.drive.commutation().stage() == CommutationStage::Indexed).expect("index");
+        sim.run_until(25_000, |s| s.tier1().commutation().stage() == CommutationStage::Indexed).expect("index");
         assert!(angle_error_deg(&sim).abs() <= 5.0, "start {start}: indexed {}", angle_error_deg(&sim));
         assert_eq!(sim.drive.state(), PowerState::OperationEnabled);
     }

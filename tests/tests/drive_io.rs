@@ -152,7 +152,7 @@ fn touch_probe_latches_the_index() {
         assert_eq!(pair[1] - pair[0], 4096, "{latches:?}");
     }
     // The same position tier 1 latched, in 0x6064's coordinates.
-    let tier1 = sim.drive.latches().index.position.wrapping_add(sim.drive.axis().position_offset());
+    let tier1 = sim.tier1().latches().index.position.wrapping_add(sim.drive.axis().position_offset());
     assert_eq!(latches.last().copied(), Some(tier1));
 }
 

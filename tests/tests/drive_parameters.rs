@@ -17,6 +17,7 @@
 use firmware::control::angle::ElectricalAngle;
 use firmware::control::pi::PiGains;
 use firmware::drive::objects::{ParameterSource, NODE_ID};
+use firmware::drive::tier1::Tier1State;
 use firmware::drive::{Drive, DriveConfig};
 use firmware::od::abort::SdoAbort;
 use firmware::od::access::{AccessContext, CommState, Dictionary, Download};
@@ -69,10 +70,13 @@ fn change_parameters(drive: &mut Drive, store: &mut ParamStore<SimFlash>) {
 fn assert_changed(drive: &Drive, store: &mut ParamStore<SimFlash>) {
     assert_eq!(drive.dictionary().get(h::CURRENT_CONTROLLER_P_GAIN), P_GAIN);
     assert_eq!(read_u32(drive, store, 0x1600, 2), Ok(MAPPED));
-    // The drive built its current controller from the loaded value, not the default.
+    // The drive hands tier 1 gains converted from the loaded value, not the default, and tier 1's current
+    // controller runs with them.
     let expected = PiGains::from_idx_0x30a0(P_GAIN, drive.dictionary().get(h::CURRENT_CONTROLLER_I_GAIN));
-    assert_eq!(drive.controller().pi_q().gains(), expected);
-    assert_eq!(drive.controller().pi_d().gains(), expected);
+    assert_eq!(drive.settings().gains, expected);
+    let tier1 = Tier1State::new(drive.settings());
+    assert_eq!(tier1.controller().pi_q().gains(), expected);
+    assert_eq!(tier1.controller().pi_d().gains(), expected);
 }
 
 #[test]
@@ -293,13 +297,13 @@ fn commutation_offset_at_index_reaches_the_commutation() {
     let mut store = store();
     let (mut drive, _) = boot(&mut store);
     assert_eq!(drive.dictionary().get(h::INDEX_COMMUTATION_OFFSET), -1, "default: not known");
-    assert_eq!(drive.commutation().index_offset(), None);
+    assert_eq!(Tier1State::new(drive.settings()).commutation().index_offset(), None);
     let quarter = 16_384i32.to_le_bytes();
     assert_eq!(drive.sdo_write(0x3010, 5, &65_536i32.to_le_bytes(), PRE_OP, &mut store), Err(SdoAbort::ValueTooHigh));
     assert_eq!(drive.sdo_write(0x3010, 5, &(-2i32).to_le_bytes(), PRE_OP, &mut store), Err(SdoAbort::ValueTooLow));
     drive.sdo_write(0x3010, 5, &quarter, PRE_OP, &mut store).expect("0x3010:05");
     drive.switch_on().expect("switch on");
-    assert_eq!(drive.commutation().index_offset(), Some(ElectricalAngle::QUARTER_TURN));
+    assert_eq!(Tier1State::new(drive.settings()).commutation().index_offset(), Some(ElectricalAngle::QUARTER_TURN));
     // Writable only with the power disabled (device.toml).
     let enabled = AccessContext { power_stage_enabled: true, ..PRE_OP };
     assert_eq!(drive.sdo_write(0x3010, 5, &quarter, enabled, &mut store), Err(SdoAbort::DeviceState));
@@ -308,5 +312,5 @@ fn commutation_offset_at_index_reaches_the_commutation() {
     drive.shutdown();
     drive.sdo_write(0x1010, 1, &SAVE_SIGNATURE.to_le_bytes(), PRE_OP, &mut store).expect("save");
     let (rebooted, _) = boot(&mut store);
-    assert_eq!(rebooted.commutation().index_offset(), Some(ElectricalAngle::QUARTER_TURN));
+    assert_eq!(Tier1State::new(rebooted.settings()).commutation().index_offset(), Some(ElectricalAngle::QUARTER_TURN));
 }

@@ -233,8 +233,8 @@ fn run_profile(sim: &mut Simulation, seconds: f64, rpm_at: impl Fn(f64) -> f64) 
         let state = sim.plant.state();
         speed = speed.max(state.speed_rpm.abs());
         bus = bus.max(state.bus_voltage_v);
-        let sector = HallSector::from_state(sim.drive.signals().hall).expect("a valid Hall state");
-        let c = sim.drive.commutation();
+        let sector = HallSector::from_state(sim.tier1().signals().hall).expect("a valid Hall state");
+        let c = sim.tier1().commutation();
         let d = hall_distance(c.angle(), sector, c.hall_offset());
         off = off.max(f64::from(d.unsigned_abs()) / 4_294_967_296.0 * 360.0);
         if !feedback_faults(sim).is_empty() || sim.cia402_state() != State::OperationEnabled {

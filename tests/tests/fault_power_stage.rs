@@ -36,7 +36,7 @@ fn bus_over_voltage_trips_at_once() {
     sim.plant.set_source_voltage(58.0);
     periods_until_off(&mut sim, 25_000).expect("trips");
     let seen_mv = f64::from(BUS_OVER_VOLTAGE_MV) / 1000.0;
-    let measured = sim.drive.signals().v_bus.to_millivolts();
+    let measured = sim.tier1().signals().v_bus.to_millivolts();
     // The sample that tripped was the first one above the limit: the plant's bus at the sample is above it and
     // one period earlier it was not (the drive would have tripped then).
     assert!(f64::from(measured) / 1000.0 > seen_mv - 0.1, "tripped at {measured} mV");
@@ -72,7 +72,7 @@ fn bus_under_voltage_trips_only_while_switching() {
     sim.plant.set_source_voltage(7.0);
     sim.plant.set_bus_voltage(7.0);
     periods_until_off(&mut sim, 25_000).expect("trips");
-    let measured = sim.drive.signals().v_bus.to_millivolts();
+    let measured = sim.tier1().signals().v_bus.to_millivolts();
     assert!(measured < BUS_UNDER_VOLTAGE_MV + 100, "tripped at {measured} mV");
     reach_fault(&mut sim);
     assert_eq!(sim.drive.dictionary().get(h::ERROR_CODE), 0x3220);

@@ -51,7 +51,7 @@ fn active(sim: &Simulation, id: FaultId) -> bool {
 
 /// The current demand is at 90 % of the limit in force or more (the stall check's condition 2).
 fn demand_at_limit(sim: &Simulation) -> bool {
-    let demand = i64::from(sim.drive.signals().i_ref.q.to_bits()).abs();
+    let demand = i64::from(sim.tier1().signals().i_ref.q.to_bits()).abs();
     let limit = i64::from(sim.drive.demand_scale().current_limit().to_bits());
     demand > 0 && demand * 1000 >= limit * 900
 }
@@ -259,7 +259,7 @@ fn no_phase_open_trip_at_speed_with_load_steps() {
                 sim.plant.set_load_torque(if (k / 1250) % 2 == 0 { 0.15 } else { 0.0 });
             }
             step(&mut sim);
-            saturated += u32::from(sim.drive.signals().saturated);
+            saturated += u32::from(sim.tier1().signals().saturated);
             assert!(!active(&sim, PHASE_OPEN_FAULT), "{rpm} rpm: false trip at {k}");
         }
         println!(

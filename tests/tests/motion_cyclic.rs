@@ -72,7 +72,7 @@ fn cst_torque_follows_the_target() {
     // removes the dead-time error within about 3 ms at this low current (measured on the locked rotor).
     sim.run(125);
     let iq = sim.plant.state().i_dq_a[1];
-    let iref = f64::from(sim.drive.signals().i_ref.q.to_milliamps()) / 1000.0;
+    let iref = f64::from(sim.tier1().signals().i_ref.q.to_milliamps()) / 1000.0;
     assert!((iref - 1.12).abs() < 0.002, "the reference is 350 per mille of 3.2 A at once: {iref} A");
     assert!((iq - 1.12).abs() < 0.0224, "i_q {iq} A for 350 per mille");
     sim.run_slow_ticks(10);

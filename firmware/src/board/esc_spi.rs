@@ -25,9 +25,9 @@
 //! A byte takes 0.38 us on the wire, about 0.5 us with the polled register access, so a 128-byte mailbox
 //! window costs about 65 us.
 //!
-//! **Who uses the bus**: only code that runs with interrupts masked (`rt::ethercat`: tier 3's poll inside
-//! `tier1::with_drive`, the cycle in the PDI and SYNC0 interrupts, also inside it), so an access is never
-//! interleaved with another. No DMA: see `rt::ethercat` for what that costs tier 1 and what is left to do.
+//! **Who uses the bus**: only code inside the tier-2 lock (`rt::ethercat`: tier 3's poll inside
+//! `rt::tier2::with_drive`, the cycle in the PDI and SYNC0 interrupts, also inside it), so an access is never
+//! interleaved with another. No DMA: see `rt::ethercat` for what that costs tier 2 and what is left to do.
 
 use super::reg::{base, rcc, Gpio, Reg};
 use crate::ecat::spi_pdi::SpiBus;

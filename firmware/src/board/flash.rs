@@ -19,9 +19,9 @@
 //! While the controller programs or erases, every read of the flash stalls the bus (RM0090 section 3.5: single
 //! bank), instruction fetches and vector fetches included: a 16 KiB sector erase takes up to 0.5 s at x32
 //! (STM32F405 datasheet, flash characteristics), a word program about 16 us. The current loop cannot run meanwhile.
-//! So the runtime programs and erases only from tier 3, inside `rt::tier1::with_drive` (interrupts off, so tier 1
-//! and tier 2 simply wait and the overrun supervision does not count the stall), and only with the power stage
-//! disabled: the parameter objects 0x1010/0x1011 are writable only in Pre-Operational with the power stage
+//! So the runtime programs and erases only from tier 3, inside `rt::tier2::with_drive` (tier 2 and every new
+//! power-stage request wait; tier 1 stalls with the bus, and its lost-period supervision does not trip while its
+//! outputs are off), and only with the power stage disabled: the parameter objects 0x1010/0x1011 are writable only in Pre-Operational with the power stage
 //! disabled (device.toml `writable_in`; IDX L1702, Gamma L512) and the drive refuses them itself with 0x0800_0022
 //! while its power stage is switched on (`drive::objects`). With the power stage disabled TIM1's MOE is 0, so the
 //! gates stay off however long the bus stalls. Boot only reads.

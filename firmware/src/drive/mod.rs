@@ -1,17 +1,21 @@
 //! The drive: ties the current loop, offset calibration, commutation, protection and the object dictionary together;
-//! the tier-1 entry point [`Drive::fast_tick`] and the tier-2 hook [`Drive::slow_tick`].
+//! the tier-1 step [`tier1::Tier1State::fast_tick`] and the tier-2 hooks [`Drive::background`] and
+//! [`Drive::slow_tick`].
 //!
 //! # Tiers (`shared/design/ARCHITECTURE.md`, "Data flow and timing tiers")
-//! - [`Drive::fast_tick`], 25 kHz: measurements in, PWM command out. Protection step, ADC scaling, commutation
-//!   angle, the d/q current loop ([`crate::control::current_loop`]) with the reference read from the dictionary by
-//!   typed handle, and the slow-tick divider: it returns [`FastTick::slow_tick_due`] every
-//!   [`crate::hal::power::SLOW_TICK_DIVIDER`]-th tick. On the target the runtime pends tier 2 when it is set; on
-//!   the host the caller (the simulation) calls [`Drive::slow_tick`] directly. No searches, no divisions, no
-//!   loops, no panics.
+//! - [`tier1::Tier1State::fast_tick`], 25 kHz: measurements in, PWM command out. Protection step, ADC scaling,
+//!   commutation angle, the d/q current loop ([`crate::control::current_loop`]) with the q reference of the last
+//!   [`SetPoint`], and the slow-tick divider: it returns [`FastTick::slow_tick_due`] every
+//!   [`crate::hal::power::SLOW_TICK_DIVIDER`]-th tick. On the target the runtime then publishes tier 1's report
+//!   and pends tier 2; on the host the simulation hands the report over and calls [`Drive::background`] and
+//!   [`Drive::slow_tick`] directly. No searches, no divisions, no loops, no panics.
 //! - [`Drive::slow_tick`], 2.5 kHz: publishes the actual values (0x30D1, 0x6077, 0x6078, 0x30D0, 0x6074, averaged
 //!   values, DC link voltage, Hall pattern, index position) and re-reads the parameters tier 1 uses (current gains
 //!   0x30A0, motor data 0x3001, limits 0x6072/0x6073) when they change. The motion issue adds the velocity and
-//!   position loops here, with their output as the current demand ([`DemandSource::Internal`]).
+//!   position loops here, with their output as the current demand ([`DemandSource::Internal`]). In CST the drive
+//!   converts target torque 0x6071 + offset 0x60B2 into the q reference at every set-point event
+//!   ([`Drive::setpoint_received`]) and every slow tick: a torque written to 0x6071 reaches the current loop in
+//!   the first period after its set-point event, and at the latest one slow tick plus one period after the write.
 //!
 //! # Power-stage path (CiA 402 transitions 3 and 4, `shared/spec/cia402-device-control.md`)
 //! [`Drive::switch_on`] (transition 3) reads the power-disabled parameters (encoder, pole pairs, Halls,
@@ -28,12 +32,18 @@
 //! [`Drive::dictionary_mut`]. One owner keeps the single-writer rule of each value visible: the drive writes the
 //! actual values and derived objects (0x6075, 0x6076), everyone else the set-points and parameters.
 //!
-//! What tier 1 owns is one value, [`tier1::Tier1State`] (power-stage state, calibration, commutation, current
-//! controller, limits in force, latches and sums, trip sample, divider), and what tier 2 decides for its current
-//! reference another, [`tier1::DemandCommand`]; the power-stage requests above are `Tier1State` methods. These are
-//! the shapes the tier split hands across (`docs/design/tier-ownership.md`); today the drive holds both, and the
-//! tier-2 code still reads tier 1's fields directly.
+//! # Tiers own their state (`docs/design/tier-ownership.md`)
+//! [`Drive`] is tier 2's: the dictionary, the axis, the supervision, the parameter conversion. What tier 1 owns
+//! is [`tier1::Tier1State`] (power-stage state, calibration, commutation, current controller, limits in force,
+//! latches and sums, trip sample, divider), and only tier 1 touches it. They exchange blocks
+//! ([`blocks`]): the drive keeps a [`SetPoint`] (power request, q-current reference already converted) and the
+//! [`Settings`] (limits, gains, calibration, commutation) and moves their versions on when it changes them;
+//! whoever runs the tiers hands the changed blocks to tier 1 ([`Drive::take_setpoint`], [`Drive::take_settings`])
+//! and tier 1's [`Tier1Report`] back to the drive at every slow-tick boundary ([`Drive::receive_report`]).
+//! The power-stage requests are therefore predictions until tier 1 acknowledges them: [`Drive::state`] is the
+//! reported state, or the one a request not yet acted on will lead to.
 
+pub mod blocks;
 pub mod calibration;
 pub mod commutation;
 pub mod hall_position;
@@ -43,27 +53,25 @@ pub mod scaling;
 pub mod tier1;
 
 use crate::control::angle::ElectricalAngle;
-use crate::control::current_loop::{CurrentController, CurrentLoopConfig};
 use crate::control::demand::{rated_torque_micro_nm, DemandScale};
 use crate::control::frames::{Abc, Amps, Dq, Volts};
 use crate::control::pi::PiGains;
 use crate::fault::emcy::InhibitTime;
 use crate::fault::table::FaultId;
-use crate::hal::power::{Measurements, PwmCommand};
+use crate::hal::power::PwmCommand;
 use crate::motion::axis::{Axis, AxisInputs, AxisOutputs, CurrentDemand};
 use crate::od::access::Dictionary;
 use crate::od::generated::handles as h;
-use crate::power_state::{DriveError, PowerState};
+use crate::power_state::{CommutationStage, DriveError, PowerState};
 use crate::sensors::hall::HallSector;
 use crate::sensors::latch::PinLatches;
 use crate::supervision::communication::LinkLoss;
 use crate::supervision::{Supervision, SupervisionInputs};
 
+use blocks::{CommutationSettings, PowerLevel, PowerRequest, SetPoint, Settings, Tier1Report};
 use calibration::CalibrationConfig;
-use commutation::{hall_offset_from_od, AlignmentConfig, Commutation, CommutationMethod, EncoderConfig};
-use protection::Limits;
+use commutation::{hall_offset_from_od, AlignmentConfig, CommutationMethod, EncoderConfig};
 use scaling::ShuntOffsets;
-use tier1::{DemandCommand, Tier1State};
 
 /// Why a power-stage request was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -75,7 +83,8 @@ pub enum RequestError {
 /// Where the q-current reference comes from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum DemandSource {
-    /// Target torque 0x6071 + torque offset 0x60B2 (CST), read every fast tick.
+    /// Target torque 0x6071 + torque offset 0x60B2 (CST), converted by tier 2 at every set-point event
+    /// ([`Drive::setpoint_received`], [`Drive::target_torque_written`]) and every slow tick.
     TargetTorque,
     /// A current set by tier 2 through [`Drive::set_current_demand`] (the velocity and position loops).
     Internal,
@@ -135,8 +144,6 @@ pub struct FastSignals {
     pub v_bus: Volts,
     /// The voltage limit was active.
     pub saturated: bool,
-    /// Torque demand in per mille (0x6074).
-    pub torque_demand_permille: i16,
     /// Hall state after inversion (0x301A:02).
     pub hall: u8,
     /// Raw power-stage and motor temperature samples (for tier 2's thermal supervision).
@@ -162,21 +169,30 @@ struct GainSource {
 
 /// The drive. See the module documentation.
 #[derive(Clone, Debug)]
-// `repr(C)` with the tier-1 fields first: on the Cortex-M4 a load or store reaches 4 KiB from a base register in one
-// instruction, so the fields the 25 kHz path touches sit at the start, ahead of the dictionary and tier 2's state
-// (measured in the QEMU image: 608 -> 548 instructions in the worst fast tick).
+// `repr(C)` with the slow tick's fields first: on the Cortex-M4 a load or store reaches 4 KiB from a base register in
+// one instruction, so the fields tier 2 touches every slow tick sit at the start, ahead of the background step's.
 #[repr(C)]
 pub struct Drive {
-    /// Tier 1's state: first, so that the 25 kHz path reaches its fields with short offsets from the drive's base.
-    t1: Tier1State,
-    /// Tier 2's decision for tier 1's current reference.
-    demand: DemandCommand,
+    /// Tier 1's last report.
+    report: Tier1Report,
+    /// What tier 2 asks of tier 1 now (power request, q-current reference).
+    setpoint: SetPoint,
+    /// The power state tier 1 will be in once it has acted on the pending request (while
+    /// `setpoint.power.sequence` is ahead of the report's).
+    predicted: PowerState,
+    /// Where the q-current reference comes from.
+    source: DemandSource,
+    /// The loops' q-current demand, clamped to the limit ([`DemandSource::Internal`]).
+    internal: Amps,
+    /// Target torque to current, with the I2t and thermal limits applied.
+    scale: DemandScale,
+    /// The torque demand (0x6074) of the last conversion of 0x6071 and 0x60B2, and the value shown.
+    torque_demand_permille: i16,
+    shown_torque_demand: i16,
     /// The scale from the dictionary, before the I2t limit.
     base_scale: DemandScale,
     /// The I2t protection's current limit (tier 2).
     i2t_limit: Amps,
-    config: DriveConfig,
-    gain_source: GainSource,
     /// 50 Hz low-pass states (`I16F16` bits) of the q current and the bus voltage.
     i_q_average: i32,
     v_bus_average: i32,
@@ -187,8 +203,14 @@ pub struct Drive {
     /// Tier 2: the CiA 402 machine, the modes, the loops and the motion supervision.
     axis: Axis,
     dictionary: Dictionary,
-    // Tier 2's background step only, after the dictionary: the slow tick reaches the dictionary and the axis
-    // with short offsets from the drive's base (measured: 3,976 -> 4,044 instructions with these in between).
+    // The background step's own fields, after the dictionary.
+    /// What tier 1 runs with from the dictionary (limits, gains, calibration, commutation).
+    settings: Settings,
+    /// The versions last handed to tier 1 ([`Drive::take_setpoint`], [`Drive::take_settings`]).
+    setpoint_taken: u32,
+    settings_taken: u32,
+    config: DriveConfig,
+    gain_source: GainSource,
     /// The hardware detectors (temperatures, position sensors, stall, phases).
     supervision: Supervision,
     /// The thermal derating's current limit.
@@ -212,22 +234,28 @@ impl Drive {
             p: dictionary.get(h::CURRENT_CONTROLLER_P_GAIN),
             i: dictionary.get(h::CURRENT_CONTROLLER_I_GAIN),
         };
+        let gains = PiGains::from_idx_0x30a0(gain_source.p, gain_source.i);
         let mut drive = Self {
-            t1: Tier1State::new(
-                config.calibration,
-                Commutation::new(
-                    CommutationMethod::Hall,
-                    EncoderConfig::REFERENCE,
-                    ElectricalAngle::ZERO,
-                    config.index_offset,
-                ),
-                CurrentController::new(CurrentLoopConfig::from_idx_0x30a0(gain_source.p, gain_source.i)),
-            ),
-            demand: DemandCommand {
-                source: DemandSource::TargetTorque,
-                internal: Amps::ZERO,
-                scale: DemandScale::reference(),
+            report: Tier1Report::default(),
+            setpoint: SetPoint::default(),
+            predicted: PowerState::Off,
+            source: DemandSource::TargetTorque,
+            internal: Amps::ZERO,
+            scale: DemandScale::reference(),
+            torque_demand_permille: 0,
+            shown_torque_demand: 0,
+            settings: Settings {
+                version: 1,
+                output_limit_ma: 0,
+                gains,
+                calibration: config.calibration,
+                commutation: CommutationSettings {
+                    default_index_offset: config.index_offset,
+                    ..CommutationSettings::default()
+                },
             },
+            setpoint_taken: 0,
+            settings_taken: 0,
             config,
             gain_source,
             motor_source: None,
@@ -244,19 +272,107 @@ impl Drive {
         };
         drive.configure_commutation();
         drive.refresh_parameters();
+        drive.update_demand();
         drive
     }
 
     // ---------------------------------------------------------------------------------------------------------
-    // Tier 1
+    // The hand-offs with tier 1
     // ---------------------------------------------------------------------------------------------------------
 
-    /// One 25 kHz tick ([`Tier1State::fast_tick`]): protection, scaling, angle, current loop; the command for the
-    /// next PWM period and whether a slow tick is due. Never panics; `PwmCommand::OFF` whenever the drive is not
-    /// calibrating or enabled.
-    #[inline]
-    pub fn fast_tick(&mut self, m: &Measurements) -> FastTick {
-        self.t1.fast_tick(m, &self.demand, &self.dictionary)
+    /// The set-point, when it changed since the last call: to be handed to tier 1 for its next period.
+    pub fn take_setpoint(&mut self) -> Option<SetPoint> {
+        (self.setpoint.version != self.setpoint_taken).then(|| {
+            self.setpoint_taken = self.setpoint.version;
+            self.setpoint
+        })
+    }
+
+    /// The settings, when they changed since the last call: to be handed to tier 1 for its next period (before the
+    /// set-point).
+    pub fn take_settings(&mut self) -> Option<Settings> {
+        (self.settings.version != self.settings_taken).then(|| {
+            self.settings_taken = self.settings.version;
+            self.settings
+        })
+    }
+
+    /// The settings tier 1 starts with ([`Tier1State::new`](tier1::Tier1State::new)).
+    #[must_use]
+    pub const fn settings(&self) -> &Settings {
+        &self.settings
+    }
+
+    /// The set-point as it stands.
+    #[must_use]
+    pub const fn setpoint(&self) -> &SetPoint {
+        &self.setpoint
+    }
+
+    /// Takes over tier 1's report of the slow-tick boundary: before [`Self::background`] and [`Self::slow_tick`].
+    pub fn receive_report(&mut self, report: &Tier1Report) {
+        self.report = *report;
+    }
+
+    /// Tier 1's last report.
+    #[must_use]
+    pub const fn report(&self) -> &Tier1Report {
+        &self.report
+    }
+
+    /// The power state as tier 2 sees it: the reported one, or, while a request is pending, the one it leads to.
+    fn power(&self) -> PowerState {
+        if self.report.power_sequence == self.setpoint.power.sequence {
+            self.report.power
+        } else {
+            self.predicted
+        }
+    }
+
+    /// A power-stage request: `change` edits the request, `predicted` is the state it leads to.
+    fn request(&mut self, change: impl FnOnce(&mut PowerRequest), predicted: PowerState) {
+        change(&mut self.setpoint.power);
+        self.setpoint.power.sequence = self.setpoint.power.sequence.wrapping_add(1);
+        self.predicted = predicted;
+        self.setpoint_changed();
+    }
+
+    fn setpoint_changed(&mut self) {
+        self.setpoint.version = self.setpoint.version.wrapping_add(1);
+    }
+
+    /// Settings changed by `change`: their version moves on if anything differs.
+    fn change_settings(&mut self, change: impl FnOnce(&mut Settings)) {
+        let mut settings = self.settings;
+        change(&mut settings);
+        if settings != self.settings {
+            settings.version = self.settings.version.wrapping_add(1);
+            self.settings = settings;
+        }
+    }
+
+    /// Converts the demand into tier 1's q-current reference: the loops' demand, or target torque 0x6071 +
+    /// offset 0x60B2 through the demand scale (CST).
+    fn update_demand(&mut self) {
+        let i_q = match self.source {
+            DemandSource::TargetTorque => {
+                let d = &self.dictionary;
+                let (permille, i_q) = self.scale.torque_to_current(d.get(h::TARGET_TORQUE), d.get(h::TORQUE_OFFSET));
+                self.torque_demand_permille = permille;
+                i_q
+            }
+            DemandSource::Internal => self.internal,
+        };
+        if i_q != self.setpoint.i_q {
+            self.setpoint.i_q = i_q;
+            self.setpoint_changed();
+        }
+    }
+
+    /// Target torque 0x6071 or torque offset 0x60B2 was written outside a set-point event (a host test standing in
+    /// for a fieldbus that writes it every period): converts it now instead of at the next slow tick.
+    pub fn target_torque_written(&mut self) {
+        self.update_demand();
     }
 
     // ---------------------------------------------------------------------------------------------------------
@@ -286,7 +402,9 @@ impl Drive {
         if i2t_limit != self.i2t_limit || supervised.current_limit != self.thermal_limit {
             self.i2t_limit = i2t_limit;
             self.thermal_limit = supervised.current_limit;
-            self.demand.scale = self.limited_scale(self.base_scale);
+            self.scale = self.limited_scale(self.base_scale);
+            self.clamp_internal_demand();
+            self.update_demand();
         }
     }
 
@@ -297,31 +415,32 @@ impl Drive {
 
     /// What the supervision reads: the last fast tick's measurements and the axis's state.
     fn supervision_inputs(&self) -> SupervisionInputs {
-        let s = &self.t1.signals;
-        let encoder = self.t1.commutation.encoder();
+        let r = &self.report;
+        let s = &r.signals;
+        let commutation = &self.settings.commutation;
+        let power = self.power();
         SupervisionInputs {
             now: self.axis.now(),
             state: self.axis.state(),
-            operation_enabled: self.t1.state == PowerState::OperationEnabled,
-            power: self.t1.state,
-            loops_drive_motor: self.t1.state == PowerState::OperationEnabled
-                && self.demand.source == DemandSource::Internal,
+            operation_enabled: power == PowerState::OperationEnabled,
+            power,
+            loops_drive_motor: power == PowerState::OperationEnabled && self.source == DemandSource::Internal,
             power_stage_temperature_code: s.temperature_codes[0],
             motor_temperature_code: s.temperature_codes[1],
             hall: s.hall,
-            halls_present: self.t1.commutation.method() == CommutationMethod::Hall,
-            encoder_present: self.t1.encoder_present,
-            encoder_has_index: encoder.config().has_index,
-            encoder_position: encoder.position(),
-            encoder_counts_per_turn: encoder.config().counts_per_rev,
-            pole_pairs: encoder.config().pole_pairs,
+            halls_present: commutation.method == CommutationMethod::Hall,
+            encoder_present: commutation.encoder_present,
+            encoder_has_index: commutation.encoder.has_index,
+            encoder_position: r.encoder_position,
+            encoder_counts_per_turn: commutation.encoder.counts_per_rev,
+            pole_pairs: commutation.encoder.pole_pairs,
             // The latch counts every index pulse (the commutation only those while it runs): the same source as
             // `index_position`, so the feedback supervision sees the pulses in every state.
-            index_pulses: u32::from(self.t1.latches.index.count),
-            index_position: self.t1.latches.index.position,
-            electrical_angle: self.t1.commutation.angle(),
-            hall_offset: self.t1.commutation.hall_offset(),
-            commutation: self.t1.commutation.stage(),
+            index_pulses: u32::from(r.latches.index.count),
+            index_position: r.latches.index.position,
+            electrical_angle: r.angle,
+            hall_offset: commutation.hall_offset,
+            commutation: r.stage,
             i_abc: s.i_abc,
             i_dq: s.i_dq,
             i_ref: s.i_ref,
@@ -333,14 +452,6 @@ impl Drive {
             velocity: self.axis.velocity(),
             velocity_rpm: self.dictionary.get(h::VELOCITY_ACTUAL_VALUE),
         }
-    }
-
-    /// The runtime measured a fast tick over its budget (the 40 us period cannot be kept): the power stage goes
-    /// off now, as for any tier-1 trip (issue 5: "PWM/current-loop overrun" in tier 1), and the axis reports
-    /// 0xFF0B with `cost` as its detail.
-    #[cold]
-    pub fn current_loop_overrun(&mut self, cost: u32) -> PwmCommand {
-        self.t1.current_loop_overrun(cost)
     }
 
     /// The runtime found `missed` slow ticks that could not run because the previous one had not finished: the
@@ -385,7 +496,8 @@ impl Drive {
 
     /// Raises `id` with a snapshot of what the drive measures now. A fault of class "d" raised from outside the
     /// tiers' own steps (the runtime, a fieldbus layer) switches the outputs off here and now, not at the next slow
-    /// tick: the class means "a secure movement is no longer possible" (IDX L7030).
+    /// tick: the class means "a secure movement is no longer possible" (IDX L7030). The forced off reaches tier 1
+    /// with the set-point published when the caller's section ends, so within one period.
     fn raise(&mut self, id: FaultId, detail: i32) {
         let snapshot = self.supervision_inputs().snapshot(detail);
         let now = self.axis.now();
@@ -407,34 +519,33 @@ impl Drive {
     pub fn slow_tick(&mut self) {
         self.update_averages();
         // A fault reports what the tripping tick measured, not what came after.
-        let fault = match self.t1.state {
+        let power = self.power();
+        let r = &self.report;
+        let fault = match power {
             PowerState::Fault(e) => Some(e),
             _ => None,
         };
-        let s = if fault.is_some() { self.t1.trip_sample } else { self.t1.signals };
+        let s = if fault.is_some() { r.trip_sample } else { r.signals };
         let power_fault_present = match fault {
             Some(DriveError::Protection(t)) => {
-                protection::cause_present(t, self.t1.last_break_input, self.t1.signals.v_bus.to_millivolts())
+                protection::cause_present(t, r.break_input, r.signals.v_bus.to_millivolts())
             }
             // Tier 1 keeps sampling the Halls in «Fault»: the invalid state persists while they still read it.
-            Some(DriveError::Commutation(_)) => HallSector::from_state(self.t1.signals.hall).is_err(),
+            Some(DriveError::Commutation(_)) => HallSector::from_state(r.signals.hall).is_err(),
             _ => false,
         };
+        let encoder_present = self.settings.commutation.encoder_present;
         let input = AxisInputs {
-            encoder_position: if self.t1.encoder_present {
-                self.t1.commutation.encoder().position()
-            } else {
-                self.t1.hall_position.position()
-            },
-            encoder_window: self.t1.encoder_present.then(|| self.t1.position_sum.latched()),
+            encoder_position: if encoder_present { r.encoder_position } else { r.hall_position },
+            encoder_window: encoder_present.then_some(r.encoder_window),
             current: s.i_dq.q,
             current_average_ma: Amps::from_bits(self.i_q_average).to_milliamps(),
             phase_currents_ma: [s.i_abc.a.to_milliamps(), s.i_abc.b.to_milliamps(), s.i_abc.c.to_milliamps()],
             bus_voltage_mv: s.v_bus.to_millivolts(),
-            pins: &self.t1.latches,
-            power: self.t1.state,
+            pins: &r.latches,
+            power,
             power_fault_present,
-            scale: &self.demand.scale,
+            scale: &self.scale,
         };
         let out = self.axis.step(&input, &mut self.dictionary);
         self.apply(&out);
@@ -454,28 +565,29 @@ impl Drive {
         self.last_power_request = out.power;
         if changed || enforce {
             if !out.power.enabled {
-                if !matches!(self.t1.state, PowerState::Off | PowerState::Fault(_)) {
+                if !matches!(self.power(), PowerState::Off | PowerState::Fault(_)) {
                     self.shutdown();
                 }
             } else if out.start_calibration {
                 // Refused only in a fault or while calibrating: the machine then waits (and the fault is reported).
                 let _ = self.switch_on();
             } else if out.power.controllers_enabled {
-                if self.t1.state == PowerState::SwitchedOn {
+                if self.power() == PowerState::SwitchedOn {
                     let _ = self.enable_operation();
                 }
-            } else if self.t1.state == PowerState::OperationEnabled {
+            } else if self.power() == PowerState::OperationEnabled {
                 self.disable_operation();
             }
         }
         match out.demand {
             CurrentDemand::Off => {}
             CurrentDemand::Internal(i) => {
-                self.demand.source = DemandSource::Internal;
+                self.source = DemandSource::Internal;
                 self.set_current_demand(i);
             }
-            CurrentDemand::TargetTorque => self.demand.source = DemandSource::TargetTorque,
+            CurrentDemand::TargetTorque => self.source = DemandSource::TargetTorque,
         }
+        self.update_demand();
         self.output_pins = out.output_pins;
     }
 
@@ -483,6 +595,10 @@ impl Drive {
     /// latch 0x607A, 0x60FF, 0x6071 and the offsets now.
     pub fn setpoint_received(&mut self) {
         self.axis.setpoint_received(&self.dictionary);
+        // CST: the new target torque reaches tier 1 in its next period, not at the next slow tick.
+        if self.source == DemandSource::TargetTorque {
+            self.update_demand();
+        }
     }
 
     /// Statusword bit 9 "remote" (the fieldbus layer: NMT operational, EtherCAT SafeOp/Op).
@@ -492,13 +608,14 @@ impl Drive {
 
     /// Converts 0x30A0 into gains when it changed, and the motor data into the demand scale.
     fn refresh_parameters(&mut self) {
-        let d = &mut self.dictionary;
+        let d = &self.dictionary;
         let gains = GainSource { p: d.get(h::CURRENT_CONTROLLER_P_GAIN), i: d.get(h::CURRENT_CONTROLLER_I_GAIN) };
         if gains != self.gain_source {
             self.gain_source = gains;
             let g = PiGains::from_idx_0x30a0(gains.p, gains.i);
-            self.t1.controller.set_gains(g, g);
+            self.change_settings(|s| s.gains = g);
         }
+        let d = &self.dictionary;
         let motor = MotorSource {
             nominal_ma: d.get(h::MOTOR_NOMINAL_CURRENT),
             output_limit_ma: d.get(h::MOTOR_OUTPUT_CURRENT_LIMIT),
@@ -512,21 +629,24 @@ impl Drive {
         }
         self.motor_source = Some(motor);
         let nominal = motor.nominal_ma;
-        self.t1.limits = Limits::new(motor.output_limit_ma);
+        self.change_settings(|s| s.output_limit_ma = motor.output_limit_ma);
         let scale =
             DemandScale::from_od(nominal, motor.output_limit_ma, motor.max_current_permille, motor.max_torque_permille);
         self.base_scale = scale;
         // 0x6075 and 0x6076 are read-only copies derived from 0x3001 (single writer: the drive).
+        let d = &mut self.dictionary;
         d.set(h::MOTOR_RATED_CURRENT, nominal);
         d.set(h::MOTOR_RATED_TORQUE, rated_torque_micro_nm(nominal, motor.torque_constant));
         // The protections' limits stay in force across the re-read (the thermal derating's would otherwise hold
         // only in the slow tick it changed).
-        self.demand.scale = self.limited_scale(scale);
+        self.scale = self.limited_scale(scale);
+        self.clamp_internal_demand();
+        self.update_demand();
     }
 
     /// Updates the 50 Hz averages of the q current and the bus voltage (0x30D1:01, 0x30D2:01, homing -1..-4).
     fn update_averages(&mut self) {
-        let s = &self.t1.signals;
+        let s = &self.report.signals;
         // First-order low-pass y += (x - y) / 8 at 2.5 kHz: cut-off 1/8 * 2500 / (2 pi) = 49.7 Hz, the 50 Hz of
         // IDX 0x30D1:01 / 0x30D2:01 (spec §1.3). |x|, |y| < 2^30: no wrap.
         self.i_q_average = self.i_q_average.wrapping_add(s.i_dq.q.to_bits().wrapping_sub(self.i_q_average) >> 3);
@@ -536,23 +656,32 @@ impl Drive {
     /// Writes the actual values of the last fast tick and their averages into the dictionary (run by
     /// [`Self::background`] at the start of each slow period, so a TxPDO sampled in the slow tick carries them).
     fn publish_actual_values(&mut self) {
-        let s = self.t1.signals;
+        let s = self.report.signals;
         let i_q = s.i_dq.q;
         let avg = Amps::from_bits(self.i_q_average);
         let d = &mut self.dictionary;
         d.set(h::CURRENT_ACTUAL_VALUE, i_q.to_milliamps());
         d.set(h::CURRENT_ACTUAL_VALUE_AVERAGED, avg.to_milliamps());
         d.set(h::CURRENT_DEMAND_VALUE, s.i_ref.q.to_milliamps());
-        d.set(h::TORQUE_DEMAND_VALUE, s.torque_demand_permille);
-        let permille = self.demand.scale.current_to_permille(i_q);
+        // 0x6074 follows the CST conversion while the current loop runs on it, and is 0 during an alignment.
+        if self.report.power == PowerState::OperationEnabled {
+            if self.report.stage == CommutationStage::Aligning {
+                self.shown_torque_demand = 0;
+            } else if self.report.stage.is_valid() && self.source == DemandSource::TargetTorque {
+                self.shown_torque_demand = self.torque_demand_permille;
+            }
+        }
+        let d = &mut self.dictionary;
+        d.set(h::TORQUE_DEMAND_VALUE, self.shown_torque_demand);
+        let permille = self.scale.current_to_permille(i_q);
         d.set(h::CURRENT_ACTUAL_VALUE_PER_MILLE, permille);
         d.set(h::TORQUE_ACTUAL_VALUE, permille);
-        d.set(h::TORQUE_ACTUAL_VALUE_AVERAGED, self.demand.scale.current_to_permille(avg));
+        d.set(h::TORQUE_ACTUAL_VALUE_AVERAGED, self.scale.current_to_permille(avg));
         let mv = Volts::from_bits(self.v_bus_average).to_millivolts().max(0);
         d.set(h::DC_LINK_CIRCUIT_VOLTAGE, mv.unsigned_abs());
         d.set(h::POWER_SUPPLY_VOLTAGE, u16::try_from(mv / 100).unwrap_or(u16::MAX));
         d.set(h::HALL_PATTERN, s.hall);
-        if let Some(latch) = self.t1.commutation.last_index_latch() {
+        if let Some(latch) = self.report.last_index_latch {
             d.set(h::ENCODER_INDEX_POSITION, u32::from(latch));
         }
     }
@@ -561,27 +690,33 @@ impl Drive {
     // Power-stage requests (called by the CiA 402 state machine)
     // ---------------------------------------------------------------------------------------------------------
 
-    /// CiA 402 transition 3 "switch on": reads the power-disabled parameters and starts the current-offset
-    /// calibration (outputs at 50 % duty); the state becomes [`PowerState::SwitchedOn`] when it succeeds (within
-    /// `CalibrationConfig::timeout_ticks`), or [`PowerState::Fault`] when it fails.
+    /// CiA 402 transition 3 "switch on": reads the power-disabled parameters and asks tier 1 for the
+    /// current-offset calibration (outputs at 50 % duty); the state becomes [`PowerState::SwitchedOn`] when it
+    /// succeeds (within `CalibrationConfig::timeout_ticks`), or [`PowerState::Fault`] when it fails.
     pub fn switch_on(&mut self) -> Result<(), RequestError> {
-        match self.t1.state {
+        match self.power() {
             PowerState::Off | PowerState::SwitchedOn => {
                 self.configure_commutation();
                 self.refresh_parameters();
-                self.t1.begin_calibration(self.config.calibration);
+                self.request(
+                    |p| {
+                        p.switch_on = p.switch_on.wrapping_add(1);
+                        p.level = PowerLevel::SwitchedOn;
+                    },
+                    PowerState::Calibrating,
+                );
                 Ok(())
             }
             other => Err(RequestError::WrongState(other)),
         }
     }
 
-    /// CiA 402 transition 4 "enable operation": starts the commutation (from the next fast tick's sensors) and the
-    /// current loop with empty integrators.
+    /// CiA 402 transition 4 "enable operation": tier 1 starts the commutation (from its next period's sensors)
+    /// and the current loop with empty integrators.
     pub fn enable_operation(&mut self) -> Result<(), RequestError> {
-        match self.t1.state {
+        match self.power() {
             PowerState::SwitchedOn => {
-                self.t1.enable_operation();
+                self.request(|p| p.level = PowerLevel::OperationEnabled, PowerState::OperationEnabled);
                 Ok(())
             }
             PowerState::OperationEnabled => Ok(()),
@@ -591,34 +726,54 @@ impl Drive {
 
     /// CiA 402 transition 5 "disable operation": outputs off, stays calibrated.
     pub fn disable_operation(&mut self) {
-        self.t1.disable_operation();
+        let predicted = match self.power() {
+            PowerState::OperationEnabled => PowerState::SwitchedOn,
+            other => other,
+        };
+        self.request(|p| p.level = PowerLevel::SwitchedOn, predicted);
     }
 
-    /// CiA 402 transitions 6/8/9 "shutdown"/"disable voltage": outputs off, calibration to be redone at the next
-    /// switch-on. A latched fault stays latched.
+    /// CiA 402 transitions 6/8/9 "shutdown"/"disable voltage" and every forced off: outputs off, calibration to be
+    /// redone at the next switch-on. A latched fault stays latched.
     pub fn shutdown(&mut self) {
-        self.t1.shutdown();
+        let predicted = match self.power() {
+            PowerState::Fault(e) => PowerState::Fault(e),
+            _ => PowerState::Off,
+        };
+        self.request(|p| p.level = PowerLevel::Off, predicted);
     }
 
     /// CiA 402 transition 15 "fault reset": back to [`PowerState::Off`].
     pub fn fault_reset(&mut self) {
-        self.t1.fault_reset();
+        let predicted = match self.power() {
+            PowerState::Fault(_) => PowerState::Off,
+            other => other,
+        };
+        self.request(|p| p.fault_reset = p.fault_reset.wrapping_add(1), predicted);
     }
 
     /// Selects where the q-current reference comes from.
     pub fn set_demand_source(&mut self, source: DemandSource) {
-        self.demand.source = source;
+        self.source = source;
+        self.update_demand();
     }
 
     /// The q-current demand for [`DemandSource::Internal`] (tier 2's velocity/position loops), clamped to the
     /// current limit.
     pub fn set_current_demand(&mut self, i_q: Amps) {
-        let limit = self.demand.scale.current_limit().to_bits();
-        self.demand.internal = Amps::from_bits(i_q.to_bits().clamp(limit.wrapping_neg(), limit));
+        self.internal = i_q;
+        self.clamp_internal_demand();
+        self.update_demand();
     }
 
-    /// Reads encoder, pole pairs and Hall objects (writable only with the power disabled) into the commutation.
-    /// Keeps the encoder's position when nothing changed.
+    /// Clamps the loops' demand to the current limit in force.
+    fn clamp_internal_demand(&mut self) {
+        let limit = self.scale.current_limit().to_bits();
+        self.internal = Amps::from_bits(self.internal.to_bits().clamp(limit.wrapping_neg(), limit));
+    }
+
+    /// Reads encoder, pole pairs and Hall objects (writable only with the power disabled) into the commutation
+    /// settings; tier 1 rebuilds its commutation when they changed and keeps the encoder's position otherwise.
     fn configure_commutation(&mut self) {
         let d = &self.dictionary;
         let encoder =
@@ -627,73 +782,55 @@ impl Drive {
         // encoder (device.toml).
         let sensors = d.get(h::SENSORS_CONFIGURATION);
         let encoder_present = sensors & 0xFF == 1;
-        let sensor_changed = encoder_present != self.t1.encoder_present;
-        self.t1.encoder_present = encoder_present;
-        if sensor_changed {
-            self.axis.position_sensor_changed();
-        }
         let method = if (sensors >> 16) & 0xFF == 4 {
             CommutationMethod::Hall
         } else {
             CommutationMethod::ForcedAlignment(self.config.alignment)
         };
-        // 0x301A:01 bit 0: invert all Hall signals.
-        self.t1.hall_mask = if d.get(h::HALL_CONFIGURATION) & 1 != 0 { 0b111 } else { 0 };
-        let hall_offset = hall_offset_from_od(d.get(h::HALL_COMMUTATION_OFFSET));
-        let same = !sensor_changed
-            && self.t1.commutation.encoder().config() == &encoder
-            && self.t1.commutation.method() == method
-            && self.t1.commutation.hall_offset() == hall_offset;
-        // 0x3010:05, the electrical angle at the index (1/65536 turn as 0x301A:03; -1 = not known): a configured
-        // one wins over a learned one and over `DriveConfig::index_offset`.
-        let configured = u16::try_from(d.get(h::INDEX_COMMUTATION_OFFSET)).ok().map(hall_offset_from_od);
-        let index_offset = configured.or(self.t1.commutation.index_offset()).or(self.config.index_offset);
-        if same {
-            self.t1.commutation.set_index_offset(index_offset);
-        } else {
-            self.t1.commutation = Commutation::new(method, encoder, hall_offset, index_offset);
+        let commutation = CommutationSettings {
+            method,
+            encoder,
+            hall_offset: hall_offset_from_od(d.get(h::HALL_COMMUTATION_OFFSET)),
+            // 0x3010:05, the electrical angle at the index (1/65536 turn as 0x301A:03; -1 = not known): a
+            // configured one wins over a learned one (tier 1's) and over `DriveConfig::index_offset`.
+            configured_index_offset: u16::try_from(d.get(h::INDEX_COMMUTATION_OFFSET)).ok().map(hall_offset_from_od),
+            default_index_offset: self.config.index_offset,
+            // 0x301A:01 bit 0: invert all Hall signals.
+            hall_mask: if d.get(h::HALL_CONFIGURATION) & 1 != 0 { 0b111 } else { 0 },
+            encoder_present,
+        };
+        if encoder_present != self.settings.commutation.encoder_present {
+            self.axis.position_sensor_changed();
         }
-        self.t1.commutation.set_hall_only(!self.t1.encoder_present);
+        self.change_settings(|s| s.commutation = commutation);
     }
 
     // ---------------------------------------------------------------------------------------------------------
     // Observation
     // ---------------------------------------------------------------------------------------------------------
 
-    /// The power-stage state.
+    /// The power-stage state: tier 1's last report, or the state a request tier 1 has not yet acted on leads to.
     #[must_use]
-    pub const fn state(&self) -> PowerState {
-        self.t1.state
+    pub fn state(&self) -> PowerState {
+        self.power()
     }
 
-    /// The shunt offsets in use (nominal until the first successful calibration).
+    /// The shunt offsets in use, as tier 1 last reported them.
     #[must_use]
     pub const fn offsets(&self) -> &ShuntOffsets {
-        &self.t1.offsets
+        &self.report.offsets
     }
 
-    /// The commutation state.
-    #[must_use]
-    pub const fn commutation(&self) -> &Commutation {
-        &self.t1.commutation
-    }
-
-    /// The current controller.
-    #[must_use]
-    pub const fn controller(&self) -> &CurrentController {
-        &self.t1.controller
-    }
-
-    /// What the last fast tick measured and commanded.
+    /// What tier 1 measured and commanded in the period of its last report.
     #[must_use]
     pub const fn signals(&self) -> &FastSignals {
-        &self.t1.signals
+        &self.report.signals
     }
 
     /// The demand scale and limits in force.
     #[must_use]
     pub const fn demand_scale(&self) -> &DemandScale {
-        &self.demand.scale
+        &self.scale
     }
 
     /// Tier 2: the CiA 402 machine, the modes, loops, supervision and faults.
@@ -707,10 +844,10 @@ impl Drive {
         &mut self.axis
     }
 
-    /// The input edges and index latched by tier 1.
+    /// The input edges and index latched by tier 1, as last reported.
     #[must_use]
     pub const fn latches(&self) -> &PinLatches {
-        &self.t1.latches
+        &self.report.latches
     }
 
     /// Output pin levels (bit n = output n+1), set by tier 2.

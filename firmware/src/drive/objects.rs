@@ -28,7 +28,7 @@
 //!   with 0x0800_0020 (data cannot be transferred or stored to the application) and never panics.
 //! - Any other application entry (none exists today) answers 0x0800_0020 as well.
 //!
-//! On the target the flash work happens in tier 3 inside `rt::tier1::with_drive` (see `rt::app`).
+//! On the target the flash work happens in tier 3 inside `rt::tier2::with_drive` (see `rt::app`).
 
 use super::{Drive, DriveConfig};
 use crate::hal::flash::NorFlash;
@@ -178,10 +178,14 @@ impl Drive {
     }
 
     /// Whether the power stage is switched on (CiA 402 "Switched on", "Operation enabled" and the calibration
-    /// between them): the state in which 0x1010/0x1011 refuse with 0x0800_0022.
+    /// between them): the state in which 0x1010/0x1011 refuse with 0x0800_0022. Enabled when tier 1's last report
+    /// says so or when a request tier 1 has not yet acted on leads there: a flash erase must not start in the
+    /// periods between a switch-on request and the report of the calibration it started, nor before a
+    /// shutdown has taken effect.
     #[must_use]
-    pub const fn power_stage_enabled(&self) -> bool {
-        !matches!(self.t1.state, PowerState::Off | PowerState::Fault(_))
+    pub fn power_stage_enabled(&self) -> bool {
+        let on = |state: PowerState| !matches!(state, PowerState::Off | PowerState::Fault(_));
+        on(self.report().power) || on(self.state())
     }
 
     /// The drive's application objects over `store` for one SDO transfer, without program control (0x1F5x

@@ -2,40 +2,26 @@
 //! commutation, current controller, trip limits in force, position latches and sums, the trip sample, the
 //! slow-tick divider) and the fast tick over it ([`Tier1State::fast_tick`]).
 //!
-//! The tier-2 drive ([`super::Drive`]) holds one and reaches it through the methods below; what tier 2 decides for
-//! the current reference is the [`DemandCommand`]. These are the shapes of the hand-offs of the tier split
-//! (`docs/design/tier-ownership.md`): the power-stage requests become a command tier 1 acts on in its next period,
-//! and the demand command and the report of what tier 1 measured cross through `crate::handoff`. Until then the
-//! drive calls them directly, and on the target the runtime runs both tiers on one drive.
+//! Only tier 1 touches it. Tier 2 reaches it through blocks (`super::blocks`): tier 1 applies the [`Settings`]
+//! and the [`SetPoint`] tier 2 published last ([`Tier1State::apply_settings`], [`Tier1State::apply_setpoint`]) at
+//! the start of a period, and hands back a [`Tier1Report`] at every slow-tick boundary ([`Tier1State::report`]).
+//! Tier 1 is the authority on its own state: it acts on a request when it reads it, from the state it is in
+//! then (a request that no longer fits, such as a switch-on after a trip, is dropped, and the report says why).
 
+use super::blocks::{PowerLevel, SetPoint, Settings, Tier1Report};
 use super::calibration::{Calibration, CalibrationConfig, CalibrationStatus, CALIBRATION_COMMAND};
 use super::commutation::Commutation;
 use super::hall_position::HallPosition;
 use super::protection::Limits;
 use super::scaling::{self, ShuntOffsets};
-use super::{DemandSource, FastSignals, FastTick};
+use super::{FastSignals, FastTick};
 use crate::control::angle::ElectricalAngle;
-use crate::control::current_loop::{foc_step, CurrentController, FocInput};
-use crate::control::demand::DemandScale;
+use crate::control::current_loop::{foc_step, CurrentController, CurrentLoopConfig, FocInput};
 use crate::control::frames::{Abc, Amps, Dq, Volts};
 use crate::control::velocity_estimate::PositionSum;
 use crate::hal::power::{FeedbackSample, Measurements, PwmCommand, SLOW_TICK_DIVIDER};
-use crate::od::access::Dictionary;
-use crate::od::generated::handles as h;
 use crate::power_state::{CommutationStage, DriveError, PowerState, Trip};
 use crate::sensors::latch::PinLatches;
-
-/// What tier 2 decides for tier 1's q-current reference: where it comes from, the loops' demand (already clamped
-/// to the limit), and the torque-to-current scale with the protections' limits in force.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct DemandCommand {
-    /// Where the q-current reference comes from.
-    pub source: DemandSource,
-    /// The loops' q-current demand, for [`DemandSource::Internal`].
-    pub internal: Amps,
-    /// Target torque to current, with the I2t and thermal limits applied.
-    pub scale: DemandScale,
-}
 
 /// Tier 1's state (module documentation).
 #[derive(Clone, Debug)]
@@ -43,70 +29,188 @@ pub struct DemandCommand {
 // register in one instruction (the drive keeps this struct at its start for the same reason).
 #[repr(C)]
 pub struct Tier1State {
-    pub(super) state: PowerState,
-    pub(super) divider: u32,
-    pub(super) hall_mask: u8,
+    state: PowerState,
+    divider: u32,
+    /// The q-current reference of the last set-point.
+    i_q: Amps,
+    hall_mask: u8,
     /// 0x3000:01 sensor 1 is the incremental encoder; without it the Halls are the position sensor.
-    pub(super) encoder_present: bool,
+    encoder_present: bool,
     /// The last sample's break input (whether a trip's cause persists).
-    pub(super) last_break_input: bool,
-    /// Tier-1 trip limits (from 0x3001:02, converted in tier 2).
-    pub(super) limits: Limits,
-    pub(super) offsets: ShuntOffsets,
-    pub(super) commutation: Commutation,
-    pub(super) controller: CurrentController,
-    pub(super) signals: FastSignals,
-    /// Encoder positions at the input edges and the index (written by tier 1, read by tier 2).
-    pub(super) latches: PinLatches,
+    last_break_input: bool,
+    /// Tier-1 trip limits (from 0x3001:02).
+    limits: Limits,
+    offsets: ShuntOffsets,
+    commutation: Commutation,
+    controller: CurrentController,
+    signals: FastSignals,
+    /// Encoder positions at the input edges and the index.
+    latches: PinLatches,
     /// Position counted from the Hall states (the main position without an encoder).
-    pub(super) hall_position: HallPosition,
-    pub(super) calibration: Calibration,
+    hall_position: HallPosition,
+    calibration: Calibration,
     /// What the fast tick that tripped measured (the fault's diagnosis data).
-    pub(super) trip_sample: FastSignals,
+    trip_sample: FastSignals,
     /// Tier 1's encoder positions summed and latched per slow tick (the averaged velocity estimate).
-    pub(super) position_sum: PositionSum,
+    position_sum: PositionSum,
+    /// The settings in force (the calibration's, the commutation's and the limits' source).
+    settings: Settings,
+    /// The last set-point applied.
+    setpoint: SetPoint,
 }
 
 impl Tier1State {
-    /// Outputs off, not calibrated, with `commutation` and `controller` as the drive configured them.
-    pub(super) fn new(calibration: CalibrationConfig, commutation: Commutation, controller: CurrentController) -> Self {
-        Self {
+    /// Outputs off, not calibrated, running with `settings` (the tier-2 drive's first ones,
+    /// `super::Drive::settings`).
+    #[must_use]
+    pub fn new(settings: &Settings) -> Self {
+        let c = &settings.commutation;
+        let loop_config = CurrentLoopConfig {
+            gains_d: settings.gains,
+            gains_q: settings.gains,
+            ..CurrentLoopConfig::from_idx_0x30a0(0, 0)
+        };
+        let mut t1 = Self {
             state: PowerState::Off,
             divider: SLOW_TICK_DIVIDER,
-            hall_mask: 0,
-            encoder_present: true,
+            i_q: Amps::ZERO,
+            hall_mask: c.hall_mask,
+            encoder_present: c.encoder_present,
             last_break_input: false,
-            limits: Limits::default(),
+            limits: Limits::new(settings.output_limit_ma),
             offsets: ShuntOffsets::NOMINAL,
-            commutation,
-            controller,
+            commutation: Commutation::new(
+                c.method,
+                c.encoder,
+                c.hall_offset,
+                c.configured_index_offset.or(c.default_index_offset),
+            ),
+            controller: CurrentController::new(loop_config),
             signals: FastSignals::default(),
             latches: PinLatches::default(),
             hall_position: HallPosition::default(),
-            calibration: Calibration::new(calibration),
+            calibration: Calibration::new(settings.calibration),
             trip_sample: FastSignals::default(),
             position_sum: PositionSum::default(),
+            settings: *settings,
+            setpoint: SetPoint::default(),
+        };
+        t1.commutation.set_hall_only(!t1.encoder_present);
+        t1
+    }
+
+    /// Takes over the settings tier 2 published (at the start of a period, before the set-point). The limits and
+    /// gains take effect now; the commutation is rebuilt only when its configuration changed (tier 2 changes it
+    /// only at a switch-on, with the outputs off), else it keeps its angle and learned index offset.
+    #[inline(never)]
+    pub fn apply_settings(&mut self, settings: &Settings) {
+        if settings.version == self.settings.version {
+            return;
+        }
+        if settings.output_limit_ma != self.settings.output_limit_ma {
+            self.limits = Limits::new(settings.output_limit_ma);
+        }
+        self.controller.set_gains(settings.gains, settings.gains);
+        let c = &settings.commutation;
+        let sensor_changed = c.encoder_present != self.encoder_present;
+        self.encoder_present = c.encoder_present;
+        self.hall_mask = c.hall_mask;
+        let same = !sensor_changed
+            && self.commutation.encoder().config() == &c.encoder
+            && self.commutation.method() == c.method
+            && self.commutation.hall_offset() == c.hall_offset;
+        // A configured offset wins over a learned one, a learned one over the construction-time default.
+        let index_offset = c.configured_index_offset.or(self.commutation.index_offset()).or(c.default_index_offset);
+        if same {
+            self.commutation.set_index_offset(index_offset);
+        } else {
+            self.commutation = Commutation::new(c.method, c.encoder, c.hall_offset, index_offset);
+        }
+        self.commutation.set_hall_only(!self.encoder_present);
+        self.settings = *settings;
+    }
+
+    /// Takes over the set-point tier 2 published (at the start of a period): the q-current reference, and the
+    /// power request when its sequence moved on: a fault reset, then a switch-on, then the level, each from the
+    /// state tier 1 is in now.
+    pub fn apply_setpoint(&mut self, setpoint: &SetPoint) {
+        self.i_q = setpoint.i_q;
+        let request = &setpoint.power;
+        let last = self.setpoint.power;
+        if request.sequence != last.sequence {
+            if request.fault_reset != last.fault_reset {
+                self.fault_reset();
+            }
+            if request.switch_on != last.switch_on && matches!(self.state, PowerState::Off | PowerState::SwitchedOn) {
+                self.begin_calibration(self.settings.calibration);
+            }
+            match request.level {
+                PowerLevel::Off => self.shutdown(),
+                PowerLevel::SwitchedOn => {
+                    if self.state == PowerState::OperationEnabled {
+                        self.disable_operation();
+                    }
+                }
+                PowerLevel::OperationEnabled => {
+                    if self.state == PowerState::SwitchedOn {
+                        self.enable_operation();
+                    }
+                }
+            }
+        }
+        self.setpoint = *setpoint;
+    }
+
+    /// [`Self::apply_setpoint`] from the block's words (`super::blocks::SetPoint`'s `Words`): the version and the
+    /// q reference are taken as they are, and the power request is decoded only when its word changed (every
+    /// slow tick brings a new reference; a power request comes seldom).
+    #[inline]
+    pub fn apply_setpoint_words(&mut self, words: &[u32; 3]) {
+        let [version, power, i_q] = *words;
+        if power == self.setpoint.power_word() {
+            self.i_q = Amps::from_bits(i_q.cast_signed());
+            self.setpoint.version = version;
+            self.setpoint.i_q = self.i_q;
+        } else {
+            self.apply_setpoint(&<SetPoint as crate::handoff::Words<3>>::from_words(words));
+        }
+    }
+
+    /// What tier 1 hands tier 2 at a slow-tick boundary.
+    #[must_use]
+    pub fn report(&self) -> Tier1Report {
+        Tier1Report {
+            setpoint_version: self.setpoint.version,
+            settings_version: self.settings.version,
+            power_sequence: self.setpoint.power.sequence,
+            power: self.state,
+            signals: self.signals,
+            trip_sample: self.trip_sample,
+            break_input: self.last_break_input,
+            encoder_position: self.commutation.encoder().position(),
+            hall_position: self.hall_position.position(),
+            encoder_window: self.position_sum.latched(),
+            latches: self.latches,
+            angle: self.commutation.angle(),
+            stage: self.commutation.stage(),
+            last_index_latch: self.commutation.last_index_latch(),
+            index_offset: self.commutation.index_offset(),
+            offsets: self.offsets,
         }
     }
 
     /// One 25 kHz tick: protection, scaling, angle, current loop; the command for the next PWM period and whether a
     /// slow tick is due. Never panics; `PwmCommand::OFF` whenever the drive is not calibrating or enabled.
     #[inline]
-    pub fn fast_tick(&mut self, m: &Measurements, demand: &DemandCommand, dictionary: &Dictionary) -> FastTick {
+    pub fn fast_tick(&mut self, m: &Measurements) -> FastTick {
         // Counts down: one subtraction and one compare with zero.
         let slow_tick_due = self.divider <= 1;
         self.divider = if slow_tick_due { SLOW_TICK_DIVIDER } else { self.divider.wrapping_sub(1) };
-        FastTick { pwm: self.fast_step(m, slow_tick_due, demand, dictionary), slow_tick_due }
+        FastTick { pwm: self.fast_step(m, slow_tick_due), slow_tick_due }
     }
 
     #[inline(always)]
-    fn fast_step(
-        &mut self,
-        m: &Measurements,
-        slow_tick_due: bool,
-        demand: &DemandCommand,
-        dictionary: &Dictionary,
-    ) -> PwmCommand {
+    fn fast_step(&mut self, m: &Measurements, slow_tick_due: bool) -> PwmCommand {
         // 1. Protection: acts before anything else, in every state (the current checks run with the loop below).
         if m.break_input {
             self.last_break_input = true;
@@ -145,7 +249,7 @@ impl Tier1State {
                 if self.limits.bus_outside(v_bus, true) {
                     return self.trip_bus(v_bus);
                 }
-                self.run_current_loop(m, &feedback, angle, v_bus, demand, dictionary)
+                self.run_current_loop(m, &feedback, angle, v_bus)
             }
             PowerState::Calibrating if self.limits.bus_outside(v_bus, true) => self.trip_bus(v_bus),
             // A latched fault keeps its first cause; over-voltage with the outputs off is a fault of its own.
@@ -176,8 +280,6 @@ impl Tier1State {
         feedback: &FeedbackSample,
         mut angle: ElectricalAngle,
         v_bus: Volts,
-        demand: &DemandCommand,
-        dictionary: &Dictionary,
     ) -> PwmCommand {
         if self.commutation.stage() == CommutationStage::Unknown {
             if let Err(e) = self.commutation.start(feedback) {
@@ -187,20 +289,9 @@ impl Tier1State {
         }
         let i_ref = if let Some(align) = self.commutation.alignment_demand() {
             angle = align.angle;
-            self.signals.torque_demand_permille = 0;
             Dq::new(align.i_d, align.i_q)
         } else if self.commutation.stage().is_valid() {
-            let i_q = match demand.source {
-                DemandSource::TargetTorque => {
-                    let (permille, i_q) = demand
-                        .scale
-                        .torque_to_current(dictionary.get(h::TARGET_TORQUE), dictionary.get(h::TORQUE_OFFSET));
-                    self.signals.torque_demand_permille = permille;
-                    i_q
-                }
-                DemandSource::Internal => demand.internal,
-            };
-            Dq::new(Amps::ZERO, i_q)
+            Dq::new(Amps::ZERO, self.i_q)
         } else {
             // The alignment just finished this tick: the angle is valid from the next one; hold zero current.
             Dq::new(Amps::ZERO, Amps::ZERO)
@@ -247,32 +338,33 @@ impl Tier1State {
         PwmCommand::OFF
     }
 
-    /// The runtime measured a fast tick over its budget: a trip like any other of tier 1.
+    /// The runtime measured a fast tick over its budget, or found a period lost: a trip like any other of tier 1
+    /// (outputs off with the returned command; the axis reports 0xFF0B with `cost` as its detail).
     #[cold]
-    pub(super) fn current_loop_overrun(&mut self, cost: u32) -> PwmCommand {
+    pub fn current_loop_overrun(&mut self, cost: u32) -> PwmCommand {
         self.trip(DriveError::Overrun { cost })
     }
 
     // ---------------------------------------------------------------------------------------------------------
-    // Power-stage requests (the drive checks the state first; the tier split makes these commands)
+    // Power-stage transitions (from `apply_setpoint`)
     // ---------------------------------------------------------------------------------------------------------
 
     /// Transition 3: the current-offset calibration starts (outputs at 50 % duty).
-    pub(super) fn begin_calibration(&mut self, config: CalibrationConfig) {
+    fn begin_calibration(&mut self, config: CalibrationConfig) {
         self.calibration = Calibration::new(config);
         self.state = PowerState::Calibrating;
     }
 
     /// Transition 4: the commutation starts from the next period's sensors, the current loop with empty
     /// integrators.
-    pub(super) fn enable_operation(&mut self) {
+    fn enable_operation(&mut self) {
         self.controller.reset();
         self.commutation.stop();
         self.state = PowerState::OperationEnabled;
     }
 
     /// Transition 5: outputs off, still calibrated.
-    pub(super) fn disable_operation(&mut self) {
+    fn disable_operation(&mut self) {
         if self.state == PowerState::OperationEnabled {
             self.state = PowerState::SwitchedOn;
         }
@@ -281,7 +373,7 @@ impl Tier1State {
     }
 
     /// Transitions 6/8/9: outputs off, calibration to be redone; a latched fault stays latched.
-    pub(super) fn shutdown(&mut self) {
+    fn shutdown(&mut self) {
         if !matches!(self.state, PowerState::Fault(_)) {
             self.state = PowerState::Off;
         }
@@ -290,9 +382,66 @@ impl Tier1State {
     }
 
     /// Transition 15: a latched fault back to [`PowerState::Off`].
-    pub(super) fn fault_reset(&mut self) {
+    fn fault_reset(&mut self) {
         if matches!(self.state, PowerState::Fault(_)) {
             self.state = PowerState::Off;
         }
+    }
+}
+
+impl Tier1State {
+    /// The outputs switch now (calibration at 50 % duty, or the current loop): a lost period leaves them with
+    /// stale duties.
+    #[must_use]
+    pub const fn outputs_switching(&self) -> bool {
+        matches!(self.state, PowerState::Calibrating | PowerState::OperationEnabled)
+    }
+
+    /// The power-stage state now.
+    #[must_use]
+    pub const fn state(&self) -> PowerState {
+        self.state
+    }
+
+    /// The shunt offsets in use (nominal until the first successful calibration).
+    #[must_use]
+    pub const fn offsets(&self) -> &ShuntOffsets {
+        &self.offsets
+    }
+
+    /// The commutation.
+    #[must_use]
+    pub const fn commutation(&self) -> &Commutation {
+        &self.commutation
+    }
+
+    /// The current controller.
+    #[must_use]
+    pub const fn controller(&self) -> &CurrentController {
+        &self.controller
+    }
+
+    /// What the last fast tick measured and commanded.
+    #[must_use]
+    pub const fn signals(&self) -> &FastSignals {
+        &self.signals
+    }
+
+    /// The input edges and the index latched.
+    #[must_use]
+    pub const fn latches(&self) -> &PinLatches {
+        &self.latches
+    }
+
+    /// The set-point in force.
+    #[must_use]
+    pub const fn setpoint(&self) -> &SetPoint {
+        &self.setpoint
+    }
+
+    /// The settings in force.
+    #[must_use]
+    pub const fn settings(&self) -> &Settings {
+        &self.settings
     }
 }

@@ -1,19 +1,21 @@
 //! The glue between the runtime and the pure library: what tier 1 and tier 2 call, and their state; the boot path
 //! that loads the stored parameters before the drive exists; tier 3's SDO access to the drive.
 //!
-//! Tier 1 runs [`Drive::fast_tick`] (protection, scaling, commutation angle, `control::current_loop::foc_step`);
-//! tier 2 runs [`Drive::slow_tick`]. Both take the one [`Drive`]: tier 1 owns it, and tier 2 and 3 reach it only
-//! through `tier1::with_drive`, which holds tier 1 off for the duration (see `rt` module docs).
+//! Tier 1 runs [`Tier1State::fast_tick`] (protection, scaling, commutation angle,
+//! `control::current_loop::foc_step`) on the state it owns, after taking the blocks the drive published; tier 2
+//! runs [`Drive::background`] and [`Drive::slow_tick`] on the [`Drive`], which tier 2 and tier 3 reach through
+//! `tier2::with_drive` (a lock up to tier 2's priority that never masks tier 1; see `rt` module docs).
 //!
 //! # Parameters
 //! [`boot`] runs at start-up, before tier 1 gets the drive: it reads the parameter sectors (PARAMS_A/PARAMS_B,
 //! [`ParamFlash`]) and builds the drive from the defaults with the stored record applied ([`Drive::boot`], the same
 //! path the host tests and `drive-sim` use). Boot only reads the flash. The store then belongs to tier 3, which
-//! erases and programs only through [`sdo_write`] (0x1010 "save", 0x1011 "load"): inside `tier1::with_drive`, with
-//! the power stage disabled (see `board::flash` for why).
+//! erases and programs only through [`sdo_write`] (0x1010 "save", 0x1011 "load"): inside `tier2::with_drive`, with
+//! the power stage disabled and no request pending that would switch it on (see `board::flash` for why).
 
 use crate::board::flash::ParamFlash;
 use crate::drive::objects::BootReport;
+use crate::drive::tier1::Tier1State;
 use crate::drive::{Drive, DriveConfig, FastTick};
 use crate::hal::power::Measurements;
 use crate::od::abort::SdoAbort;
@@ -21,7 +23,7 @@ use crate::od::access::AccessContext;
 use crate::od::store::ParamStore;
 
 /// Everything tier 1 keeps between periods.
-pub type FastState = Drive;
+pub type FastState = Tier1State;
 
 /// The parameter store on the board's flash (owned by tier 3 after boot).
 pub type Params = ParamStore<ParamFlash>;
@@ -58,19 +60,37 @@ pub fn boot() -> Boot {
 }
 
 /// An SDO download of a whole value from tier 3, through the drive's application objects: 0x1010 "save" and
-/// 0x1011 "load" erase and program the parameter flash here. Runs inside `tier1::with_drive`: tiers 1 and 2 are
-/// held off while the flash stalls the bus (they could not run anyway), and the drive's power-stage state is
-/// checked in the same critical section (0x0800_0022 while it is switched on). 0x0800_0022 as well before tier 1
-/// has the drive.
+/// 0x1011 "load" erase and program the parameter flash here. Runs inside `tier2::with_drive`: the drive's
+/// power-stage state (with the requests tier 1 has not yet acted on) is checked in the same section (0x0800_0022
+/// while it is switched on), and no new request can be made until the flash work is done, so the power stage stays
+/// off while the flash stalls the core (tier 1 then loses periods with its outputs off, which it does not count as
+/// a fault). 0x0800_0022 as well before tier 2 has the drive.
 pub fn sdo_write(params: &mut Params, index: u16, sub: u8, data: &[u8], ctx: AccessContext) -> Result<(), SdoAbort> {
-    super::tier1::with_drive(|drive| drive.sdo_write(index, sub, data, ctx, params))
+    super::tier2::with_drive(|drive| drive.sdo_write(index, sub, data, ctx, params))
         .unwrap_or(Err(SdoAbort::DeviceState))
 }
 
-/// One current-loop period. Not inlined: tier 1 measures exactly this call.
+/// One current-loop period: the blocks the drive published since the last period (settings first), then the fast
+/// tick. Not inlined: tier 1 measures exactly this call. `settings_epoch` and `setpoint_epoch` are the epochs of
+/// the blocks taken last; a block is decoded only when its epoch moved on (one load and a compare otherwise).
 #[inline(never)]
-pub fn fast_tick(m: &Measurements, drive: &mut Drive) -> FastTick {
-    drive.fast_tick(m)
+pub fn fast_tick(
+    m: &Measurements,
+    t1: &mut Tier1State,
+    settings_epoch: &mut u32,
+    setpoint_epoch: &mut u32,
+) -> FastTick {
+    if super::tier1::SETTINGS.epoch() != *settings_epoch {
+        let settings = super::tier1::SETTINGS.read();
+        *settings_epoch = settings.epoch;
+        t1.apply_settings(&settings.block);
+    }
+    if super::tier1::SETPOINT.epoch() != *setpoint_epoch {
+        let setpoint = super::tier1::SETPOINT.read_words();
+        *setpoint_epoch = setpoint.epoch;
+        t1.apply_setpoint_words(&setpoint.block);
+    }
+    t1.fast_tick(m)
 }
 
 /// One velocity/position-loop period. Not inlined: tier 2 measures exactly this call.

@@ -7,8 +7,10 @@
 //!    the same shape is subtracted.
 //! 2. `insn.slow_tick_max`: the drive's whole slow tick (`Drive::slow_tick`: the CiA 402 axis with its state
 //!    machine, mode, interpolation, loops, monitoring, faults and I/O), as tier 2 measures it, including the
-//!    critical section it runs in: the maximum over every slow tick from start-up to the end of a cyclic
-//!    synchronous position run (no slow tick runs before it: tier 1 runs only when the bench pends it). The
+//!    drive's lock and the publications of the blocks for tier 1: the maximum over every slow tick from start-up
+//!    to the end of a cyclic synchronous position run (no slow tick runs before it: tier 1 runs only when the
+//!    bench pends it), and then over each of CSV, PVM, PPM and homing (`insn.slow_tick_<mode>`, see
+//!    `other_modes`); `insn.slow_tick_max` is the worst of them all. The
 //!    ADC interrupt is pended from here (QEMU has no ADC), tier 1 runs the fast tick against the built-in plant
 //!    (`board::plant`) with its shaft free (the motor's torque moves the reference inertia) and raises tier 2
 //!    every tenth period. Through the controlword, as a master does: 0x6060 = 8 (CSP), 0x60C2 = 1 ms, 0x6040 =
@@ -31,10 +33,12 @@
 //!    by the period timer (SysTick every 1,129 ticks of 168 MHz = 6,720 instructions, `board::period_timer`)
 //!    instead of the bench: back to «Switch on disabled» with other motion parameters, then the CSP move of item 2
 //!    again through the controlword (its start converts the parameters again, the longest background step), tier 3
-//!    reading the statusword through the drive while it waits for each set-point. The latency is from the start of
-//!    the period tier 1 runs in to its handler (to a SysTick tick); a period whose start passes while tier 1 is
-//!    masked, with the next start already due, is lost (`fast_missed`). `insn.masked_max` is the longest
-//!    `rt::tier1::with_drive` section of this part.
+//!    serving SDO requests through a CANopen node over the drive meanwhile ([`Tier3Load`]: uploads, and
+//!    downloads that the background step converts). The latency is from the start of the period tier 1 runs in
+//!    to its handler (to a SysTick tick); a period whose start passes while tier 1 is held off, with the next
+//!    start already due, is lost (`fast_missed`), and tier 1 counts the periods it finds lost itself
+//!    (`tier1::PERIODS_LOST`, which must agree). `insn.masked_max` is the longest wait past the entry cost.
+//!    `insn.tier2_total_max` is the worst whole tier-2 step of a slow period in this part.
 //! 5. Checks the tiers and the drive (every period ran, tier 2 once per ten, nothing missed, no overrun, the CSP
 //!    run reached operation enabled, followed without a fault or following-error bit, the profile part ended in
 //!    operation enabled) and exits through semihosting: status 0, or 1 when a check failed.
@@ -45,8 +49,8 @@ use core::sync::atomic::{compiler_fence, Ordering};
 use cortex_m::peripheral::NVIC;
 use micromath::F32Ext;
 
-use super::app::FastState;
 use super::{tier1, tier2};
+use crate::drive::Drive;
 
 use crate::board::period_timer::{self, PERIOD_INSTRUCTIONS};
 use crate::board::plant::{self, Shaft, HOLD_TICKS, PROFILE_TICKS};
@@ -76,6 +80,14 @@ const CSP_PERIOD_CYCLES: u32 = 250;
 const CSP_PERIODS: u32 = 2;
 /// Cycles of the final hold (set-points keep coming at the start position).
 const CSP_HOLD_CYCLES: u32 = 50;
+/// The other modes after the CSP run, each from operation enabled on the free shaft: (name, 0x6060, PWM periods).
+/// CSV and PVM at `MODES_RPM`, PPM a move of `PPM_DISTANCE_INC`, homing method 34 (index pulse, positive) at
+/// `MODES_RPM` until it ends.
+const MODES_RPM: i32 = 600;
+const PPM_DISTANCE_INC: i32 = 8_192;
+const MODE_PERIODS: u32 = 5_000;
+/// The homing's run (0x609A = 10,000 rpm/s): the ramp, up to one turn to the index, the stop and the way back.
+const HOMING_PERIODS: u32 = 25_000;
 /// Longest wait for a state of the CiA 402 machine, PWM periods (the calibration of transition 3 takes about
 /// 310).
 const STATE_TIMEOUT_TICKS: u32 = 2_000;
@@ -120,7 +132,8 @@ fn abc_ma(a: i32, b: i32) -> Abc<Amps> {
 
 /// `insn.foc_step`: the maximum over the input set, with the drive's own controller configuration.
 fn foc_step_max() -> u32 {
-    let Some(mut controller) = tier1::with_drive(|d| *d.controller()) else {
+    let Some(mut controller) = tier2::with_drive(|d| *crate::drive::tier1::Tier1State::new(d.settings()).controller())
+    else {
         return u32::MAX;
     };
     let probe = FocInput::default();
@@ -151,24 +164,84 @@ fn foc_step_max() -> u32 {
     max
 }
 
+/// Tier 3's work while the period timer drives tier 1: a CANopen node over the drive (pre-operational) serving
+/// SDO requests from a software bus, as the CAN task does: uploads of the statusword 0x6041 and, every fourth
+/// exchange, a download of profile acceleration 0x6083 with a new value, which the next background step converts
+/// (the axis's motion parameters).
+struct Tier3Load {
+    node: crate::canopen::CanopenNode,
+    exchanges: u32,
+    /// Answers that were not the expected SDO response (upload of 2 bytes, download acknowledged).
+    wrong_answers: u32,
+}
+
+impl Tier3Load {
+    const NODE: u8 = 1;
+
+    /// The node booted into pre-operational over the drive, or `None` if it did not boot.
+    fn new() -> Option<Self> {
+        use crate::canopen::{CanopenNode, NodeEvent};
+        use crate::od::access::NoApplicationObjects;
+        let mut node = CanopenNode::new(Self::NODE);
+        let booted = tier2::with_drive(|d| {
+            let mut app = NoApplicationObjects;
+            matches!(node.process(d, &mut app, 0), Some(NodeEvent::Reset { .. }))
+                && node.process(d, &mut app, 0) == Some(NodeEvent::Booted)
+        });
+        while node.transmit().is_some() {}
+        (booted == Some(true)).then_some(Self { node, exchanges: 0, wrong_answers: 0 })
+    }
+
+    /// One SDO request through the node (inside the drive's lock, as the CAN task's poll), and its answer.
+    fn exchange(&mut self) {
+        use crate::canopen::frame::CanFrame;
+        use crate::od::access::NoApplicationObjects;
+        let download = self.exchanges % 4 == 3;
+        let acceleration = 10_000u32.wrapping_add(self.exchanges % 8).to_le_bytes();
+        let request = if download {
+            [0x23, 0x83, 0x60, 0x00, acceleration[0], acceleration[1], acceleration[2], acceleration[3]]
+        } else {
+            [0x40, 0x41, 0x60, 0x00, 0, 0, 0, 0]
+        };
+        let Some(frame) = CanFrame::new(0x600 + u16::from(Self::NODE), &request) else { return };
+        let now_us = u64::from(self.exchanges).wrapping_mul(400);
+        let node = &mut self.node;
+        let _ = tier2::with_drive(|d| {
+            let mut app = NoApplicationObjects;
+            node.handle_frame(&frame, d, &mut app, now_us);
+            let _ = node.process(d, &mut app, now_us);
+        });
+        let expected = if download { 0x60 } else { 0x4B };
+        let answered = node
+            .transmit()
+            .is_some_and(|f| f.id() == 0x580 + u16::from(Self::NODE) && f.data().first() == Some(&expected));
+        while node.transmit().is_some() {}
+        self.wrong_answers = self.wrong_answers.wrapping_add(u32::from(!answered));
+        self.exchanges = self.exchanges.wrapping_add(1);
+    }
+}
+
 /// Runs the periods of the bench: by pending the ADC interrupt `n` times (tier 1 runs each time; tier 2 after every
 /// tenth), or, once the period timer drives tier 1 ([`Periods::timed`]), by letting `n` periods of time pass while
-/// tier 3 (this task) reads the statusword through the drive as the fieldbus tasks do. Counts the periods.
+/// tier 3 (this task) serves SDO requests through a CANopen node over the drive ([`Tier3Load`]). Counts the
+/// periods.
 struct Periods {
     pended: u32,
     /// The counter time the timed periods run up to (`None`: periods are pended).
     timed_until: Option<u32>,
+    /// Tier 3's work during timed periods.
+    load: Option<Tier3Load>,
 }
 
 impl Periods {
     /// Periods pended by the bench.
     const fn pended() -> Self {
-        Self { pended: 0, timed_until: None }
+        Self { pended: 0, timed_until: None, load: None }
     }
 
-    /// Periods driven by the period timer, from counter time `start`.
-    const fn timed(start: u32) -> Self {
-        Self { pended: 0, timed_until: Some(start) }
+    /// Periods driven by the period timer, from counter time `start`, with tier 3 doing `load` meanwhile.
+    const fn timed(start: u32, load: Option<Tier3Load>) -> Self {
+        Self { pended: 0, timed_until: Some(start), load }
     }
 
     fn run(&mut self, n: u32) {
@@ -185,7 +258,12 @@ impl Periods {
                 let until = until.wrapping_add(n.wrapping_mul(PERIOD_INSTRUCTIONS));
                 // Wrapping counter: the difference stays below 2^31 for any wait of this bench.
                 while (until.wrapping_sub(counter::now()) as i32) > 0 {
-                    black_box(tier1::with_drive(|d| d.dictionary().get(h::STATUSWORD)));
+                    match self.load.as_mut() {
+                        Some(load) => load.exchange(),
+                        None => {
+                            black_box(tier2::with_drive(|d| d.dictionary().get(h::STATUSWORD)));
+                        }
+                    }
                 }
                 self.timed_until = Some(until);
             }
@@ -194,29 +272,29 @@ impl Periods {
     }
 
     /// Runs periods until `done` holds for the drive, at most `limit`; whether it did.
-    fn run_until(&mut self, limit: u32, mut done: impl FnMut(&mut FastState) -> bool) -> bool {
+    fn run_until(&mut self, limit: u32, mut done: impl FnMut(&mut Drive) -> bool) -> bool {
         for _ in 0..limit {
-            if tier1::with_drive(&mut done).unwrap_or(false) {
+            if tier2::with_drive(&mut done).unwrap_or(false) {
                 return true;
             }
             self.run(1);
         }
-        tier1::with_drive(&mut done).unwrap_or(false)
+        tier2::with_drive(&mut done).unwrap_or(false)
     }
 }
 
 fn state() -> Option<PowerState> {
-    tier1::with_drive(|d| d.state())
+    tier2::with_drive(|d| d.state())
 }
 
 /// The CiA 402 state 0x6041 shows.
-fn statusword_state(d: &FastState) -> Option<State> {
+fn statusword_state(d: &Drive) -> Option<State> {
     Statusword(d.dictionary().get(h::STATUSWORD)).state()
 }
 
 /// Writes the controlword and runs until the statusword shows `state`.
 fn command(periods: &mut Periods, controlword: u16, state: State) -> bool {
-    let _ = tier1::with_drive(|d| d.dictionary_mut().set(h::CONTROLWORD, controlword));
+    let _ = tier2::with_drive(|d| d.dictionary_mut().set(h::CONTROLWORD, controlword));
     periods.run_until(STATE_TIMEOUT_TICKS, |d| statusword_state(d) == Some(state))
 }
 
@@ -235,7 +313,7 @@ struct CspRun {
 /// The CSP run (see the module documentation).
 fn csp(periods: &mut Periods) -> CspRun {
     let mut run = CspRun::default();
-    let _ = tier1::with_drive(|d| {
+    let _ = tier2::with_drive(|d| {
         let dict = d.dictionary_mut();
         dict.set(h::MODES_OF_OPERATION, MODE_CSP);
         dict.set(h::INTERPOLATION_TIME_PERIOD_VALUE, 1);
@@ -247,7 +325,7 @@ fn csp(periods: &mut Periods) -> CspRun {
     if !run.enabled {
         return run;
     }
-    let start = tier1::with_drive(|d| d.dictionary().get(h::POSITION_ACTUAL_VALUE)).unwrap_or(0);
+    let start = tier2::with_drive(|d| d.dictionary().get(h::POSITION_ACTUAL_VALUE)).unwrap_or(0);
     let cycles = CSP_PERIOD_CYCLES.saturating_mul(CSP_PERIODS).saturating_add(CSP_HOLD_CYCLES);
     let omega = core::f32::consts::TAU / CSP_PERIOD_CYCLES as f32;
     for k in 0..cycles {
@@ -256,13 +334,13 @@ fn csp(periods: &mut Periods) -> CspRun {
         } else {
             0
         };
-        let _ = tier1::with_drive(|d| {
+        let _ = tier2::with_drive(|d| {
             d.dictionary_mut().set(h::TARGET_POSITION, start.wrapping_add(excursion));
             d.setpoint_received();
         });
         run.setpoints = run.setpoints.wrapping_add(1);
         periods.run(CYCLE_TICKS);
-        let (sw, fe) = tier1::with_drive(|d| {
+        let (sw, fe) = tier2::with_drive(|d| {
             (d.dictionary().get(h::STATUSWORD), d.dictionary().get(h::FOLLOWING_ERROR_ACTUAL_VALUE))
         })
         .unwrap_or((Statusword::FAULT, i32::MAX));
@@ -271,8 +349,97 @@ fn csp(periods: &mut Periods) -> CspRun {
         run.bit13_seen |= sw & Statusword::OMS_13 != 0;
         run.follows_seen |= sw & Statusword::OMS_12 != 0;
     }
-    run.stayed_enabled = tier1::with_drive(|d| statusword_state(d)) == Some(Some(State::OperationEnabled));
+    run.stayed_enabled = tier2::with_drive(|d| statusword_state(d)) == Some(Some(State::OperationEnabled));
     run
+}
+
+/// The slow tick's worst case in one mode: 0x6060 = `mode` from operation enabled, `setup` on the drive, then
+/// `periods_in_mode` periods, with `every_cycle` run every master cycle (the cyclic modes' set-points). Whether the
+/// drive stayed without a fault, and the slow tick's maximum over the run (tiers 1 and 2 are idle between the
+/// bench's periods, so the bench resets the maximum).
+fn slow_tick_in_mode(
+    periods: &mut Periods,
+    mode: i8,
+    periods_in_mode: u32,
+    setup: impl FnOnce(&mut Drive),
+    mut every_cycle: impl FnMut(&mut Drive),
+) -> (bool, u32) {
+    tier2::SLOW_TICK_MAX.store(0, Ordering::Relaxed);
+    let _ = tier2::with_drive(|d| {
+        d.dictionary_mut().set(h::MODES_OF_OPERATION, mode);
+        setup(d);
+    });
+    for _ in 0..periods_in_mode / CYCLE_TICKS {
+        let _ = tier2::with_drive(&mut every_cycle);
+        periods.run(CYCLE_TICKS);
+    }
+    let sw = tier2::with_drive(|d| d.dictionary().get(h::STATUSWORD)).unwrap_or(Statusword::FAULT);
+    (sw & Statusword::FAULT == 0, tier2::SLOW_TICK_MAX.load(Ordering::Relaxed))
+}
+
+/// The slow tick in CSV, PVM, PPM and homing after the CSP run (see the constants): the maximum per mode, and
+/// whether every mode ran without a fault and the homing ended (statusword bit 12).
+fn other_modes(periods: &mut Periods) -> ([(&'static str, u32); 4], bool) {
+    let (csv_ok, csv) = slow_tick_in_mode(
+        periods,
+        9,
+        MODE_PERIODS,
+        |d| d.dictionary_mut().set(h::TARGET_VELOCITY, MODES_RPM),
+        |d| d.setpoint_received(),
+    );
+    let (pvm_ok, pvm) = slow_tick_in_mode(
+        periods,
+        3,
+        MODE_PERIODS,
+        |d| d.dictionary_mut().set(h::TARGET_VELOCITY, MODES_RPM.wrapping_neg()),
+        |_| {},
+    );
+    let mut started = false;
+    let (ppm_ok, ppm) = slow_tick_in_mode(
+        periods,
+        1,
+        MODE_PERIODS,
+        |d| {
+            let here = d.dictionary().get(h::POSITION_ACTUAL_VALUE);
+            let dict = d.dictionary_mut();
+            dict.set(h::PROFILE_VELOCITY, MODES_RPM.unsigned_abs());
+            dict.set(h::TARGET_POSITION, here.wrapping_add(PPM_DISTANCE_INC));
+        },
+        // Controlword bit 4 rising once the mode is shown, then back (the set-point handshake).
+        |d| {
+            let shown = d.dictionary().get(h::MODES_OF_OPERATION_DISPLAY) == 1;
+            let cw = if shown && !started { 0x1F } else { 0x0F };
+            started |= shown;
+            d.dictionary_mut().set(h::CONTROLWORD, cw);
+        },
+    );
+    let mut homing_started = false;
+    let (homing_ok, homing) = slow_tick_in_mode(
+        periods,
+        6,
+        HOMING_PERIODS,
+        |d| {
+            let dict = d.dictionary_mut();
+            dict.set(h::CONTROLWORD, 0x0F);
+            dict.set(h::HOMING_METHOD, 34i8);
+            dict.set(h::HOMING_SPEED_SWITCH_SEARCH, MODES_RPM.unsigned_abs());
+            dict.set(h::HOMING_SPEED_ZERO_SEARCH, MODES_RPM.unsigned_abs());
+            dict.set(h::HOMING_ACCELERATION, 10_000u32);
+        },
+        |d| {
+            let shown = d.dictionary().get(h::MODES_OF_OPERATION_DISPLAY) == 6;
+            if shown && !homing_started {
+                d.dictionary_mut().set(h::CONTROLWORD, 0x1F);
+                homing_started = true;
+            }
+        },
+    );
+    let homed = tier2::with_drive(|d| d.dictionary().get(h::STATUSWORD) & Statusword::OMS_12 != 0) == Some(true);
+    let _ = tier2::with_drive(|d| d.dictionary_mut().set(h::CONTROLWORD, 0x0F));
+    print(format_args!(
+        "check.modes_without_fault=csv {csv_ok} pvm {pvm_ok} ppm {ppm_ok} homing {homing_ok}, homing ended {homed}\n"
+    ));
+    ([("csv", csv), ("pvm", pvm), ("ppm", ppm), ("homing", homing)], csv_ok && pvm_ok && ppm_ok && homing_ok && homed)
 }
 
 /// The bench task.
@@ -288,26 +455,28 @@ pub async fn bench() {
     // CSP through the controlword on the free shaft: every slow tick so far is part of it.
     plant::select(Shaft::Free);
     let csp = csp(&mut periods);
-    let slow_max = tier2::SLOW_TICK_MAX.load(Ordering::Relaxed);
+    let slow_csp = tier2::SLOW_TICK_MAX.load(Ordering::Relaxed);
     let background_max = tier2::BACKGROUND_MAX.load(Ordering::Relaxed);
     let csp_slow_ticks = tier2::SLOW_TICKS.load(Ordering::Relaxed);
+    let (modes, modes_ok) = other_modes(&mut periods);
+    let slow_max = modes.iter().fold(slow_csp, |max, (_, m)| max.max(*m));
 
     // «Disable voltage», then the speed profile on the direct power-stage path. Switch on: the offset calibration
     // runs at standstill during the plant's hold, which starts with the selection.
     plant::select(Shaft::Profile);
     let profile_start = periods.pended;
-    let _ = tier1::with_drive(|d| d.dictionary_mut().set(h::CONTROLWORD, 0));
+    let _ = tier2::with_drive(|d| d.dictionary_mut().set(h::CONTROLWORD, 0));
     let disabled = periods.run_until(HOLD_TICKS / 4, |d| {
         d.state() == PowerState::Off && statusword_state(d) == Some(State::SwitchOnDisabled)
     });
-    let switched = tier1::with_drive(|d| d.switch_on().is_ok()).unwrap_or(false);
+    let switched = tier2::with_drive(|d| d.switch_on().is_ok()).unwrap_or(false);
     let calibrated = periods.run_until(HOLD_TICKS.saturating_sub(periods.pended.wrapping_sub(profile_start)), |d| {
         d.state() == PowerState::SwitchedOn
     });
     // The rest of the hold, then the profile.
     let held = periods.pended.wrapping_sub(profile_start);
     periods.run(HOLD_TICKS.saturating_sub(held));
-    let enabled = tier1::with_drive(|d| {
+    let enabled = tier2::with_drive(|d| {
         d.set_demand_source(DemandSource::Internal);
         d.set_current_demand(Amps::ZERO);
         d.enable_operation().is_ok()
@@ -315,25 +484,34 @@ pub async fn bench() {
     .unwrap_or(false);
     let step = PROFILE_TICKS.checked_div(DEMANDS_MA.len() as u32).unwrap_or(0);
     for ma in DEMANDS_MA {
-        let _ = tier1::with_drive(|d| d.set_current_demand(Amps::from_milliamps(ma)));
+        let _ = tier2::with_drive(|d| d.set_current_demand(Amps::from_milliamps(ma)));
         periods.run(step);
     }
     periods.run(PROFILE_TICKS.saturating_sub(step.saturating_mul(DEMANDS_MA.len() as u32)));
     let final_state = state();
 
     // The EtherCAT process-data cycle on the drive as it is now (operation enabled): measured with tier 1 held off.
-    let ecat = tier1::with_drive(ecat_cycle_max).flatten();
+    let ecat = tier2::with_drive(ecat_cycle_max).flatten();
     // One CANopen SYNC with its RPDO and TPDOs on a node of its own over the same drive, likewise.
-    let can = tier1::with_drive(can_sync_max).flatten();
+    let can = tier2::with_drive(can_sync_max).flatten();
     // The DC phase-locked loop's work per SYNC0 pulse, and the refresh of its 64-period ARR pattern.
     let (pll_pulse, pll_pattern) = sync_pll_max();
 
     let fast = tier1::FAST_TICKS.load(Ordering::Relaxed).wrapping_sub(fast_before);
     let slow = tier2::SLOW_TICKS.load(Ordering::Relaxed);
-    print(format_args!("source.fast_tick=drive::Drive::fast_tick\n"));
+    print(format_args!(
+        "source.fast_tick=rt::app::fast_tick: the blocks taken from tier 2 when new, then \
+         drive::tier1::Tier1State::fast_tick\n"
+    ));
     print(format_args!("insn.fast_tick_max={}\n", tier1::FAST_TICK_MAX.load(Ordering::Relaxed)));
-    print(format_args!("source.slow_tick=drive::Drive::slow_tick (CSP, 0x60C2 = 1 ms)\n"));
-    print(format_args!("insn.slow_tick_max={slow_max}\n"));
+    print(format_args!(
+        "source.slow_tick=drive::Drive::slow_tick, the worst over CSP (0x60C2 = 1 ms), CSV, PVM, PPM and homing \
+         (method 34), with the lock and the publications\n"
+    ));
+    print(format_args!("insn.slow_tick_max={slow_max}\ninsn.slow_tick_csp={slow_csp}\n"));
+    for (name, max) in modes {
+        print(format_args!("insn.slow_tick_{name}={max}\n"));
+    }
     print(format_args!(
         "source.background=drive::Drive::background (parameter conversion, hardware supervision, actual values; CSP)\n"
     ));
@@ -369,16 +547,30 @@ pub async fn bench() {
     let timed = timed_phase();
     print(format_args!(
         "source.tier1_latency_max=tier 1 driven by SysTick every {PERIOD_INSTRUCTIONS} instructions through the CSP \
-         move again, tier 3 reading the statusword: from the period's start to the handler, to a tick (6 \
+         move again, tier 3 serving SDO requests: from the period's start to the handler, to a tick (6 \
          instructions)\n"
     ));
     print(format_args!("insn.tier1_latency_max={}\n", timed.latency_max));
     print(format_args!(
-        "source.masked_max=the longest section with tier 1 masked (rt::tier1::with_drive) during the timer-driven part\n"
+        "source.masked_max=the longest wait of tier 1 past its own entry cost during the timer-driven part \
+         (tier1_latency_max less the smallest latency): every section that holds tier 1 off and overlaps a period \
+         start shows here\n"
     ));
     print(format_args!("insn.masked_max={}\n", timed.masked_max));
     print(format_args!("fast_missed={}\nslow_missed={}\n", timed.fast_missed, timed.slow_missed));
+    print(format_args!("count.periods_lost_seen_by_tier1={}\n", timed.periods_lost));
+    print(format_args!(
+        "source.tier2_total_max=rt::tier2::slow_loop: the report taken, Drive::background, Drive::slow_tick, with \
+         the lock and the publications, during the timer-driven part (preemptions by tier 1 included)\n"
+    ));
+    print(format_args!("insn.tier2_total_max={}\n", timed.tier2_total_max));
+    print(format_args!(
+        "source.report_publish=rt::tier1: Tier1State::report and its publication, every tenth period after the \
+         PWM write\n"
+    ));
+    print(format_args!("insn.report_publish_max={}\n", tier1::REPORT_MAX.load(Ordering::Relaxed)));
     print(format_args!("count.timed_periods={}\ncount.timed_fast_ticks={}\n", timed.periods, timed.fast_ticks));
+    print(format_args!("count.timed_tier3_sdo_exchanges={}\n", timed.sdo_exchanges));
 
     let mut ok = true;
     let mut check = |cond: bool, what: &str| {
@@ -391,6 +583,7 @@ pub async fn bench() {
     check(csp.follows_seen, "CSP: statusword bit 12 (drive follows the command value) was set");
     check(!csp.fault_seen && !csp.bit13_seen, "CSP: no fault and no following error");
     check(csp.stayed_enabled, "CSP: the drive stayed in operation enabled");
+    check(modes_ok, "CSV, PVM, PPM and homing ran without a fault, and the homing ended");
     check(disabled, "disable voltage switched the power stage off");
     check(switched && calibrated, "switch-on calibrated the current offsets during the hold");
     check(enabled, "operation enabled");
@@ -401,6 +594,11 @@ pub async fn bench() {
     check(!overrun, "no fast-tick overrun");
     check(timed.fast_ticks > 0, "the period timer drove tier 1");
     check(timed.csp_enabled, "CSP under the period timer reached operation enabled");
+    check(timed.periods_lost == timed.fast_missed, "tier 1 saw the periods the timer lost");
+    check(
+        timed.tier3_booted && timed.sdo_exchanges > 1_000 && timed.sdo_wrong_answers == 0,
+        "tier 3 served SDO requests through its CANopen node all along the timed part, each answered",
+    );
     check(ecat.is_some(), "the default PDO mapping compiles and the process-data cycle ran");
     check(
         can.is_some_and(|c| c.complete),
@@ -411,8 +609,14 @@ pub async fn bench() {
 
 /// What the timer-driven part measured.
 struct TimedRun {
+    /// Tier 3's CANopen node booted, its SDO exchanges, and the answers that were wrong.
+    tier3_booted: bool,
+    sdo_exchanges: u32,
+    sdo_wrong_answers: u32,
     latency_max: u32,
     masked_max: u32,
+    periods_lost: u32,
+    tier2_total_max: u32,
     fast_missed: u32,
     slow_missed: u32,
     periods: u32,
@@ -422,29 +626,34 @@ struct TimedRun {
 }
 
 /// Tier 1 at the real period (SysTick, `board::period_timer`) while tier 2 runs the CSP move of the first part
-/// again (from «Switch on disabled» through the controlword, on the free shaft) and tier 3 (this task) reads the
-/// statusword through the drive between the set-points, as the fieldbus tasks do: the latency of tier 1, the
-/// longest masked section, the periods and slow ticks lost.
+/// again (from «Switch on disabled» through the controlword, on the free shaft) and tier 3 (this task) serves SDO
+/// requests through a CANopen node over the drive between the set-points ([`Tier3Load`]): the latency of tier 1,
+/// its longest wait, the periods and slow ticks lost, tier 2's whole step.
 fn timed_phase() -> TimedRun {
     plant::select(Shaft::Free);
-    let _ = tier1::with_drive(|d| {
+    let _ = tier2::with_drive(|d| {
         d.set_current_demand(Amps::ZERO);
         d.dictionary_mut().set(h::CONTROLWORD, 0);
     });
-    tier1::MASKED_MAX_TIER2.store(0, Ordering::Relaxed);
-    tier1::MASKED_MAX_TIER3.store(0, Ordering::Relaxed);
     tier1::TIER1_LATENCY_MAX.store(0, Ordering::Relaxed);
+    tier1::TIER1_LATENCY_MIN.store(u32::MAX, Ordering::Relaxed);
+    tier2::TIER2_TOTAL_MAX.store(0, Ordering::Relaxed);
+    let lost_before = tier1::PERIODS_LOST.load(Ordering::Relaxed);
     tier1::FAST_MISSED.store(0, Ordering::Relaxed);
     let slow_missed_before = tier2::SLOW_MISSED.load(Ordering::Relaxed);
     let fast_before = tier1::FAST_TICKS.load(Ordering::Relaxed);
     let start = counter::now();
     tier1::LAST_UPDATE.store(start, Ordering::Relaxed);
+    // Tier 1 supervises its own periods while the timer drives it (a lost one would trip the drive).
+    tier1::PERIOD_SUPERVISED.store(true, Ordering::Relaxed);
     period_timer::start();
-    let mut periods = Periods::timed(start);
+    let load = Tier3Load::new();
+    let booted = load.is_some();
+    let mut periods = Periods::timed(start, load);
     // Back to «Switch on disabled» first (the first part ended on the direct power-stage path), with other motion
     // parameters converted, so that the CSP start converts its own again as a master's start-up does (the
     // longest background step: `insn.background_max`).
-    let _ = tier1::with_drive(|d| {
+    let _ = tier2::with_drive(|d| {
         d.dictionary_mut().set(h::MODES_OF_OPERATION, 0i8);
         d.dictionary_mut().set(h::INTERPOLATION_TIME_PERIOD_VALUE, 2);
     });
@@ -452,14 +661,22 @@ fn timed_phase() -> TimedRun {
     periods.run(2 * SLOW_TICK_DIVIDER);
     let run = csp(&mut periods);
     period_timer::stop();
+    let (exchanges, wrong_answers) = periods.load.as_ref().map_or((0, 0), |l| (l.exchanges, l.wrong_answers));
+    tier1::PERIOD_SUPERVISED.store(false, Ordering::Relaxed);
+    let latency_max = tier1::TIER1_LATENCY_MAX.load(Ordering::Relaxed);
     TimedRun {
-        latency_max: tier1::TIER1_LATENCY_MAX.load(Ordering::Relaxed),
-        masked_max: tier1::masked_max(),
+        latency_max,
+        masked_max: latency_max.saturating_sub(tier1::TIER1_LATENCY_MIN.load(Ordering::Relaxed)),
+        periods_lost: tier1::PERIODS_LOST.load(Ordering::Relaxed).wrapping_sub(lost_before),
+        tier2_total_max: tier2::TIER2_TOTAL_MAX.load(Ordering::Relaxed),
         fast_missed: tier1::FAST_MISSED.load(Ordering::Relaxed),
         slow_missed: tier2::SLOW_MISSED.load(Ordering::Relaxed).wrapping_sub(slow_missed_before),
         periods: periods.pended,
         fast_ticks: tier1::FAST_TICKS.load(Ordering::Relaxed).wrapping_sub(fast_before),
         csp_enabled: disabled && run.enabled,
+        tier3_booted: booted,
+        sdo_exchanges: exchanges,
+        sdo_wrong_answers: wrong_answers,
     }
 }
 
@@ -526,7 +743,7 @@ impl crate::ecat::esc::Esc for MemoryEsc {
 /// The largest cost of the per-cycle process-data path over a few cycles (counter units, overhead of the
 /// counter reads subtracted): what `ecat::slave::EthercatSlave::cycle` does in OP with the default mapping.
 /// `None` if the default mapping does not compile.
-fn ecat_cycle_max(drive: &mut FastState) -> Option<u32> {
+fn ecat_cycle_max(drive: &mut Drive) -> Option<u32> {
     use crate::ecat::esc::Esc as _;
     use crate::ecat::process_data::ProcessDataLayout;
     use crate::ecat::sync::{SyncCounters, SyncMode, Synchronisation};
@@ -585,7 +802,7 @@ struct CanSync {
 /// communication parameters does; NMT start. Then 8 cycles, each one RPDO (RPDO 1..4 in turn, 8 bytes) and one
 /// SYNC without counter through `CanopenNode::handle_frame`; the frames queued are taken out between cycles
 /// (tier 3's work, not measured). `None` if the node did not reach operational.
-fn can_sync_max(drive: &mut FastState) -> Option<CanSync> {
+fn can_sync_max(drive: &mut Drive) -> Option<CanSync> {
     use crate::canopen::frame::CanFrame;
     use crate::canopen::nmt::NmtState;
     use crate::canopen::pdo::{comm_index, COB_NO_RTR, PDO_COUNT};

@@ -5,7 +5,7 @@
 //! * **Start-up** ([`start`]): node-ID from 0x2000 and bit rate from 0x2001 as the parameter store restored them
 //!   (IDX L3490-3556); a rate the controller cannot make from 42 MHz (800 kbit/s, `board::can`) falls back to
 //!   the default 1 Mbit/s. No transceiver or no bus: `BxCan::init` times out and the drive runs without CAN.
-//! * **Every tier-3 tick** (400 us, [`poll`]): [`CanopenNode::poll`] inside `tier1::with_drive` (receive up to
+//! * **Every tier-3 tick** (400 us, [`poll`]): [`CanopenNode::poll`] inside `tier2::with_drive` (receive up to
 //!   `RX_PER_POLL` frames, SDO, NMT, SYNC, PDOs, EMCY, heartbeat, transmit), then program control's request
 //!   (`super::program::follow`; for a reset, the SDO response leaves the mailboxes first, bounded wait) and the
 //!   node's event: a reset node restarts the microcontroller (the node has
@@ -75,7 +75,7 @@ pub(crate) fn poll(
     program: Option<&RefCell<BoardProgram>>,
     now_us: u64,
 ) {
-    let event = super::tier1::with_drive(|drive| {
+    let event = super::tier2::with_drive(|drive| {
         let on = drive.power_stage_enabled();
         // One instance of the node's code for all three cases (`dyn`): the node and its SDO server are large, and
         // an instance per objects type would not fit slot A next to the EtherCAT slave.

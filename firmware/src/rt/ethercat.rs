@@ -12,9 +12,9 @@
 //! Both interrupts have tier 2's priority, so they never preempt the slow loop or each other: the process-data
 //! cycle and the slow tick are serialised, as the drive expects (outputs handed over between slow ticks).
 //!
-//! **Sharing**: the ESC, the slave and the PLL are one `Ethercat` value in a `cortex_m::interrupt::Mutex`,
-//! reached only inside `tier1::with_drive` (interrupts masked). So the SPI bus is never used by two contexts at
-//! once and the slave gets the drive exclusively, as `poll`/`cycle` require.
+//! **Sharing**: the ESC, the slave and the PLL are one `Ethercat` value in a `tier2::Tier2Slot`, reached only
+//! inside it and `tier2::with_drive` (BASEPRI at tier 2's priority: tier 1 keeps running). So the SPI bus is never
+//! used by two contexts at once and the slave gets the drive exclusively, as `poll`/`cycle` require.
 //!
 //! **Cycle sources**: when the ESM's synchronisation (PRE-OP -> SAFE-OP) names the mode, the poll sets it up:
 //! SM-synchronous: AL event mask 0x0204 = SM2 event only, so SPI_IRQ means "outputs arrived"; DC: mask 0, TIM3's
@@ -24,17 +24,16 @@
 //! looks (an edge missed while the mask changed), the poll raises EXTI0 by software.
 //!
 //! **Open points (precise)**:
-//! - *Tier-1 latency.* `tier1::with_drive` masks every interrupt, and the SPI transfers of a poll or a cycle run
-//!   inside it (the slave mixes ESC access and drive access in one call). At 21 MHz with polled bytes (about
-//!   0.5 us each): an idle poll is about 10 accesses of 5..8 bytes, ~30 us; a mailbox exchange adds the SM0 window
-//!   read and the SM1 window write (2 x 128 bytes, ~130 us); a cycle with the largest images (40 + 40 bytes)
-//!   ~45 us. Anything over one 40 us period makes tier 1 lose a period (the ADC interrupt pends once): the PWM
-//!   keeps the previous duties for that period, `tier1::FAST_TICKS` (the PLL's period index) falls one behind,
-//!   and the PLL sees a jump. Before this image drives a motor, `EthercatSlave` needs a split into an ESC phase
-//!   (SPI, no drive: AL control, SM0 window into the mailbox buffer, SM2 window into the output image) and a
-//!   drive phase (no SPI: ESM checks against the dictionary, SDO service, unpack/pack), with the SM1/SM3 writes
-//!   after it; only the drive phase would run inside `with_drive`. `ecat/slave.rs` is outside this module.
-//!   DMA for the SPI (DMA2 stream 0/3, SPI1 RX/TX channel 3) would then take the byte loop off the CPU.
+//! - *Tier-2 latency.* The SPI transfers of a poll or a cycle run inside the tier-2 lock (the slave mixes ESC
+//!   access and drive access in one call). They no longer hold tier 1 off, but a poll from tier 3 holds the cycle
+//!   interrupts and the slow loop off for its length. At 21 MHz with polled bytes (about 0.5 us each): an idle
+//!   poll is about 10 accesses of 5..8 bytes, ~30 us; a mailbox exchange adds the SM0 window read and the SM1
+//!   window write (2 x 128 bytes, ~130 us); a cycle with the largest images (40 + 40 bytes) ~45 us; all well
+//!   inside tier 2's 400 us. Splitting `EthercatSlave` into an ESC phase (SPI, no drive: AL control, SM0 window
+//!   into the mailbox buffer, SM2 window into the output image) and a drive phase (no SPI: ESM checks against the
+//!   dictionary, SDO service, unpack/pack), with the SM1/SM3 writes after it, would take the SPI out of the lock;
+//!   it is not done yet. DMA for the SPI (DMA2 stream 0/3, SPI1 RX/TX channel 3) would take the byte loop off the
+//!   CPU.
 //! - *SYNC0 period index.* TIM3 is reset at TIM1's channel-4 compare (the ADC trigger), `FAST_TICKS` increments
 //!   in the ADC interrupt a few us later: a pulse captured in that window is attributed to the previous period.
 //!   The PLL's target (the middle of the period) keeps a locked loop 20 us away from it; while acquiring, the
@@ -46,10 +45,8 @@
 //!   INIT, which is harmless; the poll simply repeats.
 
 use core::cell::RefCell;
-use core::mem::MaybeUninit;
-use core::sync::atomic::{AtomicBool, AtomicU16, AtomicU32, Ordering};
+use core::sync::atomic::{AtomicU16, AtomicU32, Ordering};
 
-use cortex_m::interrupt::Mutex;
 use cortex_m::peripheral::NVIC;
 
 use super::app;
@@ -99,30 +96,13 @@ struct Ethercat {
     arr_stream: bool,
 }
 
-/// The slave's state, placed once by [`start`] (then [`STATE_READY`]). `MaybeUninit` rather than an `Option`: a
-/// `None` of this type is not all zero bytes, so an `Option` static would carry a 6 KiB initial image in flash.
-static STATE: Mutex<RefCell<MaybeUninit<Ethercat>>> = Mutex::new(RefCell::new(MaybeUninit::uninit()));
-/// Set by [`start`] once [`STATE`] holds the slave.
-static STATE_READY: AtomicBool = AtomicBool::new(false);
+/// The slave's state, placed once by [`start`].
+static STATE: super::tier2::Tier2Slot<Ethercat> = super::tier2::Tier2Slot::new();
 
-/// Runs `f` on the slave's state and the drive, with every interrupt masked (see the module documentation).
-/// `None` before [`start`], before tier 1 has the drive, or if the state is already borrowed (cannot happen: all
-/// users hold interrupts off).
+/// Runs `f` on the slave's state and the drive inside the tier-2 lock (see the module documentation). `None`
+/// before [`start`], before tier 2 has the drive, or when nested inside another section that holds either.
 fn with_slave<R>(f: impl FnOnce(&mut Ethercat, &mut Drive) -> R) -> Option<R> {
-    // Called from tier 3 (the poll) and at tier 2's priority (the cycle): the masked time goes to the caller's
-    // level.
-    let max = super::tier1::masked_max_of_caller();
-    super::tier1::with_drive_timed(
-        |drive| {
-            cortex_m::interrupt::free(|cs| {
-                let mut slot = STATE.borrow(cs).try_borrow_mut().ok()?;
-                // SAFETY: `STATE_READY` is set only after `start` wrote the state (inside a critical section).
-                STATE_READY.load(Ordering::Relaxed).then(|| f(unsafe { slot.assume_init_mut() }, drive))
-            })
-        },
-        max,
-    )
-    .and_then(|(r, _)| r)
+    STATE.with(|slave| super::tier2::with_drive(|drive| f(slave, drive))).flatten()
 }
 
 /// Sets the ESC's SPI bus, the PDI interrupt pin and the SYNC0 capture up, and places the slave (INIT). Call once
@@ -142,12 +122,7 @@ pub(crate) fn start() {
         free_run_last: 0,
         arr_stream: false,
     };
-    cortex_m::interrupt::free(|cs| {
-        if let Ok(mut slot) = STATE.borrow(cs).try_borrow_mut() {
-            slot.write(state);
-            STATE_READY.store(true, Ordering::Relaxed);
-        }
-    });
+    STATE.place(state);
     // SAFETY: the handler's state is in place; unmasking breaks no critical section (none is held here).
     unsafe { NVIC::unmask(Interrupt::EscPdi) };
 }
@@ -286,8 +261,8 @@ impl Ethercat {
                         self.arr_stream = true;
                     }
                     self.write_pattern();
-                    // SAFETY: called inside `with_slave` (interrupts masked); unmasking TIM3 breaks no
-                    // priority-based critical section (the runtime uses none).
+                    // SAFETY: called inside `with_slave` (BASEPRI at tier 2's priority); TIM3 has that priority, so
+                    // BASEPRI keeps it out until the section ends, and the section's exclusion holds.
                     unsafe { NVIC::unmask(Interrupt::Sync0) };
                 }
             }

@@ -10,27 +10,35 @@
 //!
 //! | item                        | kind                         | writer            | readers                 |
 //! |-----------------------------|------------------------------|-------------------|-------------------------|
-//! | tier-1 state (power stage, `Drive`) | slot, set before the IRQ is unmasked | start-up, then tier 1; tiers 2/3 via `tier1::with_drive` (interrupts off) | tier 1 |
+//! | tier-1 state (`drive::tier1::Tier1State`, power stage) | slot, set before the IRQ is unmasked | start-up, then tier 1 | tier 1 |
+//! | the drive (`drive::Drive`: dictionary, axis, supervision) | `tier2::Tier2Slot`, BASEPRI at tier 2's priority | tier 2, the EtherCAT cycle interrupts and tier 3, one at a time through `tier2::with_drive` | same |
+//! | `tier1::SETTINGS`, `tier1::SETPOINT` | `handoff::Command` (double buffer) | `tier2::with_drive` when a section ends (one at a time: inside the lock) | tier 1 |
+//! | `tier1::REPORT`             | `handoff::Report` (sequence lock) | tier 1, every tenth period after the PWM write | tier 2 |
+//! | `tier1::PERIODS_LOST`, `tier1::REPORT_MAX` | `AtomicU32`      | tier 1            | tier 3, QEMU bench      |
+//! | `tier1::PERIOD_SUPERVISED`  | `AtomicBool`                 | start-up; the QEMU bench with the timer stopped | tier 1 |
 //! | `tier1::FAST_TICK_MAX`      | `AtomicU32`                  | tier 1            | tier 3, QEMU bench      |
 //! | `tier1::FAST_TICKS`         | `AtomicU32`                  | tier 1            | tier 3, QEMU bench      |
 //! | `tier1::OVERRUN`            | `AtomicBool`, latched        | tier 1            | tier 2, tier 3          |
-//! | `tier1::MASKED_MAX_TIER2`   | `AtomicU32`                  | tier 2's priority (`with_drive_timed`); the QEMU bench resets it with tiers 1 and 2 idle | QEMU bench |
-//! | `tier1::MASKED_MAX_TIER3`   | `AtomicU32`                  | tier 3 (`with_drive_timed`) | QEMU bench |
-//! | `tier1::TIER1_LATENCY_MAX`, `tier1::FAST_MISSED`, `tier1::LAST_UPDATE` | `AtomicU32` (QEMU image) | tier 1 (period timer); the bench before it starts the timer | QEMU bench |
+//! | `tier1::TIER1_LATENCY_MAX`, `tier1::TIER1_LATENCY_MIN`, `tier1::FAST_MISSED`, `tier1::LAST_UPDATE` | `AtomicU32` (QEMU image) | tier 1 (period timer); the bench before it starts the timer | QEMU bench |
 //! | `tier2::SLOW_TICK`          | [`signal::TickSignal`]       | tier 1 (raise)    | tier-2 slow loop (wait) |
 //! | `tier2::SLOW_TICKS`         | `AtomicU32`                  | tier 2            | tier 3, QEMU bench      |
 //! | `tier2::SLOW_TICK_MAX`      | `AtomicU32`                  | tier 2            | tier 3, QEMU bench      |
 //! | `tier2::BACKGROUND_MAX`     | `AtomicU32`                  | tier 2            | QEMU bench              |
-//! | `tier2::SLOW_MISSED`        | `AtomicU32`                  | tier 2            | tier 3, QEMU bench      |
+//! | `tier2::SLOW_MISSED`, `tier2::TIER2_TOTAL_MAX`, `tier2::REPORTS_TORN` | `AtomicU32` | tier 2 (the bench resets the total with tier 2 idle) | tier 3, QEMU bench |
 //! | `tier3::TICK`               | [`signal::TickSignal`]       | tier 2 (raise)    | tier-3 supervisor       |
-//! | `ethercat` state (SPI ESC, slave, PLL) | `interrupt::Mutex`, feature `ethercat` | tier 3 (poll), EXTI0/TIM3 and tier 2 (cycle), all inside `tier1::with_drive` | same |
+//! | `ethercat` state (SPI ESC, slave, PLL) | `tier2::Tier2Slot`, feature `ethercat` | tier 3 (poll), EXTI0/TIM3 and tier 2 (cycle), each inside the slot and `tier2::with_drive` | same |
 //! | TIM1 registers (duties, MOE)| peripheral                   | tier 1; the panic/fault handlers force MOE off | - |
-//! | parameter flash (FLASH_CR, PARAMS_A/B) | `board::flash::ParamFlash` in `app::Params`, owned | start-up reads it (`app::boot`); then tier 3 only, erasing and programming inside `tier1::with_drive` with the power stage off | start-up, tier 3 |
-//! | update flash (slot A, slot B, BOOT_STATE) | `board::boot::UpdateRegion`s in [`program::BoardProgram`], owned | start-up reads slot A's header and the state log ([`program::start`]); then tier 3 only: the confirmation and the download, inside `tier1::with_drive` with the power stage off | start-up, tier 3 |
+//! | parameter flash (FLASH_CR, PARAMS_A/B) | `board::flash::ParamFlash` in `app::Params`, owned | start-up reads it (`app::boot`); then tier 3 only, erasing and programming inside `tier2::with_drive` with the power stage off and no request pending (tier 1 keeps running, stalled by the flash with its outputs off) | start-up, tier 3 |
+//! | update flash (slot A, slot B, BOOT_STATE) | `board::boot::UpdateRegion`s in [`program::BoardProgram`], owned | start-up reads slot A's header and the state log ([`program::start`]); then tier 3 only: the confirmation and the download, inside `tier2::with_drive` with the power stage off | start-up, tier 3 |
+//!
+//! Nothing masks tier 1: tiers 2 and 3 share the drive under BASEPRI at tier 2's priority, and tier 1 shares only
+//! the hand-off blocks (atomics, no lock) with them. The QEMU bench shows it (`insn.tier1_latency_max`,
+//! `insn.masked_max`).
 //!
 //! Start-up order: board init (outputs off) -> parameters loaded from flash and the drive built from them
 //! (`app::boot`; defaults in the QEMU image) -> program control for the running image ([`program::start`]; not in
-//! the QEMU image) -> tier 2 started (its interrupt unmasked, slow loop spawned) ->
+//! the QEMU image) -> the drive placed for tier 2 and its first blocks published -> tier 2 started (its interrupt
+//! unmasked, slow loop spawned) ->
 //! tier 1 started (ADC interrupt unmasked) -> tier 3 runs forever (owning the parameter store and program control). Logging (defmt, feature `defmt`) happens in
 //! start-up, tier 2 and tier 3, never in tier 1 ([`log`]).
 
@@ -107,8 +115,12 @@ pub fn run() -> ! {
     let can = None;
     #[cfg(all(feature = "ethercat", not(feature = "qemu")))]
     ethercat::start();
+    // Tier 1's state from the drive's first settings; the drive goes to tier 2, which publishes those blocks
+    // before tier 1 runs.
+    let tier1_state = crate::drive::tier1::Tier1State::new(boot.drive.settings());
+    tier2::place_drive(boot.drive);
     let _ = tier2::start();
-    tier1::start(board.power, boot.drive);
+    tier1::start(board.power, tier1_state);
     crate::rt_info!("tiers 1 and 2 running");
     tier3::run(boot.params, program, can)
 }

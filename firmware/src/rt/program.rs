@@ -11,7 +11,7 @@
 //!   "A successful start" is then more than reaching `main`: the clock, the parameter load, and tiers 1 and 2
 //!   ran for a second. An image that faults or hangs before that is reverted by the bootloader at the next reset
 //!   (`boot::loader`). The confirmation appends one record to BOOT_STATE (four word programs, about 64 us during
-//!   which every flash fetch stalls): it runs inside `tier1::with_drive`, and only with the power stage
+//!   which every flash fetch stalls): it runs inside `tier2::with_drive`, and only with the power stage
 //!   disabled, so no PWM period with live outputs is lost to it.
 //! * **Requests** ([`follow`]): after each fieldbus poll, a stop or start switches the dictionary's table
 //!   ([`BOOTLOADER_TABLE`]: the reduced object set, device type 0x0000_012E), a reset (0x1F51 = 1 with a verified
@@ -62,7 +62,7 @@ pub(crate) fn start(drive: &mut Drive) -> Option<RefCell<BoardProgram>> {
 }
 
 /// Tier 3, every tick: confirms an image on trial once `healthy_ticks` slow ticks have passed without a lost
-/// period (the caller counts them), with the power stage disabled, inside `tier1::with_drive`. Returns whether
+/// period (the caller counts them), with the power stage disabled, inside `tier2::with_drive`. Returns whether
 /// the image is confirmed (or was never on trial). A failing confirmation (flash error, full log) is retried at
 /// the next tick.
 #[cfg(not(feature = "qemu"))]
@@ -74,11 +74,11 @@ pub(crate) fn confirm_when_healthy(program: &RefCell<BoardProgram>, healthy_tick
     if healthy_ticks < CONFIRM_AFTER_TICKS {
         return false;
     }
-    super::tier1::with_drive(|drive| !drive.power_stage_enabled() && p.confirm().is_ok()).unwrap_or(false)
+    super::tier2::with_drive(|drive| !drive.power_stage_enabled() && p.confirm().is_ok()).unwrap_or(false)
 }
 
 /// Acts on program control's request after a fieldbus poll (the CAN node's, the EtherCAT slave's), with the
-/// drive (inside `tier1::with_drive`). Returns `true` when the request is a reset: the power stage is then already
+/// drive (inside `tier2::with_drive`). Returns `true` when the request is a reset: the power stage is then already
 /// in its safe state, and the caller resets ([`reset`]) once its answer has left (the SDO response to 0x1F51 is
 /// still in the CAN controller's mailboxes at this point).
 #[cfg(not(feature = "qemu"))]

@@ -1,11 +1,15 @@
 //! Tier 1: the 25 kHz current loop as a raw interrupt handler (ADC JEOC, highest priority).
 //!
-//! Each period: read the measurements, call the pure fast tick, write the PWM command, account the cost, and
-//! raise tier 2 when the fast tick says a slow tick is due (every `SLOW_TICK_DIVIDER`-th period). No allocation,
-//! no logging, no locks, no panics.
+//! Tier 1 owns its state ([`crate::drive::tier1::Tier1State`]) alone: nothing else reaches it after [`start`].
+//! Each period: read the measurements, take the blocks the tier-2 drive published since the last period
+//! ([`SETTINGS`], [`SETPOINT`]: double buffers whose reader never waits), run the pure fast tick, write the PWM
+//! command, account the cost, and at every `SLOW_TICK_DIVIDER`-th period publish the [`REPORT`] (a sequence lock
+//! whose writer never waits) and raise tier 2. No allocation, no logging, no locks, no panics, and nothing below
+//! it ever masks it (`rt` module documentation).
 //! The fast tick's own cost is measured with the board's cost counter (cycles on the board, instructions under
 //! QEMU); the maximum is kept, and a tick over budget trips the drive (outputs off at once, fault 0xFF0B) and
-//! latches [`OVERRUN`] for the diagnostics.
+//! latches [`OVERRUN`] for the diagnostics. So does a lost period ([`PERIODS_LOST`]): tier 1 compares the time since
+//! its last run with the period.
 
 use core::cell::UnsafeCell;
 use core::mem::MaybeUninit;
@@ -17,6 +21,10 @@ use super::app::{self, FastState};
 use crate::board::counter;
 use crate::board::vectors::Interrupt;
 use crate::board::PowerStage;
+use crate::drive::blocks::{SetPoint, Settings, Tier1Report, REPORT_WORDS};
+#[cfg(not(feature = "qemu"))]
+use crate::hal::power::PWM_FREQUENCY_HZ;
+use crate::handoff::{Command, Report};
 
 /// Cost budget of one fast tick in counter units: half the 6,720-cycle period at 168 MHz, the rest is left to
 /// the interrupt entry/exit and tiers 2 and 3.
@@ -24,20 +32,39 @@ pub const FAST_TICK_BUDGET: u32 = 3_360;
 
 /// Largest fast-tick cost seen (counter units, overhead subtracted). Writer: tier 1.
 pub static FAST_TICK_MAX: AtomicU32 = AtomicU32::new(0);
-/// Fast ticks run. Writer: tier 1.
+/// Periods since tier 1 started: the fast ticks run plus the periods found lost. Writer: tier 1.
 pub static FAST_TICKS: AtomicU32 = AtomicU32::new(0);
 /// Latched when a fast tick exceeded `FAST_TICK_BUDGET`. Writer: tier 1 (sets only).
 pub static OVERRUN: AtomicBool = AtomicBool::new(false);
-/// Longest section with tier 1 masked ([`with_drive`]) entered from thread mode (tier 3), counter units, from
-/// before the mask to after it. Writer: tier 3. [`masked_max`] gives the longest of all.
-pub static MASKED_MAX_TIER3: AtomicU32 = AtomicU32::new(0);
-/// The same for sections entered from an interrupt below tier 1: tier 2's executor and the EtherCAT cycle
-/// interrupts, which share tier 2's priority and so never preempt one another. Writer: tier 2's priority (and
-/// the QEMU bench, which resets both while tiers 1 and 2 are idle).
-pub static MASKED_MAX_TIER2: AtomicU32 = AtomicU32::new(0);
+/// The set-point the tier-2 drive published last. Writer: `tier2::with_drive` (the drive's lock); reader: tier 1.
+pub static SETPOINT: Command<SetPoint, 3> = Command::new();
+/// The settings the tier-2 drive published last. Writer: `tier2::with_drive`; reader: tier 1.
+pub static SETTINGS: Command<Settings, 15> = Command::new();
+/// Tier 1's report of the last slow-tick boundary. Writer: tier 1; reader: tier 2.
+pub static REPORT: Report<Tier1Report, REPORT_WORDS> = Report::new();
+/// Periods tier 1 found lost (the time since its last run was more than one and a half periods). Writer: tier 1.
+pub static PERIODS_LOST: AtomicU32 = AtomicU32::new(0);
+/// Tier 1's periods come from the hardware, so a gap between two runs is a lost period. On from start-up on the
+/// board; in the QEMU image only while the bench's period timer runs (in its pended part the bench itself pends
+/// each period). Writer: start-up, then the QEMU bench with the timer stopped.
+pub static PERIOD_SUPERVISED: AtomicBool = AtomicBool::new(false);
+/// Largest cost of publishing the report (after the PWM write, every tenth period; counter units). Writer: tier 1.
+pub static REPORT_MAX: AtomicU32 = AtomicU32::new(0);
+
+/// One current-loop period in counter units: cycles at 168 MHz on the board, the QEMU bench's instruction period.
+#[cfg(not(feature = "qemu"))]
+const PERIOD: u32 = 168_000_000 / PWM_FREQUENCY_HZ;
+#[cfg(feature = "qemu")]
+const PERIOD: u32 = crate::board::period_timer::PERIOD_INSTRUCTIONS;
+
 /// Largest time from the period timer's wrap to tier 1's handler (QEMU bench, its SysTick handler).
 /// Writer: tier 1.
 pub static TIER1_LATENCY_MAX: AtomicU32 = AtomicU32::new(0);
+/// Smallest time from the period timer's wrap to tier 1's handler: the entry cost, which the longest wait past it
+/// (`insn.masked_max` in the QEMU bench) is measured from. Writer: tier 1; the bench resets it with the timer
+/// stopped.
+#[cfg(feature = "qemu")]
+pub static TIER1_LATENCY_MIN: AtomicU32 = AtomicU32::new(u32::MAX);
 /// Periods of the period timer in which tier 1 did not run (QEMU bench). Writer: tier 1.
 pub static FAST_MISSED: AtomicU32 = AtomicU32::new(0);
 /// Counter time of the start of the last period tier 1 ran in (QEMU bench). Writer: tier 1, and the bench
@@ -49,10 +76,15 @@ struct Tier1 {
     power: PowerStage,
     fast: FastState,
     overhead: u32,
+    /// The epochs of the last blocks taken from [`SETTINGS`] and [`SETPOINT`] (0: none yet).
+    settings_epoch: u32,
+    setpoint_epoch: u32,
+    /// Counter time of the last run's start while the periods are supervised (lost-period detection).
+    last_run: Option<u32>,
 }
 
 /// Tier 1's state: written once by [`start`] before the ADC interrupt is unmasked (then `ready`), then used by the
-/// ADC handler, and by [`with_drive`] with all interrupts masked.
+/// ADC handler alone.
 ///
 /// `MaybeUninit` and a flag rather than an `Option`: `None` of the drive's type is not all zero bytes (a niche
 /// in one of its enums), so an `Option` static would sit in `.data` with a 6 KiB initial image in flash; this one
@@ -62,16 +94,15 @@ struct Slot {
     ready: AtomicBool,
 }
 
-// SAFETY: see `Slot`: one writer before the interrupt is enabled; afterwards the ADC handler (which cannot preempt
-// itself) and `with_drive`, which runs with interrupts disabled and so never overlaps the handler or itself.
+// SAFETY: see `Slot`: one writer before the interrupt is enabled; afterwards only the tier-1 handler, which cannot
+// preempt itself (the ADC vector, and in the QEMU image the SysTick exception at the same priority).
 unsafe impl Sync for Slot {}
 
 impl Slot {
     /// The state, once [`start`] has placed it.
     ///
     /// # Safety
-    /// The caller is the ADC handler or runs with interrupts disabled (see `Slot`), and holds no other reference
-    /// obtained from this function.
+    /// The caller is the tier-1 handler (see `Slot`) and holds no other reference obtained from this function.
     #[allow(clippy::mut_from_ref)]
     unsafe fn get(&self) -> Option<&mut Tier1> {
         // Relaxed: one core, and `start` sets the flag before it unmasks the ADC interrupt (with compiler fences).
@@ -85,15 +116,17 @@ impl Slot {
 
 static TIER1: Slot = Slot { state: UnsafeCell::new(MaybeUninit::uninit()), ready: AtomicBool::new(false) };
 
-/// Hands the power stage and the fast state to tier 1 and unmasks the ADC interrupt. Call once, from start-up,
-/// with interrupts of tier 1 still masked.
+/// Hands the power stage and tier 1's state to tier 1 and unmasks the ADC interrupt. Call once, from start-up,
+/// with interrupts of tier 1 still masked, after the drive's first blocks are published.
 pub(crate) fn start(power: PowerStage, fast: FastState) {
     let overhead = empty_call_cost();
     NVIC::mask(Interrupt::Adc);
     compiler_fence(Ordering::SeqCst);
+    PERIOD_SUPERVISED.store(cfg!(not(feature = "qemu")), Ordering::Relaxed);
+    let t1 = Tier1 { power, fast, overhead, settings_epoch: 0, setpoint_epoch: 0, last_run: None };
     // SAFETY: the ADC interrupt is masked, so its handler (the slot's only other user) cannot run now; `start` runs
-    // once, from start-up, before `with_drive` has anything to reach.
-    unsafe { (*TIER1.state.get()).write(Tier1 { power, fast, overhead }) };
+    // once, from start-up.
+    unsafe { (*TIER1.state.get()).write(t1) };
     TIER1.ready.store(true, Ordering::Relaxed);
     compiler_fence(Ordering::SeqCst);
     // SAFETY: the handler's state is in place; unmasking cannot break a critical section (none is held here).
@@ -103,8 +136,7 @@ pub(crate) fn start(power: PowerStage, fast: FastState) {
 /// The ADC interrupt: one current-loop period.
 ///
 /// # Safety
-/// Only the vector table calls this (`board::vectors`): as the ADC handler it never preempts itself, and
-/// `with_drive` keeps interrupts off while it holds the state.
+/// Only the vector table calls this (`board::vectors`): as the ADC handler it never preempts itself.
 pub unsafe extern "C" fn on_adc() {
     // SAFETY: see `# Safety`: no other reference to the slot is live while the handler runs.
     let Some(t) = (unsafe { TIER1.get() }) else {
@@ -114,14 +146,20 @@ pub unsafe extern "C" fn on_adc() {
     };
     let measurements = t.power.read();
     let start = counter::now();
+    let lost = t.lost_periods(start);
     compiler_fence(Ordering::SeqCst);
-    let tick = app::fast_tick(&measurements, &mut t.fast);
+    let tick = app::fast_tick(&measurements, &mut t.fast, &mut t.settings_epoch, &mut t.setpoint_epoch);
     compiler_fence(Ordering::SeqCst);
     let cost = counter::now().wrapping_sub(start).saturating_sub(t.overhead);
-    // A tick over budget cannot keep the 40 us period: the drive trips (outputs off with this very write).
+    // A tick over budget cannot keep the 40 us period, and a lost period left the PWM with stale duties: the
+    // drive trips (outputs off with this very write).
     let pwm = if cost > FAST_TICK_BUDGET {
         OVERRUN.store(true, Ordering::Relaxed);
         t.fast.current_loop_overrun(cost)
+    } else if lost > 0 && t.fast.outputs_switching() {
+        OVERRUN.store(true, Ordering::Relaxed);
+        // The detail: the periods lost, in period units times the budget's, so it reads as an overrun's cost.
+        t.fast.current_loop_overrun(lost.saturating_mul(PERIOD))
     } else {
         tick.pwm
     };
@@ -130,53 +168,37 @@ pub unsafe extern "C" fn on_adc() {
     if cost > FAST_TICK_MAX.load(Ordering::Relaxed) {
         FAST_TICK_MAX.store(cost, Ordering::Relaxed);
     }
-    FAST_TICKS.store(FAST_TICKS.load(Ordering::Relaxed).wrapping_add(1), Ordering::Relaxed);
+    // The periods, not the runs: a lost period still counts, so the PLL's period index (`rt::ethercat`) stays on
+    // the timer's grid.
+    FAST_TICKS.store(FAST_TICKS.load(Ordering::Relaxed).wrapping_add(1).wrapping_add(lost), Ordering::Relaxed);
     if tick.slow_tick_due {
+        // After the PWM write: the report is tier 2's, and costs this period's output nothing.
+        let before = counter::now();
+        REPORT.publish(&t.fast.report());
+        let cost = counter::now().wrapping_sub(before);
+        if cost > REPORT_MAX.load(Ordering::Relaxed) {
+            REPORT_MAX.store(cost, Ordering::Relaxed);
+        }
         super::tier2::SLOW_TICK.raise();
     }
 }
 
-/// Runs `f` on tier 1's drive with all interrupts disabled (tier 1 held off for its duration; a conversion that
-/// ends meanwhile is served right after). For tier 2's slow tick and tier 3's commands. `None` before `start`.
-///
-/// This is the interim answer to the drive being one object with a tier-1 and a tier-2 entry point: keep `f` short
-/// (its duration adds to tier 1's latency); the QEMU bench reports the slow tick's cost as `insn.slow_tick_max`
-/// and the longest such section as `insn.masked_max` ([`masked_max`]).
-pub fn with_drive<R>(f: impl FnOnce(&mut FastState) -> R) -> Option<R> {
-    with_drive_timed(f, &MASKED_MAX_TIER3).map(|(r, _)| r)
-}
-
-/// [`with_drive`] for a caller at tier 2's priority or in tier 3 that also wants to know how long tier 1 was masked
-/// (counter units, the two counter reads around the section included), which is recorded in `max`: the caller's
-/// own maximum, [`MASKED_MAX_TIER2`] or [`MASKED_MAX_TIER3`], so that each has one writer.
-pub fn with_drive_timed<R>(f: impl FnOnce(&mut FastState) -> R, max: &AtomicU32) -> Option<(R, u32)> {
-    let start = counter::now();
-    let result = cortex_m::interrupt::free(|_| {
-        // SAFETY: interrupts are disabled, so the ADC handler cannot run, and no other `with_drive` is active (it
-        // would have to be an interrupted one, and nothing interrupts this closure).
-        unsafe { TIER1.get() }.map(|t| f(&mut t.fast))
-    });
-    let masked = counter::now().wrapping_sub(start);
-    // Only the callers of one priority level write `max`, and they do not preempt one another.
-    if masked > max.load(Ordering::Relaxed) {
-        max.store(masked, Ordering::Relaxed);
+impl Tier1 {
+    /// Periods lost since the last run started (0 for the first supervised run, or with the supervision off): the time
+    /// between the two starts, rounded to whole periods, less one. Counts them in [`PERIODS_LOST`].
+    fn lost_periods(&mut self, now: u32) -> u32 {
+        if !PERIOD_SUPERVISED.load(Ordering::Relaxed) {
+            self.last_run = None;
+            return 0;
+        }
+        let Some(last) = self.last_run.replace(now) else { return 0 };
+        let periods = now.wrapping_sub(last).saturating_add(PERIOD / 2).checked_div(PERIOD).unwrap_or(1);
+        let lost = periods.saturating_sub(1);
+        if lost > 0 {
+            PERIODS_LOST.store(PERIODS_LOST.load(Ordering::Relaxed).saturating_add(lost), Ordering::Relaxed);
+        }
+        lost
     }
-    result.map(|r| (r, masked))
-}
-
-/// The masked-section maximum of the calling context's priority level ([`MASKED_MAX_TIER3`] in thread mode,
-/// [`MASKED_MAX_TIER2`] in an interrupt), for code that runs at either level.
-pub fn masked_max_of_caller() -> &'static AtomicU32 {
-    if cortex_m::peripheral::SCB::vect_active() == cortex_m::peripheral::scb::VectActive::ThreadMode {
-        &MASKED_MAX_TIER3
-    } else {
-        &MASKED_MAX_TIER2
-    }
-}
-
-/// The longest section with tier 1 masked so far, from any tier (`insn.masked_max` in the QEMU bench).
-pub fn masked_max() -> u32 {
-    MASKED_MAX_TIER2.load(Ordering::Relaxed).max(MASKED_MAX_TIER3.load(Ordering::Relaxed))
 }
 
 /// The QEMU bench's period timer (SysTick, `board::period_timer`): one current-loop period at the real rate.
@@ -210,6 +232,9 @@ pub fn on_period_timer() {
     if latency > TIER1_LATENCY_MAX.load(Ordering::Relaxed) {
         TIER1_LATENCY_MAX.store(latency, Ordering::Relaxed);
     }
+    if latency < TIER1_LATENCY_MIN.load(Ordering::Relaxed) {
+        TIER1_LATENCY_MIN.store(latency, Ordering::Relaxed);
+    }
     // SAFETY: this runs in the SysTick exception (checked above), which has tier 1's priority (`rt::run`), so the
     // contract of `on_adc` holds here as in the ADC vector.
     unsafe { on_adc() }
@@ -218,7 +243,13 @@ pub fn on_period_timer() {
 /// An empty call with the fast tick's shape (result pointer, measurements, state), for calibration. Its body is an
 /// optimisation barrier only (no instructions): without it LLVM deletes the call altogether.
 #[inline(never)]
-fn empty(_: &crate::hal::power::Measurements, _: &mut u32, out: &mut core::mem::MaybeUninit<crate::drive::FastTick>) {
+fn empty(
+    _: &crate::hal::power::Measurements,
+    _: &mut u32,
+    _: &mut u32,
+    _: &mut u32,
+    out: &mut core::mem::MaybeUninit<crate::drive::FastTick>,
+) {
     core::hint::black_box(out);
 }
 
@@ -226,11 +257,11 @@ fn empty(_: &crate::hal::power::Measurements, _: &mut u32, out: &mut core::mem::
 /// overhead subtracted from each measurement.
 pub fn empty_call_cost() -> u32 {
     let m = core::hint::black_box(crate::hal::power::Measurements::default());
-    let mut s = 0u32;
+    let (mut s, mut a, mut b) = (0u32, 0u32, 0u32);
     let start = counter::now();
     compiler_fence(Ordering::SeqCst);
     let mut out = core::mem::MaybeUninit::uninit();
-    empty(&m, &mut s, &mut out);
+    empty(&m, &mut s, &mut a, &mut b, &mut out);
     compiler_fence(Ordering::SeqCst);
     counter::now().wrapping_sub(start)
 }

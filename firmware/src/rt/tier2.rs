@@ -1,26 +1,166 @@
 //! Tier 2: the 2.5 kHz loops on an embassy `InterruptExecutor`, run from a spare interrupt vector
 //! ([`Interrupt::Tier2`]) below tier 1's priority. Tier 1 raises [`SLOW_TICK`] every tenth period; the wake
 //! enqueues the slow task and pends the executor's interrupt, which runs as soon as tier 1 returns.
+//!
+//! Tier 2 owns the drive ([`Drive`]): the slow loop, the EtherCAT cycle interrupts (tier 2's priority) and tier 3
+//! reach it through [`with_drive`], a lock that raises BASEPRI to tier 2's priority. It keeps out everything of
+//! that priority and below, and never tier 1. When a section ends, the blocks the drive changed go to tier 1
+//! (`tier1::SETTINGS`, `tier1::SETPOINT`): every publication happens inside the lock, so the double buffers have
+//! one writer at a time, and a request made in a section (a class-d forced off included) reaches tier 1 in the
+//! first period that starts after it.
 
-use core::sync::atomic::{AtomicU32, Ordering};
+use core::cell::UnsafeCell;
+use core::mem::MaybeUninit;
+use core::sync::atomic::{compiler_fence, AtomicBool, AtomicU32, Ordering};
 
 use embassy_executor::{InterruptExecutor, SendSpawner};
 
 use super::app;
 use super::signal::TickSignal;
+use crate::board::counter;
 use crate::board::vectors::Interrupt;
+use crate::drive::Drive;
 
 /// Raised by tier 1 every `SLOW_TICK_DIVIDER` fast ticks. Writer: tier 1; waiter: the slow loop task.
 pub static SLOW_TICK: TickSignal = TickSignal::new();
 /// Slow ticks run. Writer: tier 2.
 pub static SLOW_TICKS: AtomicU32 = AtomicU32::new(0);
-/// Largest slow-tick cost seen, including the critical section around it (counter units). Writer: tier 2.
+/// Largest slow-tick cost seen, with the lock and the publications around it (counter units). Writer: tier 2.
 pub static SLOW_TICK_MAX: AtomicU32 = AtomicU32::new(0);
 /// Largest cost of the background step (parameter conversion, hardware supervision, actual values) run before
-/// each slow tick, including its critical section (counter units). Writer: tier 2.
+/// each slow tick, with the report taken over, the lock and the publications (counter units). Writer: tier 2.
 pub static BACKGROUND_MAX: AtomicU32 = AtomicU32::new(0);
 /// Slow ticks missed because the previous one had not finished (tier 2 overrun). Writer: tier 2.
 pub static SLOW_MISSED: AtomicU32 = AtomicU32::new(0);
+/// Largest whole tier-2 step of one slow period: the report taken, the background step, the slow tick and the
+/// free-run cycle (counter units). Writer: tier 2.
+pub static TIER2_TOTAL_MAX: AtomicU32 = AtomicU32::new(0);
+/// Reports that could not be read whole ([`crate::handoff::Torn`]: tier 2 was held off for a whole slow period in
+/// the middle of its copy); the drive then keeps the previous one. Writer: tier 2.
+pub static REPORTS_TORN: AtomicU32 = AtomicU32::new(0);
+
+/// A value tier 2 and tier 3 share, reached only through [`Tier2Slot::with`] (the tier-2 lock).
+pub struct Tier2Slot<T> {
+    value: UnsafeCell<MaybeUninit<T>>,
+    /// Set once the value is in place.
+    ready: AtomicBool,
+    /// Set while a section holds the value: a nested `with` on the same slot gets `None`.
+    busy: AtomicBool,
+}
+
+// SAFETY: the value is reached only inside `with`, which runs with BASEPRI at tier 2's priority (nothing of that
+// priority or below runs meanwhile, and tier 1 never touches a slot) and refuses a nested entry (`busy`); `place`
+// writes it once, before `ready`.
+unsafe impl<T: Send> Sync for Tier2Slot<T> {}
+
+impl<T> Tier2Slot<T> {
+    /// An empty slot.
+    pub const fn new() -> Self {
+        Self {
+            value: UnsafeCell::new(MaybeUninit::uninit()),
+            ready: AtomicBool::new(false),
+            busy: AtomicBool::new(false),
+        }
+    }
+
+    /// Places the value (once, at start-up; a second call does nothing).
+    pub fn place(&self, value: T) {
+        lock(|| {
+            if self.ready.load(Ordering::Relaxed) {
+                return;
+            }
+            // SAFETY: inside the lock and not yet ready: nobody else reaches the cell.
+            unsafe { (*self.value.get()).write(value) };
+            self.ready.store(true, Ordering::Relaxed);
+        });
+    }
+
+    /// Runs `f` on the value inside the tier-2 lock. `None` before [`Self::place`], or when called from inside a
+    /// section that already holds this slot.
+    pub fn with<R>(&self, f: impl FnOnce(&mut T) -> R) -> Option<R> {
+        lock(|| {
+            if !self.ready.load(Ordering::Relaxed) || self.busy.swap(true, Ordering::Relaxed) {
+                return None;
+            }
+            // SAFETY: see `Sync` above: inside the lock, placed, and not held by an enclosing section.
+            let result = f(unsafe { (*self.value.get()).assume_init_mut() });
+            self.busy.store(false, Ordering::Relaxed);
+            Some(result)
+        })
+    }
+}
+
+impl<T> Default for Tier2Slot<T> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Runs `f` with BASEPRI at tier 2's priority: tier 2, the interrupts that share its priority and tier 3 are held
+/// off, tier 1 is not.
+fn lock<R>(f: impl FnOnce() -> R) -> R {
+    let previous = cortex_m::register::basepri::read();
+    // Raises only: inside a section of a higher ceiling (or from tier 1) it leaves BASEPRI as it is.
+    cortex_m::register::basepri_max::write(super::TIER2_PRIORITY);
+    compiler_fence(Ordering::SeqCst);
+    let result = f();
+    compiler_fence(Ordering::SeqCst);
+    // SAFETY: restores the value read on entry: the sections nest, so this never lowers a ceiling an enclosing
+    // section relies on.
+    unsafe { cortex_m::register::basepri::write(previous) };
+    result
+}
+
+/// The drive, tier 2's.
+static DRIVE: Tier2Slot<Drive> = Tier2Slot::new();
+
+/// Places the drive and publishes its first blocks. Call once from start-up, before tier 1 starts.
+pub(crate) fn place_drive(drive: Drive) {
+    DRIVE.place(drive);
+    let _ = with_drive(|_| ());
+}
+
+/// Runs `f` on the drive inside the tier-2 lock, then hands the blocks it changed to tier 1 (module
+/// documentation). `None` before start-up placed the drive, or when nested inside another `with_drive`.
+pub fn with_drive<R>(f: impl FnOnce(&mut Drive) -> R) -> Option<R> {
+    DRIVE.with(|drive| {
+        let result = f(drive);
+        publish_blocks(drive);
+        result
+    })
+}
+
+/// Hands the blocks the drive changed to tier 1 (settings first). One copy for every caller of [`with_drive`].
+#[inline(never)]
+fn publish_blocks(drive: &mut Drive) {
+    if let Some(settings) = drive.take_settings() {
+        super::tier1::SETTINGS.publish(&settings);
+    }
+    if let Some(setpoint) = drive.take_setpoint() {
+        super::tier1::SETPOINT.publish(&setpoint);
+    }
+}
+
+/// Gives the drive tier 1's report of the slow-tick boundary that raised this tick, or counts a torn read (the
+/// drive then keeps the previous report).
+#[inline(never)]
+fn take_report(drive: &mut Drive) {
+    match super::tier1::REPORT.read() {
+        Ok(report) => drive.receive_report(&report.block),
+        Err(_) => REPORTS_TORN.store(REPORTS_TORN.load(Ordering::Relaxed).wrapping_add(1), Ordering::Relaxed),
+    }
+}
+
+/// [`with_drive`] timed in counter units (the section and the publications).
+fn with_drive_timed<R>(f: impl FnOnce(&mut Drive) -> R, max: &AtomicU32) -> Option<R> {
+    let start = counter::now();
+    let result = with_drive(f);
+    let cost = counter::now().wrapping_sub(start);
+    if cost > max.load(Ordering::Relaxed) {
+        max.store(cost, Ordering::Relaxed);
+    }
+    result
+}
 
 static EXECUTOR: InterruptExecutor = InterruptExecutor::new();
 
@@ -51,29 +191,30 @@ async fn slow_loop() {
     let mut seen = SLOW_TICK.raised();
     loop {
         let new = SLOW_TICK.wait(&mut seen).await;
+        let start = counter::now();
         if new > 1 {
             let missed = new.wrapping_sub(1);
             SLOW_MISSED.store(SLOW_MISSED.load(Ordering::Relaxed).wrapping_add(missed), Ordering::Relaxed);
             // The loops lost their period: a fault (0xFF0B), not only a counter.
-            let _ = super::tier1::with_drive_timed(
-                |drive| drive.motion_loop_overrun(missed),
-                &super::tier1::MASKED_MAX_TIER2,
-            );
+            let _ = with_drive(|drive| drive.motion_loop_overrun(missed));
         }
-        let cost = super::tier1::with_drive_timed(app::background, &super::tier1::MASKED_MAX_TIER2)
-            .map_or(0, |(_, cost)| cost);
-        if cost > BACKGROUND_MAX.load(Ordering::Relaxed) {
-            BACKGROUND_MAX.store(cost, Ordering::Relaxed);
-        }
-        let cost =
-            super::tier1::with_drive_timed(app::slow_tick, &super::tier1::MASKED_MAX_TIER2).map_or(0, |(_, cost)| cost);
-        if cost > SLOW_TICK_MAX.load(Ordering::Relaxed) {
-            SLOW_TICK_MAX.store(cost, Ordering::Relaxed);
-        }
+        // The report of the period that raised this tick (tier 1 published it before the raise); both steps read it.
+        let _ = with_drive_timed(
+            |drive| {
+                take_report(drive);
+                app::background(drive);
+            },
+            &BACKGROUND_MAX,
+        );
+        let _ = with_drive_timed(app::slow_tick, &SLOW_TICK_MAX);
         // The free-run process-data cycle (EtherCAT, feature `ethercat`): after the slow tick, as the other cycle
         // sources run between slow ticks.
         #[cfg(all(feature = "ethercat", not(feature = "qemu")))]
         super::ethercat::free_run_tick();
+        let total = counter::now().wrapping_sub(start);
+        if total > TIER2_TOTAL_MAX.load(Ordering::Relaxed) {
+            TIER2_TOTAL_MAX.store(total, Ordering::Relaxed);
+        }
         SLOW_TICKS.store(SLOW_TICKS.load(Ordering::Relaxed).wrapping_add(1), Ordering::Relaxed);
         super::tier3::TICK.raise();
     }

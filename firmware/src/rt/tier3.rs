@@ -8,7 +8,7 @@
 //! bench task runs here instead.
 //!
 //! Tier 3 owns the parameter store ([`app::Params`]) after boot: the only place the parameter flash is erased or
-//! programmed, through [`app::sdo_write`] (inside `tier1::with_drive`, power stage disabled; see `board::flash`).
+//! programmed, through [`app::sdo_write`] (inside `tier2::with_drive`, power stage disabled; see `board::flash`).
 //! Until the mailbox/SDO task exists to take it over, the supervisor holds it, so nothing else reaches the flash.
 
 use core::cell::RefCell;

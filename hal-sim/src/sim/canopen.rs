@@ -190,7 +190,7 @@ impl CanDrive {
         // Power-on as on the target: the bootloader starts the image in slot A, which builds the dictionary from
         // the parameter store (empty here: defaults).
         let last_boot = update::reset(&mut program);
-        sim.drive = update::boot_drive(&mut store, &program);
+        sim.replace_drive(update::boot_drive(&mut store, &program));
         let mut d = Self {
             program,
             last_boot,
@@ -245,7 +245,7 @@ impl CanDrive {
     /// fallback starts if no valid image is left. Frames not yet handled are lost, as on the target.
     fn restart(&mut self, id: u8) {
         self.last_boot = update::reset(&mut self.program);
-        self.sim.drive = update::boot_drive(&mut self.store, &self.program);
+        self.sim.replace_drive(update::boot_drive(&mut self.store, &self.program));
         self.node = CanopenNode::new(id);
         self.inbox.clear();
         self.powering_up = true;

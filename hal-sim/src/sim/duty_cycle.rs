@@ -88,7 +88,7 @@ pub fn duty_cycle(seed: u64) -> Result<(DutyCycleFigures, Trace), SimError> {
         }
         sim.step();
         let state = sim.plant.state();
-        let iq = f64::from(sim.drive.signals().i_dq.q.to_milliamps()) / 1000.0;
+        let iq = f64::from(sim.tier1().signals().i_dq.q.to_milliamps()) / 1000.0;
         square_sum += iq * iq;
         f.peak_current_a = f.peak_current_a.max(iq.abs());
         f.peak_speed_rpm = f.peak_speed_rpm.max(state.speed_rpm.abs());

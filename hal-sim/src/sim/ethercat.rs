@@ -430,7 +430,7 @@ impl SlaveNode {
     /// drive starts from its parameter store and the slave from INIT (the ESC and the plant keep running).
     pub fn reset(&mut self) {
         self.last_boot = update::reset(self.program.get_mut());
-        self.sim.drive = update::boot_drive(&mut self.store, self.program.get_mut());
+        self.sim.replace_drive(update::boot_drive(&mut self.store, self.program.get_mut()));
         self.slave = EthercatSlave::new();
         self.resets = self.resets.saturating_add(1);
     }

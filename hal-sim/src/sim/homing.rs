@@ -519,7 +519,7 @@ pub fn encoder_offset(sim: &Simulation) -> i64 {
     // 32,768 counts in one period).
     let counter = sim.measurements().feedback.encoder_count;
     let sampled = now + i64::from(counter.wrapping_sub(now as u16) as i16);
-    sampled - i64::from(sim.drive.commutation().encoder().position())
+    sampled - i64::from(sim.tier1().commutation().encoder().position())
 }
 
 /// 0x6064 - 0x6063: the drive's position offset.

@@ -2,9 +2,12 @@
 //! trace (CSV) and plot (SVG) writers used by `drive-sim` and by the scenario tests of `drive-tests`.
 //!
 //! The loop is the hardware's (`firmware::hal::power`, `crate::plant` timeline): `plant.step(previous command)`
-//! simulates one PWM period and returns its centre sample; `drive.fast_tick(sample)` computes the command for the
-//! next period; when it reports a slow tick due, `drive.slow_tick()` runs before the next period (on the target tier
-//! 2 runs after tier 1 returns, well inside the same period).
+//! simulates one PWM period and returns its centre sample; tier 1 ([`Tier1State`]) takes the blocks the drive
+//! changed and computes the command for the next period; when it reports a slow tick due, its report goes to the
+//! drive and the drive's background step and slow tick run before the next period. The hand-offs have the
+//! target's timing (`docs/design/tier-ownership.md`, section 5): a block the drive changed in slow tick k, or in a
+//! call between two steps (tier 3 on the target), is first seen by the next period's fast tick; the report the slow
+//! tick reads is the one of the period that raised it.
 
 pub mod canopen;
 pub mod duty_cycle;
@@ -19,6 +22,7 @@ pub mod trace;
 pub mod update;
 
 use firmware::cia402::State;
+use firmware::drive::tier1::Tier1State;
 use firmware::drive::{Drive, DriveConfig};
 use firmware::hal::power::{Measurements, PwmCommand};
 use firmware::od::generated::handles as h;
@@ -54,8 +58,10 @@ impl std::error::Error for SimError {}
 pub struct Simulation {
     /// The simulated motor, inverter and sensors.
     pub plant: Plant,
-    /// The firmware's drive.
+    /// The firmware's drive (tier 2).
     pub drive: Drive,
+    /// Tier 1's state: only [`Self::step`] changes it.
+    tier1: Tier1State,
     cmd: PwmCommand,
     measurements: Measurements,
     ticks: u64,
@@ -64,9 +70,11 @@ pub struct Simulation {
 impl Simulation {
     /// A simulation of `params` (noise seeded with `seed`) and a drive with `config`.
     pub fn new(params: PlantParams, seed: u64, config: DriveConfig) -> Self {
+        let drive = Drive::new(config);
         Self {
             plant: Plant::new(params, seed),
-            drive: Drive::new(config),
+            tier1: Tier1State::new(drive.settings()),
+            drive,
             cmd: PwmCommand::OFF,
             measurements: Measurements::default(),
             ticks: 0,
@@ -82,8 +90,16 @@ impl Simulation {
     #[inline]
     pub fn step(&mut self) {
         let m = self.plant.step(&self.cmd);
-        let tick = self.drive.fast_tick(&m);
+        // The blocks the drive changed since the last period, settings first (as tier 1 reads them on the target).
+        if let Some(settings) = self.drive.take_settings() {
+            self.tier1.apply_settings(&settings);
+        }
+        if let Some(setpoint) = self.drive.take_setpoint() {
+            self.tier1.apply_setpoint(&setpoint);
+        }
+        let tick = self.tier1.fast_tick(&m);
         if tick.slow_tick_due {
+            self.drive.receive_report(&self.tier1.report());
             self.drive.background();
             self.drive.slow_tick();
             self.plant.set_digital_outputs(self.drive.output_pins());
@@ -134,7 +150,18 @@ impl Simulation {
     /// The runtime found the last fast tick over its budget (`cost` in its counter's units): the drive trips and
     /// the outputs go off with the next period, as `rt::tier1` does on the target.
     pub fn inject_current_loop_overrun(&mut self, cost: u32) {
-        self.cmd = self.drive.current_loop_overrun(cost);
+        self.cmd = self.tier1.current_loop_overrun(cost);
+    }
+
+    /// Tier 1's state now (the drive sees it through the report of each slow-tick boundary).
+    pub fn tier1(&self) -> &Tier1State {
+        &self.tier1
+    }
+
+    /// Replaces the drive, as a reset does on the board: tier 1 starts afresh with the new drive's settings.
+    pub fn replace_drive(&mut self, drive: Drive) {
+        self.tier1 = Tier1State::new(drive.settings());
+        self.drive = drive;
     }
 
     /// Whether the plant's rotor is locked (a stop cannot be seen in the speed then).
@@ -145,6 +172,8 @@ impl Simulation {
     /// Writes target torque 0x6071 (per mille of rated torque) into the dictionary, as an RxPDO would.
     pub fn set_target_torque(&mut self, permille: i16) {
         self.drive.dictionary_mut().set(h::TARGET_TORQUE, permille);
+        // A master that writes 0x6071 every period sends a set-point with it: converted now, in the next period.
+        self.drive.target_torque_written();
     }
 
     /// Sets a q-current reference in amperes through 0x6071, rounded to one per mille of the nominal current
@@ -173,9 +202,13 @@ impl Simulation {
     /// Transition 3: switch on and run the offset calibration to its end; the ticks it took.
     pub fn switch_on(&mut self) -> Result<u64, SimError> {
         self.drive.switch_on().map_err(|firmware::drive::RequestError::WrongState(s)| SimError::Refused(s))?;
+        // Tier 1 calibrates; the count is its periods. The drive learns the result at the next slow-tick boundary,
+        // which the run then waits for, so that the next request sees the switched-on state.
         let ticks = self
-            .run_until(2_000, |s| s.drive.state() != PowerState::Calibrating)
+            .run_until(2_000, |s| s.tier1.state() != PowerState::Calibrating)
             .ok_or(SimError::Timeout("the offset calibration"))?;
+        self.run_until(u64::from(firmware::hal::power::SLOW_TICK_DIVIDER), |s| s.drive.state() == s.tier1.state())
+            .ok_or(SimError::Timeout("the report of the offset calibration"))?;
         match self.drive.state() {
             PowerState::SwitchedOn => Ok(ticks),
             PowerState::Fault(e) => Err(SimError::Drive(e)),
@@ -255,7 +288,7 @@ impl Simulation {
         self.enable()?;
         self.set_q_reference(amps);
         let indexed = self
-            .run_until(25_000, |s| s.fault().is_some() || s.drive.commutation().stage() == CommutationStage::Indexed);
+            .run_until(25_000, |s| s.fault().is_some() || s.tier1().commutation().stage() == CommutationStage::Indexed);
         if let Some(e) = self.fault() {
             return Err(SimError::Drive(e));
         }

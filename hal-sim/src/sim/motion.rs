@@ -231,8 +231,8 @@ pub fn csp(config: &CspConfig) -> Result<(CspFigures, Trace), SimError> {
                 actual,
                 fe,
                 f64::from(d.get(h::VELOCITY_ACTUAL_VALUE)),
-                f64::from(sim.drive.signals().i_dq.q.to_milliamps()) / 1000.0,
-                f64::from(sim.drive.signals().i_ref.q.to_milliamps()) / 1000.0,
+                f64::from(sim.tier1().signals().i_dq.q.to_milliamps()) / 1000.0,
+                f64::from(sim.tier1().signals().i_ref.q.to_milliamps()) / 1000.0,
                 sim.plant.state().bus_voltage_v,
             ]);
         }
@@ -301,7 +301,7 @@ pub fn csv_step(seed: u64, step_rpm: f64) -> Result<(VelocityStepFigures, Trace)
             tail_n += 1;
         }
         if periods.is_multiple_of(PERIODS_PER_SLOW_TICK) {
-            trace.push(&[t, step_rpm, speed, f64::from(sim.drive.signals().i_dq.q.to_milliamps()) / 1000.0]);
+            trace.push(&[t, step_rpm, speed, f64::from(sim.tier1().signals().i_dq.q.to_milliamps()) / 1000.0]);
         }
     }
     let mean = tail / f64::from(tail_n.max(1));

@@ -58,7 +58,7 @@ pub struct Prepared {
 /// The plant's true electrical angle at the last sample minus the drive's angle, wrapped to [-180, 180) degrees.
 pub fn angle_error_deg(sim: &Simulation) -> f64 {
     let truth = sim.plant.state_at_sample().theta_e_rad;
-    let drive = f64::from(sim.drive.commutation().angle().0) / 4_294_967_296.0 * 2.0 * PI;
+    let drive = f64::from(sim.tier1().commutation().angle().0) / 4_294_967_296.0 * 2.0 * PI;
     ((drive - truth) / (2.0 * PI) * 360.0 + 180.0).rem_euclid(360.0) - 180.0
 }
 
@@ -104,7 +104,7 @@ fn offsets_of(sim: &Simulation, setup: &Setup) -> ([f64; 3], f64) {
     let mut est = [0.0; 3];
     let mut residual: f64 = 0.0;
     for (ch, e) in est.iter_mut().enumerate() {
-        *e = f64::from(sim.drive.offsets().deviation_lsb(ch).unwrap_or(f32::NAN));
+        *e = f64::from(sim.tier1().offsets().deviation_lsb(ch).unwrap_or(f32::NAN));
         residual = residual.max((*e - setup.offsets_lsb[ch]).abs());
     }
     (est, residual)
@@ -180,7 +180,7 @@ pub const STEP_COLUMNS: [&str; 11] = [
 /// Appends one row of [`STEP_COLUMNS`] for the last period.
 fn record(trace: &mut Trace, sim: &Simulation, t0_ticks: u64) {
     let st = sim.plant.state_at_sample();
-    let s = sim.drive.signals();
+    let s = sim.tier1().signals();
     let t_us = (sim.ticks() as f64 - t0_ticks as f64) * PERIOD_S * 1e6;
     trace.push(&[
         t_us,
@@ -300,7 +300,7 @@ pub fn bandwidth(setup: &Setup, bias_a: f64, amplitude_a: f64, freqs_hz: &[f64])
             sim.set_q_reference(bias_a + amplitude_a * phase.sin());
             sim.step();
             if k >= settle {
-                let r: f64 = sim.drive.signals().i_ref.q.0.to_num();
+                let r: f64 = sim.tier1().signals().i_ref.q.0.to_num();
                 let y = sim.plant.state_at_sample().i_dq_a[1];
                 let (s, c) = phase.sin_cos();
                 ry += y * c;
