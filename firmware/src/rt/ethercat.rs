@@ -28,12 +28,12 @@
 //!   access and drive access in one call). They no longer hold tier 1 off, but a poll from tier 3 holds the cycle
 //!   interrupts and the slow loop off for its length. At 21 MHz with polled bytes (about 0.5 us each): an idle
 //!   poll is about 10 accesses of 5..8 bytes, ~30 us; a mailbox exchange adds the SM0 window read and the SM1
-//!   window write (2 x 128 bytes, ~130 us); a cycle with the largest images (40 + 40 bytes) ~45 us; all well
-//!   inside tier 2's 400 us. Splitting `EthercatSlave` into an ESC phase (SPI, no drive: AL control, SM0 window
-//!   into the mailbox buffer, SM2 window into the output image) and a drive phase (no SPI: ESM checks against the
-//!   dictionary, SDO service, unpack/pack), with the SM1/SM3 writes after it, would take the SPI out of the lock;
-//!   it is not done yet. DMA for the SPI (DMA2 stream 0/3, SPI1 RX/TX channel 3) would take the byte loop off the
-//!   CPU.
+//!   window write (2 x 128 bytes, ~130 us); a cycle with the largest images (40 + 40 bytes) ~45 us; all inside
+//!   tier 2's 400 us, but a SYNC0 capture waits up to that long for its handler. Splitting `EthercatSlave` into
+//!   an ESC phase and a drive phase would not shorten that wait: the ESC and the drive sit under the same ceiling
+//!   (tier 2's priority), which the bus needs as much as the drive does, since the cycle interrupts use the same
+//!   SPI bus. What would shorten it is a bus that a poll can yield mid-way: SPI by DMA (DMA2 stream 0/3, SPI1
+//!   RX/TX channel 3) with a queue of transfers, the cycle's first in line.
 //! - *SYNC0 period index.* TIM3 is reset at TIM1's channel-4 compare (the ADC trigger), `FAST_TICKS` increments
 //!   in the ADC interrupt a few us later: a pulse captured in that window is attributed to the previous period.
 //!   The PLL's target (the middle of the period) keeps a locked loop 20 us away from it; while acquiring, the

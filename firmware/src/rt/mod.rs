@@ -32,8 +32,9 @@
 //! | update flash (slot A, slot B, BOOT_STATE) | `board::boot::UpdateRegion`s in [`program::BoardProgram`], owned | start-up reads slot A's header and the state log ([`program::start`]); then tier 3 only: the confirmation and the download, inside `tier2::with_drive` with the power stage off | start-up, tier 3 |
 //!
 //! Nothing masks tier 1: tiers 2 and 3 share the drive under BASEPRI at tier 2's priority, and tier 1 shares only
-//! the hand-off blocks (atomics, no lock) with them. The QEMU bench shows it (`insn.tier1_latency_max`,
-//! `insn.masked_max`).
+//! the hand-off blocks (atomics, no lock) with them. The libraries' critical sections (embassy, defmt's RTT
+//! logger, semihosting) use the same ceiling once the tiers run ([`critical`]). The QEMU bench shows it
+//! (`insn.tier1_latency_max`, `insn.masked_max`).
 //!
 //! Start-up order: board init (outputs off) -> parameters loaded from flash and the drive built from them
 //! (`app::boot`; defaults in the QEMU image) -> program control for the running image ([`program::start`]; not in
@@ -45,6 +46,7 @@
 pub mod app;
 #[cfg(not(feature = "qemu"))]
 pub mod canopen;
+mod critical;
 #[cfg(all(feature = "ethercat", not(feature = "qemu")))]
 pub mod ethercat;
 pub mod log;
@@ -96,6 +98,8 @@ pub fn run() -> ! {
             peripherals.NVIC.set_priority(Interrupt::Sync0, TIER2_PRIORITY);
         }
     }
+    // From here on a critical section (embassy, defmt, semihosting) masks up to tier 2's priority, never tier 1.
+    critical::tiers_running();
     #[cfg_attr(feature = "qemu", allow(unused_mut))]
     let mut boot = app::boot();
     if let Some(_report) = boot.report {
