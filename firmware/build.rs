@@ -34,8 +34,8 @@ fn main() {
             eprintln!("cannot copy {}: {e}", memory_x.display());
             std::process::exit(1);
         }
-        // cortex-m-rt's `device` feature INCLUDEs device.x; the interrupt table itself is Rust (board::vectors).
-        let device_x = manifest_dir.join("src/board/device.x");
+        // cortex-m-rt's `device` feature INCLUDEs device.x; the interrupt table itself is Rust (rt::vectors).
+        let device_x = manifest_dir.join("src/rt/device.x");
         println!("cargo:rerun-if-changed={}", device_x.display());
         if let Err(e) = fs::copy(&device_x, out_dir.join("device.x")) {
             eprintln!("cannot copy {}: {e}", device_x.display());

@@ -33,10 +33,10 @@ pub mod counter;
 pub mod esc_spi;
 pub mod feedback;
 pub mod flash;
+pub mod interrupt;
 pub mod pwm;
 pub mod reg;
 pub mod sync_timer;
-pub mod vectors;
 
 #[cfg(feature = "qemu")]
 pub mod period_timer;

@@ -55,7 +55,7 @@ use crate::drive::Drive;
 use crate::board::period_timer::{self, PERIOD_INSTRUCTIONS};
 use crate::board::plant::{self, Shaft, HOLD_TICKS, PROFILE_TICKS};
 use crate::board::semihosting::{exit, print, EXIT_CHECK_FAILED, EXIT_OK};
-use crate::board::{counter, vectors::Interrupt};
+use crate::board::{counter, interrupt::Interrupt};
 use crate::cia402::{State, Statusword};
 use crate::control::angle::ElectricalAngle;
 use crate::control::current_loop::{foc_step, CurrentController, FocInput, FocOutput};

@@ -52,8 +52,8 @@ use cortex_m::peripheral::NVIC;
 use super::app;
 use super::program::BoardProgram;
 use crate::board::esc_spi::{self, Spi1};
+use crate::board::interrupt::Interrupt;
 use crate::board::sync_timer::{self, ARR_TABLE_LEN};
-use crate::board::vectors::Interrupt;
 use crate::boot::program::{Interface, SharedPort};
 use crate::drive::objects::DriveObjects;
 use crate::drive::Drive;
@@ -195,7 +195,7 @@ pub(crate) fn free_run_tick() {
 /// EXTI0: the ESC's SPI_IRQ (AL event). Only SM2's event is unmasked, and only SM-synchronous.
 ///
 /// # Safety
-/// Only the vector table calls this (`board::vectors`), as the EXTI0 handler.
+/// Only the vector table calls this (`rt::vectors`), as the EXTI0 handler.
 pub unsafe extern "C" fn on_pdi_irq() {
     esc_spi::acknowledge_irq();
     let _ = with_slave(|s, drive| {
@@ -208,7 +208,7 @@ pub unsafe extern "C" fn on_pdi_irq() {
 /// TIM3: the SYNC0 capture. The PLL gets the pulse's position in the PWM timebase; in DC mode the cycle runs.
 ///
 /// # Safety
-/// Only the vector table calls this (`board::vectors`), as the TIM3 handler.
+/// Only the vector table calls this (`rt::vectors`), as the TIM3 handler.
 pub unsafe extern "C" fn on_sync0() {
     let Some(raw) = sync_timer::take_capture() else {
         return;

@@ -56,13 +56,14 @@ pub mod signal;
 pub mod tier1;
 pub mod tier2;
 pub mod tier3;
+mod vectors;
 
 #[cfg(feature = "qemu")]
 pub mod bench;
 
 use cortex_m::peripheral::NVIC;
 
-use crate::board::{self, vectors::Interrupt};
+use crate::board::{self, interrupt::Interrupt};
 
 /// NVIC priority of tier 1 (the F405 implements the top 4 bits: 16 levels, 0 highest).
 pub const TIER1_PRIORITY: u8 = 0x00;

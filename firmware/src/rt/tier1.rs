@@ -19,7 +19,7 @@ use cortex_m::peripheral::NVIC;
 
 use super::app::{self, FastState};
 use crate::board::counter;
-use crate::board::vectors::Interrupt;
+use crate::board::interrupt::Interrupt;
 use crate::board::PowerStage;
 use crate::drive::blocks::{SetPoint, Settings, Tier1Report, REPORT_WORDS};
 #[cfg(not(feature = "qemu"))]
@@ -136,7 +136,7 @@ pub(crate) fn start(power: PowerStage, fast: FastState) {
 /// The ADC interrupt: one current-loop period.
 ///
 /// # Safety
-/// Only the vector table calls this (`board::vectors`): as the ADC handler it never preempts itself.
+/// Only the vector table calls this (`rt::vectors`): as the ADC handler it never preempts itself.
 pub unsafe extern "C" fn on_adc() {
     // SAFETY: see `# Safety`: no other reference to the slot is live while the handler runs.
     let Some(t) = (unsafe { TIER1.get() }) else {

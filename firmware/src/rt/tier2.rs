@@ -18,7 +18,7 @@ use embassy_executor::{InterruptExecutor, SendSpawner};
 use super::app;
 use super::signal::TickSignal;
 use crate::board::counter;
-use crate::board::vectors::Interrupt;
+use crate::board::interrupt::Interrupt;
 use crate::drive::Drive;
 
 /// Raised by tier 1 every `SLOW_TICK_DIVIDER` fast ticks. Writer: tier 1; waiter: the slow loop task.
@@ -167,7 +167,7 @@ static EXECUTOR: InterruptExecutor = InterruptExecutor::new();
 /// The executor's interrupt vector.
 ///
 /// # Safety
-/// Only the vector table calls this (`board::vectors`), on the interrupt `start` registered the executor on.
+/// Only the vector table calls this (`rt::vectors`), on the interrupt `start` registered the executor on.
 pub unsafe extern "C" fn on_interrupt() {
     // SAFETY: see `# Safety`.
     unsafe { EXECUTOR.on_interrupt() }
