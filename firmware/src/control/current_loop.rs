@@ -48,7 +48,12 @@ impl CurrentLoopConfig {
     /// The same gains on both axes from IDX 0x30A0:01 (uV/A) and 0x30A0:02 (uV/(A*ms)), EPOS4 limit, default clamp.
     #[must_use]
     pub fn from_idx_0x30a0(p_gain_uv_per_a: u32, i_gain_uv_per_a_ms: u32) -> Self {
-        let gains = PiGains::from_idx_0x30a0(p_gain_uv_per_a, i_gain_uv_per_a_ms);
+        Self::with_gains(PiGains::from_idx_0x30a0(p_gain_uv_per_a, i_gain_uv_per_a_ms))
+    }
+
+    /// `gains` on both axes (already converted, e.g. by tier 2), EPOS4 limit, default clamp.
+    #[must_use]
+    pub const fn with_gains(gains: PiGains) -> Self {
         Self { gains_d: gains, gains_q: gains, limit: VoltageLimit::EPOS4, clamp: DutyClamp::DEFAULT }
     }
 }

@@ -271,8 +271,8 @@ impl Drive {
             dictionary,
         };
         drive.configure_commutation();
+        // The first call converts the motor data, and with it the demand.
         drive.refresh_parameters();
-        drive.update_demand();
         drive
     }
 
@@ -402,15 +402,16 @@ impl Drive {
         if i2t_limit != self.i2t_limit || supervised.current_limit != self.thermal_limit {
             self.i2t_limit = i2t_limit;
             self.thermal_limit = supervised.current_limit;
-            self.scale = self.limited_scale(self.base_scale);
-            self.clamp_internal_demand();
-            self.update_demand();
+            self.apply_limits();
         }
     }
 
-    /// `scale` with the current limits of the protections in force: I2t and thermal derating.
-    fn limited_scale(&self, scale: DemandScale) -> DemandScale {
-        scale.limited_to(self.i2t_limit).limited_to(self.thermal_limit)
+    /// The demand scale with the current limits of the protections in force (I2t and thermal derating): the
+    /// loops' demand is clamped to it and the reference converted again.
+    fn apply_limits(&mut self) {
+        self.scale = self.base_scale.limited_to(self.i2t_limit).limited_to(self.thermal_limit);
+        self.clamp_internal_demand();
+        self.update_demand();
     }
 
     /// What the supervision reads: the last fast tick's measurements and the axis's state.
@@ -583,10 +584,12 @@ impl Drive {
             CurrentDemand::Off => {}
             CurrentDemand::Internal(i) => {
                 self.source = DemandSource::Internal;
-                self.set_current_demand(i);
+                self.internal = i;
+                self.clamp_internal_demand();
             }
             CurrentDemand::TargetTorque => self.source = DemandSource::TargetTorque,
         }
+        // One conversion for whatever the step changed (source, loops' demand, 0x6071).
         self.update_demand();
         self.output_pins = out.output_pins;
     }
@@ -639,9 +642,7 @@ impl Drive {
         d.set(h::MOTOR_RATED_TORQUE, rated_torque_micro_nm(nominal, motor.torque_constant));
         // The protections' limits stay in force across the re-read (the thermal derating's would otherwise hold
         // only in the slow tick it changed).
-        self.scale = self.limited_scale(scale);
-        self.clamp_internal_demand();
-        self.update_demand();
+        self.apply_limits();
     }
 
     /// Updates the 50 Hz averages of the q current and the bus voltage (0x30D1:01, 0x30D2:01, homing -1..-4).

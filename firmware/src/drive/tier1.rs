@@ -25,17 +25,13 @@ use crate::sensors::latch::PinLatches;
 
 /// Tier 1's state (module documentation).
 #[derive(Clone, Debug)]
-// `repr(C)` with the fields of every period first: on the Cortex-M4 a load or store reaches 4 KiB from a base
-// register in one instruction (the drive keeps this struct at its start for the same reason).
+// `repr(C)` with the fields of every period first, the settings last.
 #[repr(C)]
 pub struct Tier1State {
     state: PowerState,
     divider: u32,
-    /// The q-current reference of the last set-point.
-    i_q: Amps,
-    hall_mask: u8,
-    /// 0x3000:01 sensor 1 is the incremental encoder; without it the Halls are the position sensor.
-    encoder_present: bool,
+    /// The last set-point applied: its q reference is the current loop's.
+    setpoint: SetPoint,
     /// The last sample's break input (whether a trip's cause persists).
     last_break_input: bool,
     /// Tier-1 trip limits (from 0x3001:02).
@@ -53,10 +49,9 @@ pub struct Tier1State {
     trip_sample: FastSignals,
     /// Tier 1's encoder positions summed and latched per slow tick (the averaged velocity estimate).
     position_sum: PositionSum,
-    /// The settings in force (the calibration's, the commutation's and the limits' source).
+    /// The settings in force: Hall mask, encoder presence, calibration; the source of the limits and the
+    /// commutation.
     settings: Settings,
-    /// The last set-point applied.
-    setpoint: SetPoint,
 }
 
 impl Tier1State {
@@ -65,17 +60,10 @@ impl Tier1State {
     #[must_use]
     pub fn new(settings: &Settings) -> Self {
         let c = &settings.commutation;
-        let loop_config = CurrentLoopConfig {
-            gains_d: settings.gains,
-            gains_q: settings.gains,
-            ..CurrentLoopConfig::from_idx_0x30a0(0, 0)
-        };
         let mut t1 = Self {
             state: PowerState::Off,
             divider: SLOW_TICK_DIVIDER,
-            i_q: Amps::ZERO,
-            hall_mask: c.hall_mask,
-            encoder_present: c.encoder_present,
+            setpoint: SetPoint::default(),
             last_break_input: false,
             limits: Limits::new(settings.output_limit_ma),
             offsets: ShuntOffsets::NOMINAL,
@@ -85,7 +73,7 @@ impl Tier1State {
                 c.hall_offset,
                 c.configured_index_offset.or(c.default_index_offset),
             ),
-            controller: CurrentController::new(loop_config),
+            controller: CurrentController::new(CurrentLoopConfig::with_gains(settings.gains)),
             signals: FastSignals::default(),
             latches: PinLatches::default(),
             hall_position: HallPosition::default(),
@@ -93,9 +81,8 @@ impl Tier1State {
             trip_sample: FastSignals::default(),
             position_sum: PositionSum::default(),
             settings: *settings,
-            setpoint: SetPoint::default(),
         };
-        t1.commutation.set_hall_only(!t1.encoder_present);
+        t1.commutation.set_hall_only(!c.encoder_present);
         t1
     }
 
@@ -112,9 +99,7 @@ impl Tier1State {
         }
         self.controller.set_gains(settings.gains, settings.gains);
         let c = &settings.commutation;
-        let sensor_changed = c.encoder_present != self.encoder_present;
-        self.encoder_present = c.encoder_present;
-        self.hall_mask = c.hall_mask;
+        let sensor_changed = c.encoder_present != self.settings.commutation.encoder_present;
         let same = !sensor_changed
             && self.commutation.encoder().config() == &c.encoder
             && self.commutation.method() == c.method
@@ -126,7 +111,7 @@ impl Tier1State {
         } else {
             self.commutation = Commutation::new(c.method, c.encoder, c.hall_offset, index_offset);
         }
-        self.commutation.set_hall_only(!self.encoder_present);
+        self.commutation.set_hall_only(!c.encoder_present);
         self.settings = *settings;
     }
 
@@ -134,7 +119,6 @@ impl Tier1State {
     /// power request when its sequence moved on: a fault reset, then a switch-on, then the level, each from the
     /// state tier 1 is in now.
     pub fn apply_setpoint(&mut self, setpoint: &SetPoint) {
-        self.i_q = setpoint.i_q;
         let request = &setpoint.power;
         let last = self.setpoint.power;
         if request.sequence != last.sequence {
@@ -168,9 +152,8 @@ impl Tier1State {
     pub fn apply_setpoint_words(&mut self, words: &[u32; 3]) {
         let [version, power, i_q] = *words;
         if power == self.setpoint.power_word() {
-            self.i_q = Amps::from_bits(i_q.cast_signed());
             self.setpoint.version = version;
-            self.setpoint.i_q = self.i_q;
+            self.setpoint.i_q = Amps::from_bits(i_q.cast_signed());
         } else {
             self.apply_setpoint(&<SetPoint as crate::handoff::Words<3>>::from_words(words));
         }
@@ -218,8 +201,8 @@ impl Tier1State {
         }
         let v_bus = scaling::bus_voltage(m.adc.bus_voltage);
         // 2. Scaling and the position sensors (the encoder is tracked in every state).
-        let mut feedback = FeedbackSample { hall: m.feedback.hall ^ self.hall_mask, ..m.feedback };
-        if !self.encoder_present {
+        let mut feedback = FeedbackSample { hall: m.feedback.hall ^ self.settings.commutation.hall_mask, ..m.feedback };
+        if !self.settings.commutation.encoder_present {
             // No encoder configured: the Halls count the position, whatever the counter input shows is ignored,
             // and the angle comes from the Halls.
             self.hall_position.update(feedback.hall);
@@ -291,7 +274,7 @@ impl Tier1State {
             angle = align.angle;
             Dq::new(align.i_d, align.i_q)
         } else if self.commutation.stage().is_valid() {
-            Dq::new(Amps::ZERO, self.i_q)
+            Dq::new(Amps::ZERO, self.setpoint.i_q)
         } else {
             // The alignment just finished this tick: the angle is valid from the next one; hold zero current.
             Dq::new(Amps::ZERO, Amps::ZERO)

@@ -35,7 +35,9 @@ critical_section::set_impl!(TierCeiling);
 // SAFETY: `acquire` excludes every context that takes a section (tiers 2 and 3 and the interrupts at tier 2's
 // priority once the tiers run; every interrupt before) until the matching `release`, which restores exactly the state
 // `acquire` found, so sections nest. Tier 1 takes none (module documentation).
+// Out of line: one copy for every section in the image (inlined, both modes would be copied into each).
 unsafe impl critical_section::Impl for TierCeiling {
+    #[inline(never)]
     unsafe fn acquire() -> u8 {
         if TIERS_RUNNING.load(Ordering::Relaxed) {
             let previous = basepri::read();
@@ -55,6 +57,7 @@ unsafe impl critical_section::Impl for TierCeiling {
         }
     }
 
+    #[inline(never)]
     unsafe fn release(state: u8) {
         core::sync::atomic::compiler_fence(Ordering::SeqCst);
         if state & CEILING != 0 {

@@ -53,7 +53,7 @@ pub static REPORT_MAX: AtomicU32 = AtomicU32::new(0);
 
 /// One current-loop period in counter units: cycles at 168 MHz on the board, the QEMU bench's instruction period.
 #[cfg(not(feature = "qemu"))]
-const PERIOD: u32 = 168_000_000 / PWM_FREQUENCY_HZ;
+const PERIOD: u32 = crate::board::clock::SYSCLK_HZ / PWM_FREQUENCY_HZ;
 #[cfg(feature = "qemu")]
 const PERIOD: u32 = crate::board::period_timer::PERIOD_INSTRUCTIONS;
 
@@ -183,6 +183,12 @@ pub unsafe extern "C" fn on_adc() {
     }
 }
 
+/// Periods between two period starts `elapsed` counter units apart, less one: the periods skipped (the elapsed time
+/// rounded to whole periods, so that the jitter of either start does not count).
+fn periods_skipped(elapsed: u32) -> u32 {
+    elapsed.saturating_add(PERIOD / 2).checked_div(PERIOD).unwrap_or(1).saturating_sub(1)
+}
+
 impl Tier1 {
     /// Periods lost since the last run started (0 for the first supervised run, or with the supervision off): the time
     /// between the two starts, rounded to whole periods, less one. Counts them in [`PERIODS_LOST`].
@@ -192,8 +198,7 @@ impl Tier1 {
             return 0;
         }
         let Some(last) = self.last_run.replace(now) else { return 0 };
-        let periods = now.wrapping_sub(last).saturating_add(PERIOD / 2).checked_div(PERIOD).unwrap_or(1);
-        let lost = periods.saturating_sub(1);
+        let lost = periods_skipped(now.wrapping_sub(last));
         if lost > 0 {
             PERIODS_LOST.store(PERIODS_LOST.load(Ordering::Relaxed).saturating_add(lost), Ordering::Relaxed);
         }
@@ -222,12 +227,10 @@ pub fn on_period_timer() {
     let start = now.wrapping_sub(latency);
     let elapsed = start.wrapping_sub(LAST_UPDATE.load(Ordering::Relaxed));
     LAST_UPDATE.store(start, Ordering::Relaxed);
-    // Period starts since the last run, rounded (the two starts are whole periods apart, to a tick).
-    let period = period_timer::PERIOD_INSTRUCTIONS;
-    let periods = elapsed.saturating_add(period / 2).checked_div(period).unwrap_or(1);
-    if periods > 1 {
-        FAST_MISSED
-            .store(FAST_MISSED.load(Ordering::Relaxed).saturating_add(periods.wrapping_sub(1)), Ordering::Relaxed);
+    // The two starts are whole periods apart, to a tick.
+    let missed = periods_skipped(elapsed);
+    if missed > 0 {
+        FAST_MISSED.store(FAST_MISSED.load(Ordering::Relaxed).saturating_add(missed), Ordering::Relaxed);
     }
     if latency > TIER1_LATENCY_MAX.load(Ordering::Relaxed) {
         TIER1_LATENCY_MAX.store(latency, Ordering::Relaxed);

@@ -3,15 +3,15 @@
 //! enqueues the slow task and pends the executor's interrupt, which runs as soon as tier 1 returns.
 //!
 //! Tier 2 owns the drive ([`Drive`]): the slow loop, the EtherCAT cycle interrupts (tier 2's priority) and tier 3
-//! reach it through [`with_drive`], a lock that raises BASEPRI to tier 2's priority. It keeps out everything of
-//! that priority and below, and never tier 1. When a section ends, the blocks the drive changed go to tier 1
+//! reach it through [`with_drive`], inside a critical section, which once the tiers run raises BASEPRI to tier 2's
+//! priority (`rt::critical`). It keeps out everything of that priority and below, and never tier 1. When a section ends, the blocks the drive changed go to tier 1
 //! (`tier1::SETTINGS`, `tier1::SETPOINT`): every publication happens inside the lock, so the double buffers have
 //! one writer at a time, and a request made in a section (a class-d forced off included) reaches tier 1 in the
 //! first period that starts after it.
 
 use core::cell::UnsafeCell;
 use core::mem::MaybeUninit;
-use core::sync::atomic::{compiler_fence, AtomicBool, AtomicU32, Ordering};
+use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use embassy_executor::{InterruptExecutor, SendSpawner};
 
@@ -39,7 +39,8 @@ pub static TIER2_TOTAL_MAX: AtomicU32 = AtomicU32::new(0);
 /// the middle of its copy); the drive then keeps the previous one. Writer: tier 2.
 pub static REPORTS_TORN: AtomicU32 = AtomicU32::new(0);
 
-/// A value tier 2 and tier 3 share, reached only through [`Tier2Slot::with`] (the tier-2 lock).
+/// A value tier 2 and tier 3 share, reached only through [`Tier2Slot::with`] (inside a critical section: the tier-2
+/// ceiling).
 pub struct Tier2Slot<T> {
     value: UnsafeCell<MaybeUninit<T>>,
     /// Set once the value is in place.
@@ -48,8 +49,8 @@ pub struct Tier2Slot<T> {
     busy: AtomicBool,
 }
 
-// SAFETY: the value is reached only inside `with`, which runs with BASEPRI at tier 2's priority (nothing of that
-// priority or below runs meanwhile, and tier 1 never touches a slot) and refuses a nested entry (`busy`); `place`
+// SAFETY: the value is reached only inside `with`, which runs in a critical section (`rt::critical`: nothing of tier
+// 2's priority or below runs meanwhile, and tier 1 never touches a slot) and refuses a nested entry (`busy`); `place`
 // writes it once, before `ready`.
 unsafe impl<T: Send> Sync for Tier2Slot<T> {}
 
@@ -65,7 +66,7 @@ impl<T> Tier2Slot<T> {
 
     /// Places the value (once, at start-up; a second call does nothing).
     pub fn place(&self, value: T) {
-        lock(|| {
+        critical_section::with(|_| {
             if self.ready.load(Ordering::Relaxed) {
                 return;
             }
@@ -75,10 +76,10 @@ impl<T> Tier2Slot<T> {
         });
     }
 
-    /// Runs `f` on the value inside the tier-2 lock. `None` before [`Self::place`], or when called from inside a
-    /// section that already holds this slot.
+    /// Runs `f` on the value inside a critical section (the tier-2 ceiling once the tiers run). `None` before
+    /// [`Self::place`], or when called from inside a section that already holds this slot.
     pub fn with<R>(&self, f: impl FnOnce(&mut T) -> R) -> Option<R> {
-        lock(|| {
+        critical_section::with(|_| {
             if !self.ready.load(Ordering::Relaxed) || self.busy.swap(true, Ordering::Relaxed) {
                 return None;
             }
@@ -94,21 +95,6 @@ impl<T> Default for Tier2Slot<T> {
     fn default() -> Self {
         Self::new()
     }
-}
-
-/// Runs `f` with BASEPRI at tier 2's priority: tier 2, the interrupts that share its priority and tier 3 are held
-/// off, tier 1 is not.
-fn lock<R>(f: impl FnOnce() -> R) -> R {
-    let previous = cortex_m::register::basepri::read();
-    // Raises only: inside a section of a higher ceiling (or from tier 1) it leaves BASEPRI as it is.
-    cortex_m::register::basepri_max::write(super::TIER2_PRIORITY);
-    compiler_fence(Ordering::SeqCst);
-    let result = f();
-    compiler_fence(Ordering::SeqCst);
-    // SAFETY: restores the value read on entry: the sections nest, so this never lowers a ceiling an enclosing
-    // section relies on.
-    unsafe { cortex_m::register::basepri::write(previous) };
-    result
 }
 
 /// The drive, tier 2's.
