@@ -22,9 +22,10 @@ const FAST_TICK_BUDGET: u64 = 600;
 /// Slow-tick budget in the cyclic modes CSP and CSV, instructions (tier issue).
 const SLOW_TICK_BUDGET: u64 = 6_000;
 /// Slow-tick bound in the profile modes PVM, PPM and homing, whose slow tick plans a whole profile (128-bit
-/// arithmetic) when a set-point arrives: it must end within its 400 us period (67,200 instructions) with tier 1's
-/// periods (at most 10 x 600 plus one report) inside it. The tier issue's 6,000 is not met there yet.
-const PLANNING_SLOW_TICK_BOUND: u64 = 60_000;
+/// arithmetic, `control::wide`) when a set-point arrives: 15,436 at most when the planner's divisions moved to the
+/// hardware divider (homing), from 53,159 with the library's 128-bit division. The tier issue's 6,000 is not met
+/// there yet; the whole tier-2 step, these ticks included, is held to `TIER2_TOTAL_BUDGET` below.
+const PLANNING_SLOW_TICK_BOUND: u64 = 16_000;
 /// From the period's start to tier 1's handler, instructions (tier issue).
 const TIER1_LATENCY_BUDGET: u64 = 300;
 /// Longest wait of tier 1 past its entry cost, instructions (tier issue).
@@ -78,8 +79,8 @@ fn qemu_image_meets_the_instruction_budgets() {
     );
 
     // Tier 1 at the real period (SysTick every 6,720 instructions) through a CSP move with the parameter
-    // conversion at its start, tier 3 reading through the drive's lock meanwhile (firmware/src/rt/bench.rs
-    // `timed_phase`).
+    // conversion at its start, then CSV, PVM, PPM and homing (the profile generator's planning ticks), tier 3
+    // reading and writing through the drive's lock meanwhile (firmware/src/rt/bench.rs `timed_phase`).
     let latency = first.insn("tier1_latency_max").expect("the image reports insn.tier1_latency_max");
     assert!(latency > 0 && latency <= TIER1_LATENCY_BUDGET, "tier 1 reached {latency} instructions late");
     let masked = first.insn("masked_max").expect("the image reports insn.masked_max");

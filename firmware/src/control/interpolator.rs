@@ -83,7 +83,8 @@
 //! period, EPOS3 CSP interpolation error 0xFF13; which fault to raise is the fault layer's decision). A set-point
 //! arriving later resumes the interpolation from the held point.
 
-use super::trajectory::{sat_i32, sat_i64, Acceleration, Velocity, SLOW_TICK_MICROS};
+use super::trajectory::{Acceleration, Velocity, SLOW_TICK_MICROS};
+use super::wide::{sat_i32, sat_i64};
 
 /// Consecutive periods without a set-point that are bridged by extrapolation before holding (one lost frame).
 pub const DEFAULT_MAX_EXTRAPOLATED_PERIODS: u8 = 1;

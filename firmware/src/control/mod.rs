@@ -13,6 +13,7 @@
 //! - [`pi`]: PI with back-calculation anti-windup, gains from IDX 0x30A0.
 //! - [`svpwm`]: voltage limit, bus compensation, SVPWM, duty clamp.
 //! - [`current_loop`]: the whole FOC step, [`current_loop::foc_step`].
+//! - [`wide`]: 128-bit multiply-shift, division and square root on the 32-bit core (the profile generator's).
 
 pub mod angle;
 pub mod current_loop;
@@ -28,3 +29,4 @@ pub mod transforms;
 pub mod trig;
 pub mod velocity;
 pub mod velocity_estimate;
+pub mod wide;

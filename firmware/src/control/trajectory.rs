@@ -51,16 +51,21 @@
 //! - Dictionary units (rpm, rpm/s; 0x60A9/0x60AA) are converted once, when a parameter changes, by
 //!   [`MotionScale`] (one multiply and a shift each, no division).
 //!
-//! Products are formed with a 256-bit intermediate and saturate (`mul_shr`, `div_shl`), so no input panics.
+//! Products are formed with a 256-bit intermediate and saturate ([`super::wide`]: `mul_shr`, `div_shl`), so no
+//! input panics.
 //! Accuracy envelope (where the figures above hold): velocities up to 2^30 inc/tick, segment durations up to 2^40
 //! ticks, positions within +-2^62 inc. Outside it the generator still never panics and still ends exactly on the
 //! target when the move ends; only the smoothness of the samples degrades.
 //!
-//! # Cost per tick
-//! One segment evaluation: about ten 128x128-bit multiply-shifts and one 128-bit division; a sin² ramp adds two
-//! Taylor-series sines (7 multiply steps each, error below 1e-11). Planning costs a few dozen such operations and a
-//! 128-bit square root.
+//! # Cost (`insn.profile_plan_max`, `insn.profile_step_max` of the QEMU bench)
+//! One sample: a segment evaluation, about ten multiply-shifts (operands below 2^64 in practice, so one 64x64-bit
+//! product each) and two divisions in 32-bit digits ([`super::wide`]); a sin² ramp adds two Taylor-series sines
+//! (7 multiply steps each, error below 1e-11). Planning a move: about five divisions, a square root and a few
+//! dozen multiply-shifts. About 2,000 to 2,800 instructions per sample and 3,000 to 9,000 per plan on the
+//! Cortex-M4; the divisions are most of it, and a planner in 64-bit formats with the rates' reciprocals taken
+//! when the parameters change would need fewer.
 
+use super::wide::{div_round_u, div_shl, isqrt, mul_shr, round_shr, sat_i32, sat_i64};
 use crate::hal::power::{PWM_FREQUENCY_HZ, SLOW_TICK_DIVIDER};
 
 /// Sampling frequency of the profile generator and the interpolator: the slow tick, 2500 Hz (EPOS4 Ts = 0.4 ms,
@@ -498,15 +503,18 @@ struct Segment {
     dv: i128,
     /// `dv * duration`, Q32 inc.
     area: i128,
-    /// `dv / duration`, the mean acceleration, Q40 inc/tick².
+    /// The mean acceleration, Q40 inc/tick², signed like `dv`: the ramp's rate (its duration is `|dv| / rate`,
+    /// so `dv / duration` is the rate up to the rounding of the duration), 0 for a cruise.
     accel: i128,
     shape: ProfileType,
 }
 
 impl Segment {
-    fn new(start: i128, duration: i128, p0: i128, v0: i128, v1: i128, shape: ProfileType) -> Self {
+    /// A ramp from `v0` to `v1` over `duration` at the mean rate `rate` (Q40, > 0; 0 for a cruise).
+    fn new(start: i128, duration: i128, p0: i128, v0: i128, v1: i128, rate: i128, shape: ProfileType) -> Self {
         let dv = v1.saturating_sub(v0);
-        Self { start, duration, p0, v0, dv, area: mul_shr(dv, duration, 32), accel: div_shl(dv, duration, 40), shape }
+        let accel = rate.saturating_mul(dv.signum());
+        Self { start, duration, p0, v0, dv, area: mul_shr(dv, duration, 32), accel, shape }
     }
 
     fn end(&self) -> i128 {
@@ -537,6 +545,9 @@ impl Segment {
         let half_u2 = mul_shr(u, u, 63); // Q62, u <= 2^62
         let (g, vs, a_shape) = match self.shape {
             ProfileType::Trapezoidal => (half_u2, u, ONE_Q62),
+            // At the ends the sines are exactly zero (`sin_pi_q60` and `sin_2pi_q60` return 0 there): the end state
+            // of every planned segment is taken here without evaluating them.
+            ProfileType::SinSquared if u == ONE_Q62 => (half_u2, u, 0),
             ProfileType::SinSquared => {
                 let s1 = i128::from(sin_pi_q60(u));
                 let sin2 = mul_shr(s1, s1, 60); // sin²(pi u), Q60
@@ -654,23 +665,28 @@ impl Builder {
 
     /// Ramps to `v1` at the mean rate `rate` (Q40, > 0).
     fn ramp_to(&mut self, v1: i128, rate: i128) {
-        let dv = v1.saturating_sub(self.v);
-        if dv == 0 {
+        let duration = ramp_duration(v1.saturating_sub(self.v).saturating_abs(), rate);
+        self.ramp_over(v1, rate, duration);
+    }
+
+    /// Ramps to `v1` at the mean rate `rate` over `duration`, the [`ramp_duration`] of the step (computed once by
+    /// the caller that needed it before).
+    fn ramp_over(&mut self, v1: i128, rate: i128, duration: i128) {
+        if v1 == self.v {
             return;
         }
-        let duration = ramp_duration(dv.saturating_abs(), rate);
         if duration <= 0 {
             // A velocity step far below one LSB of time: take it at once.
             self.v = v1;
             return;
         }
-        self.push(Segment::new(self.t, duration, self.p, self.v, v1, self.shape));
+        self.push(Segment::new(self.t, duration, self.p, self.v, v1, rate, self.shape));
     }
 
     /// Holds the current velocity for `duration` (Q32 ticks).
     fn cruise(&mut self, duration: i128) {
         if duration > 0 && self.v != 0 {
-            self.push(Segment::new(self.t, duration, self.p, self.v, self.v, ProfileType::Trapezoidal));
+            self.push(Segment::new(self.t, duration, self.p, self.v, self.v, 0, ProfileType::Trapezoidal));
         }
     }
 
@@ -715,13 +731,14 @@ fn ramp_duration(dv: i128, rate: i128) -> i128 {
     div_shl(dv, rate.max(1), 40)
 }
 
-/// Position of the end of a ramp from `v0` to `v1` relative to its start, exactly as the segment evaluates it.
-fn ramp_distance(v0: i128, v1: i128, rate: i128, shape: ProfileType) -> i128 {
+/// The duration of a ramp from `v0` to `v1` and the position of its end relative to its start, exactly as the
+/// segment evaluates it.
+fn ramp_distance(v0: i128, v1: i128, rate: i128, shape: ProfileType) -> (i128, i128) {
     let duration = ramp_duration(v1.saturating_sub(v0).saturating_abs(), rate);
     if duration <= 0 {
-        return 0;
+        return (duration, 0);
     }
-    Segment::new(0, duration, 0, v0, v1, shape).eval(duration).p
+    (duration, Segment::new(0, duration, 0, v0, v1, rate, shape).eval(duration).p)
 }
 
 /// `2 * rate * distance` in Q64 (inc²/tick²): rate Q40, distance Q32.
@@ -788,12 +805,13 @@ fn plan_position(p0: i128, v0: i128, target: i128, target_inc: i64, end_velocity
         };
         let rate = if vp >= u0 { lim.acc } else { lim.dec };
         b.ramp_to(vp.saturating_mul(s), rate);
-        let last = ramp_distance(vp, wn, lim.dec, lim.shape);
+        let (last_duration, last) = ramp_distance(vp, wn, lim.dec, lim.shape);
         let cruise = target.saturating_sub(b.p).saturating_mul(s).saturating_sub(last);
         if cruise > 0 && vp > 0 {
             b.cruise(div_shl(cruise, vp, 32));
         }
-        b.ramp_to(wn.saturating_mul(s), lim.dec);
+        // b.v is vp s here (the ramp and the cruise end there): the last ramp is the one just measured.
+        b.ramp_over(wn.saturating_mul(s), lim.dec, last_duration);
         break;
     }
     let end_velocity = b.v;
@@ -1181,120 +1199,6 @@ fn mul_q60(a: i64, b: i64) -> i64 {
     i64::try_from(p).unwrap_or(0)
 }
 
-const LOW64: u128 = u64::MAX as u128;
-
-/// The 256-bit product of two `u128` as (high, low).
-fn wide_mul(a: u128, b: u128) -> (u128, u128) {
-    let (a1, a0) = (a >> 64, a & LOW64);
-    let (b1, b0) = (b >> 64, b & LOW64);
-    // Each partial product of two values below 2^64 is below 2^128: no wrap.
-    let p00 = a0.wrapping_mul(b0);
-    let p01 = a0.wrapping_mul(b1);
-    let p10 = a1.wrapping_mul(b0);
-    let p11 = a1.wrapping_mul(b1);
-    // Three terms below 2^64 each: no wrap.
-    let mid = (p00 >> 64).wrapping_add(p01 & LOW64).wrapping_add(p10 & LOW64);
-    let lo = (p00 & LOW64) | (mid << 64);
-    // The full product is below 2^256, so the high word cannot wrap.
-    let hi = p11.wrapping_add(p01 >> 64).wrapping_add(p10 >> 64).wrapping_add(mid >> 64);
-    (hi, lo)
-}
-
-/// `(a * b) >> s` of magnitudes with a 256-bit intermediate, truncated, saturating at `u128::MAX`.
-fn mul_shr_u(a: u128, b: u128, s: u32) -> u128 {
-    let (hi, lo) = wide_mul(a, b);
-    if s == 0 {
-        if hi == 0 {
-            lo
-        } else {
-            u128::MAX
-        }
-    } else if s < 128 {
-        if hi.wrapping_shr(s) != 0 {
-            u128::MAX
-        } else {
-            hi.wrapping_shl(128u32.wrapping_sub(s)) | lo.wrapping_shr(s)
-        }
-    } else if s < 256 {
-        hi.wrapping_shr(s.wrapping_sub(128))
-    } else {
-        0
-    }
-}
-
-/// `(a * b) >> s`, truncated toward zero (so sign-symmetric), saturating at +-(2^127 - 1).
-pub(crate) fn mul_shr(a: i128, b: i128, s: u32) -> i128 {
-    let m = i128::try_from(mul_shr_u(a.unsigned_abs(), b.unsigned_abs(), s)).unwrap_or(i128::MAX);
-    if (a < 0) != (b < 0) {
-        m.wrapping_neg()
-    } else {
-        m
-    }
-}
-
-/// `(n << s) / d`, truncated toward zero, saturating at +-(2^127 - 1); a zero divisor gives the saturated value
-/// with the sign of `n` (0 for n = 0). Exact: the remainder is carried bit by bit when `r << s` would overflow.
-pub(crate) fn div_shl(n: i128, d: i128, s: u32) -> i128 {
-    let (nu, du) = (n.unsigned_abs(), d.unsigned_abs());
-    let negative = (n < 0) != (d < 0);
-    let saturated = if negative { i128::MIN.wrapping_add(1) } else { i128::MAX };
-    if nu == 0 {
-        return 0;
-    }
-    let (Some(q), Some(mut r)) = (nu.checked_div(du), nu.checked_rem(du)) else {
-        return saturated;
-    };
-    if s >= 127 || (q != 0 && q.leading_zeros() <= s) {
-        return saturated;
-    }
-    let mut f: u128 = 0;
-    if r.leading_zeros() >= s {
-        f = r.wrapping_shl(s).checked_div(du).unwrap_or(0);
-    } else {
-        // r < du <= 2^127, so r << 1 never wraps.
-        for _ in 0..s {
-            r = r.wrapping_shl(1);
-            f = f.wrapping_shl(1);
-            if r >= du {
-                r = r.wrapping_sub(du);
-                f |= 1;
-            }
-        }
-    }
-    let m = i128::try_from(q.wrapping_shl(s) | f).unwrap_or(i128::MAX);
-    if negative {
-        m.wrapping_neg()
-    } else {
-        m
-    }
-}
-
-/// `x >> s` rounded to nearest (ties toward +infinity), `1 <= s < 127`.
-pub(crate) fn round_shr(x: i128, s: u32) -> i128 {
-    x.saturating_add(1i128.wrapping_shl(s.wrapping_sub(1))).wrapping_shr(s)
-}
-
-/// Integer square root of a non-negative value (0 for negatives).
-fn isqrt(x: i128) -> i128 {
-    // The root of a value below 2^127 is below 2^64: fits.
-    i128::try_from(u128::try_from(x.max(0)).unwrap_or(0).isqrt()).unwrap_or(0)
-}
-
-/// `n / d` rounded half up; 0 for d = 0.
-fn div_round_u(n: u128, d: u128) -> u128 {
-    n.saturating_add(d / 2).checked_div(d).unwrap_or(0)
-}
-
-/// Saturates to `i64`.
-pub(crate) fn sat_i64(x: i128) -> i64 {
-    i64::try_from(x).unwrap_or(if x < 0 { i64::MIN } else { i64::MAX })
-}
-
-/// Saturates to `i32`.
-pub(crate) fn sat_i32(x: i128) -> i32 {
-    i32::try_from(x).unwrap_or(if x < 0 { i32::MIN } else { i32::MAX })
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1324,39 +1228,6 @@ mod tests {
         for (c, k) in SIN_TAYLOR_Q60.iter().zip([7.0f64, 6.0, 5.0, 4.0, 3.0, 2.0, 1.0]) {
             assert!((*c as f64 / q60 - 1.0 / ((2.0 * k) * (2.0 * k + 1.0))).abs() < 1e-16);
         }
-    }
-
-    #[test]
-    fn wide_helpers() {
-        assert_eq!(mul_shr(-3, 5, 0), -15);
-        assert_eq!(mul_shr(i128::MAX, i128::MAX, 0), i128::MAX);
-        assert_eq!(mul_shr(1 << 100, 1 << 100, 100), 1 << 100);
-        assert_eq!(mul_shr(-(1 << 100), 1 << 100, 150), -(1 << 50));
-        assert_eq!(div_shl(1, 3, 32), (1i128 << 32) / 3);
-        assert_eq!(div_shl(-7, 2, 0), -3);
-        assert_eq!(div_shl(5, 0, 3), i128::MAX);
-        assert_eq!(div_shl(1 << 120, 3 << 118, 60), (4i128 << 60) / 3);
-        // Remainder carried bit by bit.
-        let n = (1i128 << 125) + 12345;
-        let d = (1i128 << 124) + 7;
-        let expect = {
-            // floor(n 2^8 / d) by long division in f64-free integer steps
-            let mut q = n / d;
-            let mut r = n % d;
-            for _ in 0..8 {
-                r <<= 1;
-                q <<= 1;
-                if r >= d {
-                    r -= d;
-                    q |= 1;
-                }
-            }
-            q
-        };
-        assert_eq!(div_shl(n, d, 8), expect);
-        assert_eq!(round_shr(3 << 31, 32), 2);
-        assert_eq!(round_shr(-(3 << 31), 32), -1);
-        assert_eq!(isqrt((1 << 100) + 5), 1 << 50);
     }
 
     #[test]

@@ -32,14 +32,18 @@
 //! 4. `insn.tier1_latency_max`, `insn.masked_max`, `fast_missed`, `slow_missed`: tier 1 at the real period, driven
 //!    by the period timer (SysTick every 1,129 ticks of 168 MHz = 6,720 instructions, `board::period_timer`)
 //!    instead of the bench: back to «Switch on disabled» with other motion parameters, then the CSP move of item 2
-//!    again through the controlword (its start converts the parameters again, the longest background step), tier 3
+//!    again through the controlword (its start converts the parameters again, the longest background step) and
+//!    the runs of CSV, PVM, PPM and homing of item 2 (so the profile generator's planning ticks are there), tier 3
 //!    serving SDO requests through a CANopen node over the drive meanwhile ([`Tier3Load`]: uploads, and
 //!    downloads that the background step converts). The latency is from the start of the period tier 1 runs in
 //!    to its handler (to a SysTick tick); a period whose start passes while tier 1 is held off, with the next
 //!    start already due, is lost (`fast_missed`), and tier 1 counts the periods it finds lost itself
 //!    (`tier1::PERIODS_LOST`, which must agree). `insn.masked_max` is the longest wait past the entry cost.
-//!    `insn.tier2_total_max` is the worst whole tier-2 step of a slow period in this part.
-//! 5. Checks the tiers and the drive (every period ran, tier 2 once per ten, nothing missed, no overrun, the CSP
+//!    `insn.tier2_total_max` is the worst whole tier-2 step of a slow period in this part, tier 1's preemptions
+//!    included.
+//! 5. `insn.profile_plan_max` and `insn.profile_step_max`: the profile generator alone (planning a move, a
+//!    velocity command and a halt; one sample), the part of the profile modes' slow tick above the loops.
+//! 6. Checks the tiers and the drive (every period ran, tier 2 once per ten, nothing missed, no overrun, the CSP
 //!    run reached operation enabled, followed without a fault or following-error bit, the profile part ended in
 //!    operation enabled) and exits through semihosting: status 0, or 1 when a check failed.
 
@@ -378,8 +382,8 @@ fn slow_tick_in_mode(
 }
 
 /// The slow tick in CSV, PVM, PPM and homing after the CSP run (see the constants): the maximum per mode, and
-/// whether every mode ran without a fault and the homing ended (statusword bit 12).
-fn other_modes(periods: &mut Periods) -> ([(&'static str, u32); 4], bool) {
+/// whether every mode ran without a fault and the homing ended (statusword bit 12), as the line to print.
+fn other_modes(periods: &mut Periods) -> ([(&'static str, u32); 4], bool, ModesCheck) {
     let (csv_ok, csv) = slow_tick_in_mode(
         periods,
         9,
@@ -436,10 +440,29 @@ fn other_modes(periods: &mut Periods) -> ([(&'static str, u32); 4], bool) {
     );
     let homed = tier2::with_drive(|d| d.dictionary().get(h::STATUSWORD) & Statusword::OMS_12 != 0) == Some(true);
     let _ = tier2::with_drive(|d| d.dictionary_mut().set(h::CONTROLWORD, 0x0F));
-    print(format_args!(
-        "check.modes_without_fault=csv {csv_ok} pvm {pvm_ok} ppm {ppm_ok} homing {homing_ok}, homing ended {homed}\n"
-    ));
-    ([("csv", csv), ("pvm", pvm), ("ppm", ppm), ("homing", homing)], csv_ok && pvm_ok && ppm_ok && homing_ok && homed)
+    (
+        [("csv", csv), ("pvm", pvm), ("ppm", ppm), ("homing", homing)],
+        csv_ok && pvm_ok && ppm_ok && homing_ok && homed,
+        ModesCheck { csv_ok, pvm_ok, ppm_ok, homing_ok, homed },
+    )
+}
+
+/// Which of the other modes ran without a fault, and whether the homing ended.
+struct ModesCheck {
+    csv_ok: bool,
+    pvm_ok: bool,
+    ppm_ok: bool,
+    homing_ok: bool,
+    homed: bool,
+}
+
+impl ModesCheck {
+    fn print(&self, key: &str) {
+        let ModesCheck { csv_ok, pvm_ok, ppm_ok, homing_ok, homed } = self;
+        print(format_args!(
+            "check.{key}=csv {csv_ok} pvm {pvm_ok} ppm {ppm_ok} homing {homing_ok}, homing ended {homed}\n"
+        ));
+    }
 }
 
 /// The bench task.
@@ -458,7 +481,8 @@ pub async fn bench() {
     let slow_csp = tier2::SLOW_TICK_MAX.load(Ordering::Relaxed);
     let background_max = tier2::BACKGROUND_MAX.load(Ordering::Relaxed);
     let csp_slow_ticks = tier2::SLOW_TICKS.load(Ordering::Relaxed);
-    let (modes, modes_ok) = other_modes(&mut periods);
+    let (modes, modes_ok, modes_check) = other_modes(&mut periods);
+    modes_check.print("modes_without_fault");
     let slow_max = modes.iter().fold(slow_csp, |max, (_, m)| max.max(*m));
 
     // «Disable voltage», then the speed profile on the direct power-stage path. Switch on: the offset calibration
@@ -509,6 +533,15 @@ pub async fn bench() {
          (method 34), with the lock and the publications\n"
     ));
     print(format_args!("insn.slow_tick_max={slow_max}\ninsn.slow_tick_csp={slow_csp}\n"));
+    let (plan_max, step_max) = profile_generator_max();
+    print(format_args!(
+        "source.profile_plan_max=control::trajectory::ProfileGenerator: start_move, set_velocity_target, halt; \
+         both profile types\ninsn.profile_plan_max={plan_max}\n"
+    ));
+    print(format_args!(
+        "source.profile_step_max=control::trajectory::ProfileGenerator::step over a move and a velocity ramp\n\
+         insn.profile_step_max={step_max}\n"
+    ));
     for (name, max) in modes {
         print(format_args!("insn.slow_tick_{name}={max}\n"));
     }
@@ -547,8 +580,8 @@ pub async fn bench() {
     let timed = timed_phase();
     print(format_args!(
         "source.tier1_latency_max=tier 1 driven by SysTick every {PERIOD_INSTRUCTIONS} instructions through the CSP \
-         move again, tier 3 serving SDO requests: from the period's start to the handler, to a tick (6 \
-         instructions)\n"
+         move and the CSV, PVM, PPM and homing runs again, tier 3 serving SDO requests: from the period's start to \
+         the handler, to a tick (6 instructions)\n"
     ));
     print(format_args!("insn.tier1_latency_max={}\n", timed.latency_max));
     print(format_args!(
@@ -593,7 +626,10 @@ pub async fn bench() {
     check(slow_missed == 0, "tier 2 missed no slow tick");
     check(!overrun, "no fast-tick overrun");
     check(timed.fast_ticks > 0, "the period timer drove tier 1");
-    check(timed.csp_enabled, "CSP under the period timer reached operation enabled");
+    check(
+        timed.motion_ok,
+        "under the period timer CSP reached operation enabled and CSV, PVM, PPM and homing ran without a fault",
+    );
     check(timed.periods_lost == timed.fast_missed, "tier 1 saw the periods the timer lost");
     check(
         timed.tier3_booted && timed.sdo_exchanges > 1_000 && timed.sdo_wrong_answers == 0,
@@ -621,8 +657,8 @@ struct TimedRun {
     slow_missed: u32,
     periods: u32,
     fast_ticks: u32,
-    /// The CSP move reached operation enabled under the timer.
-    csp_enabled: bool,
+    /// The CSP move reached operation enabled, and CSV, PVM, PPM and homing ran without a fault, under the timer.
+    motion_ok: bool,
 }
 
 /// Tier 1 at the real period (SysTick, `board::period_timer`) while tier 2 runs the CSP move of the first part
@@ -660,6 +696,10 @@ fn timed_phase() -> TimedRun {
     let disabled = periods.run_until(STATE_TIMEOUT_TICKS, |d| statusword_state(d) == Some(State::SwitchOnDisabled));
     periods.run(2 * SLOW_TICK_DIVIDER);
     let run = csp(&mut periods);
+    // Then the profile modes and CSV, so that the whole tier-2 step is measured with the profile generator's
+    // planning ticks as well (their slow ticks alone are measured in the first part, without tier 1's preemptions).
+    let (_, modes_ok, modes_check) = other_modes(&mut periods);
+    modes_check.print("timed_modes_without_fault");
     period_timer::stop();
     let (exchanges, wrong_answers) = periods.load.as_ref().map_or((0, 0), |l| (l.exchanges, l.wrong_answers));
     tier1::PERIOD_SUPERVISED.store(false, Ordering::Relaxed);
@@ -673,7 +713,7 @@ fn timed_phase() -> TimedRun {
         slow_missed: tier2::SLOW_MISSED.load(Ordering::Relaxed).wrapping_sub(slow_missed_before),
         periods: periods.pended,
         fast_ticks: tier1::FAST_TICKS.load(Ordering::Relaxed).wrapping_sub(fast_before),
-        csp_enabled: disabled && run.enabled,
+        motion_ok: disabled && run.enabled && modes_ok,
         tier3_booted: booted,
         sdo_exchanges: exchanges,
         sdo_wrong_answers: wrong_answers,
@@ -865,4 +905,51 @@ fn can_sync_max(drive: &mut Drive) -> Option<CanSync> {
             && counters.tx_dropped == 0;
     }
     Some(best)
+}
+
+/// The profile generator alone (`control::trajectory::ProfileGenerator`), both profile types (0x6086 = 0, 1) at
+/// 4096 inc/rev: the longest planning call over a position move of `PPM_DISTANCE_INC` from rest, a velocity
+/// command to `MODES_RPM` and a halt from it, and the longest `step` over the move and the velocity ramp (counter
+/// units; these are the parts of the profile modes' slow tick that `insn.slow_tick_<mode>` shows on top of the
+/// loops).
+fn profile_generator_max() -> (u32, u32) {
+    use crate::control::trajectory::{ChangeMode, MotionScale, ProfileGenerator, ProfileObjects};
+    let scale = MotionScale::new(4096);
+    let timed = |f: &mut dyn FnMut()| {
+        let start = counter::now();
+        compiler_fence(Ordering::SeqCst);
+        f();
+        compiler_fence(Ordering::SeqCst);
+        counter::now().wrapping_sub(start)
+    };
+    let (mut plan_max, mut step_max) = (0u32, 0u32);
+    for motion_profile_type in [0i16, 1] {
+        let objects = ProfileObjects {
+            motion_profile_type,
+            profile_velocity: MODES_RPM.unsigned_abs(),
+            ..ProfileObjects::default()
+        };
+        let Ok(params) = objects.profile_params(&scale) else { continue };
+        let velocity = scale.velocity_from_rpm(i64::from(MODES_RPM));
+        let mut generator = black_box(ProfileGenerator::new(0));
+        plan_max = plan_max.max(timed(&mut || {
+            let _ =
+                black_box(generator.start_move(i64::from(PPM_DISTANCE_INC), false, &params, ChangeMode::Immediately));
+        }));
+        while !generator.is_done() {
+            step_max = step_max.max(timed(&mut || {
+                black_box(generator.step());
+            }));
+        }
+        plan_max = plan_max.max(timed(&mut || {
+            let _ = black_box(generator.set_velocity_target(velocity, &params));
+        }));
+        while !generator.is_done() {
+            step_max = step_max.max(timed(&mut || {
+                black_box(generator.step());
+            }));
+        }
+        plan_max = plan_max.max(timed(&mut || generator.halt(params.deceleration)));
+    }
+    (plan_max, step_max)
 }
