@@ -26,7 +26,8 @@ fn mul_u128(a: u128, b: u128) -> u128 {
 
 /// `n / d` and `n % d`, exact (the same bits as the library's division); `None` for `d = 0`.
 ///
-/// Schoolbook division in 32-bit digits on the hardware divider (Knuth, TAOCP vol. 2, 4.3.1, algorithm D; the word-size steps as in Hacker's Delight, 9-4 and 9-5):
+/// Schoolbook division in 32-bit digits on the hardware divider (Knuth, TAOCP vol. 2, 4.3.1, algorithm D; the
+/// word-size steps as in Hacker's Delight, 9-4 and 9-5):
 /// - a divisor below 2^64: [`div_128_by_64`] once, or twice when the quotient needs more than 64 bits;
 /// - a larger divisor (quotient below 2^64): the top 64 bits of the normalised divisor give the quotient or one
 ///   more, and one comparison settles it.
@@ -357,8 +358,12 @@ mod tests {
         /// where the digit estimates need their corrections): the quotient and remainder come back.
         #[test]
         fn div_rem_recovers_quotient_and_remainder(
-            d in prop_oneof![any_magnitude(), (1u32..128).prop_map(|k| (1u128 << k) - 1), (0u32..128).prop_map(|k| 1u128 << k),
-                (1u32..128, any::<u64>()).prop_map(|(k, x)| ((1u128 << k) - 1) ^ u128::from(x & 0xFFFF))],
+            d in prop_oneof![
+                any_magnitude(),
+                (1u32..128).prop_map(|k| (1u128 << k) - 1),
+                (0u32..128).prop_map(|k| 1u128 << k),
+                (1u32..128, any::<u64>()).prop_map(|(k, x)| ((1u128 << k) - 1) ^ u128::from(x & 0xFFFF)),
+            ],
             q in any_magnitude(), r in any::<u128>(),
         ) {
             prop_assume!(d != 0);
