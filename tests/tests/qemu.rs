@@ -22,9 +22,9 @@ const FAST_TICK_BUDGET: u64 = 600;
 /// Slow-tick budget in the cyclic modes CSP and CSV, instructions (tier issue).
 const SLOW_TICK_BUDGET: u64 = 6_000;
 /// Slow-tick bound in the profile modes PVM, PPM and homing, whose slow tick plans a whole profile (128-bit
-/// arithmetic, `control::wide`) when a set-point arrives: 15,436 at most when the planner's divisions moved to the
-/// hardware divider (homing), from 53,159 with the library's 128-bit division. The tier issue's 6,000 is not met
-/// there yet; the whole tier-2 step, these ticks included, is held to `TIER2_TOTAL_BUDGET` below.
+/// arithmetic, `control::wide`) when a set-point arrives: 14,336 at most (homing) since the planner divides on the
+/// hardware divider, from 53,159 with the library's 128-bit division. The tier issue's 6,000 is not met there yet;
+/// the whole tier-2 step, these ticks included, is held to `TIER2_TOTAL_BUDGET` below.
 const PLANNING_SLOW_TICK_BOUND: u64 = 16_000;
 /// From the period's start to tier 1's handler, instructions (tier issue).
 const TIER1_LATENCY_BUDGET: u64 = 300;

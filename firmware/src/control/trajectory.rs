@@ -33,8 +33,9 @@
 //! accumulating increments, so nothing drifts. The segments' end points are those same closed forms, so
 //! position and velocity are continuous across boundaries by construction. What remains between the end of the
 //! last segment and the integer target (rounding of the square root and of the durations, a few 2^-32 inc in the
-//! stated envelope) is removed by a linear correction spread over the whole move; from the last tick on the
-//! output is exactly the target. In the final approach the position is clamped so that it never passes the target.
+//! stated envelope) is removed by a linear correction spread over the whole move (at the residual's rate, so a
+//! residual too small for one LSB of that rate is left to the end); from the last tick on the output is exactly
+//! the target. In the final approach the position is clamped so that it never passes the target.
 //!
 //! # Representation
 //! - Position: increments in Q32 (`i128`, units of 2^-32 inc) inside; the output [`Setpoint`] gives the position
@@ -59,11 +60,11 @@
 //!
 //! # Cost (`insn.profile_plan_max`, `insn.profile_step_max` of the QEMU bench)
 //! One sample: a segment evaluation, about ten multiply-shifts (operands below 2^64 in practice, so one 64x64-bit
-//! product each) and two divisions in 32-bit digits ([`super::wide`]); a sin² ramp adds two Taylor-series sines
+//! product each) and one division in 32-bit digits ([`super::wide`]); a sin² ramp adds two Taylor-series sines
 //! (7 multiply steps each, error below 1e-11). Planning a move: about five divisions, a square root and a few
-//! dozen multiply-shifts. About 2,000 to 2,800 instructions per sample and 3,000 to 9,000 per plan on the
-//! Cortex-M4; the divisions are most of it, and a planner in 64-bit formats with the rates' reciprocals taken
-//! when the parameters change would need fewer.
+//! dozen multiply-shifts. Up to about 2,100 instructions per sample and 8,400 per plan on the Cortex-M4; the
+//! divisions are most of it, and a planner in 64-bit formats with the rates' reciprocals taken when the
+//! parameters change would need fewer.
 
 use super::wide::{div_round_u, div_shl, isqrt, mul_shr, round_shr, sat_i32, sat_i64};
 use crate::hal::power::{PWM_FREQUENCY_HZ, SLOW_TICK_DIVIDER};
@@ -592,9 +593,8 @@ struct Plan {
     end_position: i128,
     /// Q32 inc/tick after `duration`.
     end_velocity: i128,
-    /// `end_position` minus where the segments end, spread linearly over the plan.
-    residual: i128,
-    /// `residual / duration`, Q32 inc/tick.
+    /// The residual (`end_position` minus where the segments end) over `duration`, Q32 inc/tick: the rate at which
+    /// the residual is spread over the plan.
     residual_rate: i128,
     /// Sign of the final approach to a resting end (the clamp against passing the target), 0 for none.
     approach: i128,
@@ -610,7 +610,6 @@ impl Plan {
             duration: 0,
             end_position: position,
             end_velocity: 0,
-            residual: 0,
             residual_rate: 0,
             approach: 0,
             kind: PlanKind::Idle,
@@ -631,9 +630,10 @@ impl Plan {
         for (i, seg) in self.segments.iter().take(self.len).enumerate() {
             if t < seg.end() {
                 let mut st = seg.eval(t.saturating_sub(seg.start));
-                if self.residual != 0 {
-                    let frac = div_shl(t.max(0), self.duration, 32);
-                    st.p = st.p.saturating_add(mul_shr(self.residual, frac, 32));
+                if self.residual_rate != 0 {
+                    // `residual_rate t` is `residual t / duration` up to the rate's rounding (less than one Q32
+                    // LSB per tick of the plan): a multiply per sample instead of a division.
+                    st.p = st.p.saturating_add(mul_shr(self.residual_rate, t.max(0), 32));
                     st.v = st.v.saturating_add(self.residual_rate);
                 }
                 if i == last && self.approach > 0 {
@@ -706,7 +706,7 @@ impl Builder {
     fn finish(self, kind: PlanKind, end_position: i128, end_velocity: i128, limits: Option<Limits>) -> Plan {
         let residual = end_position.saturating_sub(self.p);
         let duration = self.t;
-        let (residual, residual_rate) = if duration > 0 { (residual, div_shl(residual, duration, 32)) } else { (0, 0) };
+        let residual_rate = if duration > 0 { div_shl(residual, duration, 32) } else { 0 };
         let approach = match self.segments.get(self.len.saturating_sub(1)) {
             Some(last) if self.len > 0 && end_velocity == 0 => last.v0.signum(),
             _ => 0,
@@ -717,7 +717,6 @@ impl Builder {
             duration,
             end_position,
             end_velocity,
-            residual,
             residual_rate,
             approach,
             kind,
@@ -1194,6 +1193,7 @@ fn sin_2pi_q60(u: i128) -> i64 {
 }
 
 /// `(a * b) >> 60` for Q60 values below 2^62 in magnitude (the product is below 2^124: no wrap).
+#[inline(always)]
 fn mul_q60(a: i64, b: i64) -> i64 {
     let p = i128::from(a).wrapping_mul(i128::from(b)) >> 60;
     i64::try_from(p).unwrap_or(0)

@@ -17,6 +17,7 @@ const LOW64: u128 = u64::MAX as u128;
 
 /// `a * b` for values whose product fits in 128 bits; uses the 64x64-bit product when both operands fit in 64
 /// bits (the common case: a quotient estimate times a divisor).
+#[inline(always)]
 fn mul_u128(a: u128, b: u128) -> u128 {
     match (u64::try_from(a), u64::try_from(b)) {
         (Ok(a), Ok(b)) => u128::from(a).wrapping_mul(u128::from(b)),
@@ -66,6 +67,7 @@ pub fn div_rem(n: u128, d: u128) -> Option<(u128, u128)> {
 }
 
 /// The high and low 64-bit words of a `u128`.
+#[inline(always)]
 fn split(x: u128) -> (u64, u64) {
     let hi = u64::try_from(x >> 64).unwrap_or(u64::MAX);
     let lo = u64::try_from(x & LOW64).unwrap_or(0);
@@ -98,6 +100,7 @@ fn div_128_by_64(u_hi: u64, u_lo: u64, v: u64) -> (u64, u64) {
 
 /// One 32-bit quotient digit of `(un 2^32 + next) / (vn1 2^32 + vn0)`, for `un < vn1 2^32 + vn0` and `vn1 >= 2^31`:
 /// the estimate `un / vn1` (at most `2^32 - 1`) corrected until `q vn0 <= (un - q vn1) 2^32 + next`.
+#[inline(always)]
 fn quotient_digit(un: u64, next: u64, vn1: u64, vn0: u64) -> u64 {
     const BASE: u64 = 1 << 32;
     let (mut q, mut rhat) = if un >> 32 >= vn1 {
@@ -117,6 +120,7 @@ fn quotient_digit(un: u64, next: u64, vn1: u64, vn0: u64) -> u64 {
 
 /// `u / v` and `u % v` for `u < v 2^32` and `2^31 <= v < 2^32` (a 32-bit quotient), with the 32/32-bit hardware
 /// divider: two 16-bit digits the same way as [`div_128_by_64`]'s 32-bit ones.
+#[inline(always)]
 fn div_64_by_32(u: u64, v: u64) -> (u64, u64) {
     const HALF: u64 = 1 << 16;
     let (u1, u0) = (u >> 32, u & 0xFFFF_FFFF);
@@ -145,9 +149,6 @@ fn div_64_by_32(u: u64, v: u64) -> (u64, u64) {
 
 /// The 256-bit product of two `u128` as (high, low).
 fn wide_mul(a: u128, b: u128) -> (u128, u128) {
-    if let (Ok(a), Ok(b)) = (u64::try_from(a), u64::try_from(b)) {
-        return (0, u128::from(a).wrapping_mul(u128::from(b)));
-    }
     let (a1, a0) = (a >> 64, a & LOW64);
     let (b1, b0) = (b >> 64, b & LOW64);
     // Each partial product of two values below 2^64 is below 2^128: no wrap.
@@ -163,8 +164,19 @@ fn wide_mul(a: u128, b: u128) -> (u128, u128) {
     (hi, lo)
 }
 
-/// `(a * b) >> s` of magnitudes with a 256-bit intermediate, truncated, saturating at `u128::MAX`.
+/// `(a * b) >> s` of magnitudes, truncated, saturating at `u128::MAX`. Operands below 2^64 (the planner's in
+/// practice) take one 64x64-bit product inline; larger ones the 256-bit product out of line.
+#[inline(always)]
 fn mul_shr_u(a: u128, b: u128, s: u32) -> u128 {
+    match (u64::try_from(a), u64::try_from(b)) {
+        (Ok(a), Ok(b)) => u128::from(a).wrapping_mul(u128::from(b)).checked_shr(s).unwrap_or(0),
+        _ => mul_shr_u_wide(a, b, s),
+    }
+}
+
+/// [`mul_shr_u`] for operands of 64 bits or more.
+#[inline(never)]
+fn mul_shr_u_wide(a: u128, b: u128, s: u32) -> u128 {
     let (hi, lo) = wide_mul(a, b);
     if s == 0 {
         if hi == 0 {
@@ -187,6 +199,7 @@ fn mul_shr_u(a: u128, b: u128, s: u32) -> u128 {
 
 /// `(a * b) >> s`, truncated toward zero (so sign-symmetric), saturating at +-(2^127 - 1).
 #[must_use]
+#[inline(always)]
 pub fn mul_shr(a: i128, b: i128, s: u32) -> i128 {
     let m = i128::try_from(mul_shr_u(a.unsigned_abs(), b.unsigned_abs(), s)).unwrap_or(i128::MAX);
     if (a < 0) != (b < 0) {
@@ -244,6 +257,7 @@ pub fn div_shl(n: i128, d: i128, s: u32) -> i128 {
 
 /// `x >> s` rounded to nearest (ties toward +infinity), `1 <= s < 127`.
 #[must_use]
+#[inline(always)]
 pub fn round_shr(x: i128, s: u32) -> i128 {
     x.saturating_add(1i128.wrapping_shl(s.wrapping_sub(1))).wrapping_shr(s)
 }
@@ -283,12 +297,14 @@ pub fn div_round_u(n: u128, d: u128) -> u128 {
 
 /// Saturates to `i64`.
 #[must_use]
+#[inline(always)]
 pub fn sat_i64(x: i128) -> i64 {
     i64::try_from(x).unwrap_or(if x < 0 { i64::MIN } else { i64::MAX })
 }
 
 /// Saturates to `i32`.
 #[must_use]
+#[inline(always)]
 pub fn sat_i32(x: i128) -> i32 {
     i32::try_from(x).unwrap_or(if x < 0 { i32::MIN } else { i32::MAX })
 }
