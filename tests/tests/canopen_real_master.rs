@@ -84,6 +84,39 @@ fn canopen_sees_the_boot_up_and_moves_the_node_through_the_nmt_states_by_its_hea
     );
 }
 
+/// Proves (CiA 301 §7.3.2, §7.5.2.13/14; issue 19, "stored communication parameters are lost at every reset"):
+/// with PyPI canopen, 0x1017 = 150, 0x1015 = 7, 0x1020:01 = 15,000 and 0x1800:05 = 200 saved with
+/// `RemoteNode.store()` read back exactly after reset node and after reset communication, though they were changed
+/// again without saving; the heartbeat runs every 150 ms after either reset (6 or 7 in one second of SYNCs at
+/// 10 ms); 0x1010:02 "save communication parameters" alone keeps 0x1017 = 100 over a reset communication; after
+/// 0x1011:02 "restore default parameters" the next reset communication brings every one back to its default, 0.
+#[test]
+fn saved_communication_parameters_come_back_after_reset_node_and_reset_communication() {
+    skip_unless_runnable!("saved_communication_parameters_come_back_after_reset_node_and_reset_communication");
+    let dir = WorkDir::new("stored");
+    let eds = write_eds(&dir);
+    let out = run("stored.py", &["--lock-step", "--sync-us", "10000"], &eds, &[]);
+    pass(&out);
+    let saved = [("heartbeat_ms", 150), ("emcy_inhibit", 7), ("verify_date", 15_000), ("tpdo1_event_timer", 200)];
+    for reset in ["node", "comm"] {
+        for (name, value) in saved {
+            assert_eq!(out.master(&format!("{name}_after_{reset}")), value.to_string(), "{name} after reset {reset}");
+        }
+        let heartbeats = out.master_num(&format!("heartbeats_after_{reset}"));
+        assert!((6.0..=7.0).contains(&heartbeats), "{heartbeats} heartbeats in 1 s after reset {reset}");
+    }
+    assert_eq!(out.master("hb_after_save_comm"), "100");
+    for (name, _) in saved {
+        assert_eq!(out.master(&format!("{name}_after_restore")), "0", "{name} after restoring the defaults");
+    }
+    println!(
+        "stored communication parameters: back after reset node and reset communication, heartbeats {} and {} per \
+         second; restored defaults after 0x1011:02",
+        out.master("heartbeats_after_node"),
+        out.master("heartbeats_after_comm")
+    );
+}
+
 /// What the dictionary answers to an upload of `entry`: the value or the abort code. The application-served
 /// entries (0x1010/0x1011 store and load, 0x100A and 0x1F5x program control) through the objects hal-sim's
 /// CANopen runner serves at power-on ([`PowerOnObjects`]).

@@ -31,7 +31,9 @@
 //! **Resets** (CiA 301 §7.3.2.2.1). An NMT reset (and power-on, [`CanopenNode::new`]) puts the node into
 //! initialisation; its next [`CanopenNode::process`] carries the reset out and returns [`NodeEvent::Reset`]:
 //! - reset communication: the node-ID 0x2000 asks for becomes the node-ID; the writable communication parameters
-//!   0x1000..0x1FFF go back to their defaults for it ([`ids::reset_communication_parameters`]); the SDO transfer
+//!   0x1000..0x1FFF go back to their power-on values for it: the defaults ([`ids::reset_communication_parameters`]),
+//!   then the values saved with 0x1010 from the parameter store, through the application objects
+//!   ([`ApplicationObjects::reload_communication`]), as a power cycle would load them; the SDO transfer
 //!   in progress, the PDO data, the SYNC and heartbeat supervision are dropped, and the communication losses
 //!   reported are restored (IDX L7336-L7350: reset communication is the recovery of the CAN errors);
 //! - reset node: first the power stage goes to a safe state (controlword 0x6040 = 0 "disable voltage" and
@@ -39,9 +41,12 @@
 //!   (0x2000..0x9FFF back to their power-on values) is the runtime's, told by the event: on the target it restarts
 //!   the microcontroller, which loads the parameter store; the event also carries the bit rate 0x2001 asks for.
 //!
-//! A runtime with stored communication parameters applies them to the dictionary between that event and the
-//! next [`CanopenNode::process`], which reads the configuration, sends the boot-up message and enters
+//! The next [`CanopenNode::process`] reads the configuration, sends the boot-up message and enters
 //! pre-operational ([`NodeEvent::Booted`]). Frames received during initialisation are ignored.
+//!
+//! A COB-ID saved with its `$NODEID+` default is stored as the value it had, like every other parameter: after a
+//! change of the node-ID the saved COB-IDs keep the old node-ID until they are saved again (or restored with
+//! 0x1011).
 //!
 //! **Frames nobody expects** are ignored without an answer, as CiA 301 has no reply for them: unknown COB-IDs,
 //! an NMT frame that is not 2 bytes, SDO frames that are not 8 bytes, anything in a state that does not allow
@@ -490,7 +495,9 @@ impl CanopenNode {
             self.powered_on = true;
             ids::write(drive.dictionary_mut(), ids::NODE_ID_OBJECT, 0, u64::from(self.node_id));
         }
+        // The power-on values of the communication area: its defaults for this node-ID, then the stored values.
         ids::reset_communication_parameters(drive.dictionary_mut(), self.node_id);
+        app.reload_communication(drive.dictionary_mut().values_mut().bytes_mut());
         for loss in self.heartbeat.take_lost() {
             drive.communication_restored(loss);
         }

@@ -301,4 +301,8 @@ impl<F: NorFlash, P: ApplicationObjects> ApplicationObjects for DriveObjects<'_,
             Served::Nobody => {}
         }
     }
+
+    fn reload_communication(&mut self, values: &mut [u8]) {
+        self.store_objects().reload_communication(values);
+    }
 }

@@ -161,6 +161,15 @@ pub trait ApplicationObjects {
     fn abort(&mut self, entry: &'static Entry) {
         let _ = entry;
     }
+
+    /// A reset (NMT reset node or reset communication, the node's power-on reset included) has just set the
+    /// communication area 0x1000..0x1FFF of `values` to its defaults: applies the stored communication parameters
+    /// over them, so that the area holds its power-on values (CiA 301 §7.3.2: both resets load the power-on
+    /// values of the communication parameters; §7.5.2.13: saved values are the power-on values). Without a
+    /// parameter store there is nothing to apply.
+    fn reload_communication(&mut self, values: &mut [u8]) {
+        let _ = values;
+    }
 }
 
 /// An [`ApplicationObjects`] that serves nothing: every transfer aborts with 0x0800_0020 (data cannot be

@@ -876,6 +876,12 @@ impl<F: NorFlash> ApplicationObjects for StoreObjects<'_, F> {
         }
         Ok(self.store.write_command(entry.index, entry.sub, data, self.entries, values)?)
     }
+
+    fn reload_communication(&mut self, values: &mut [u8]) {
+        // A flash that cannot be read leaves the defaults: the boot has already reported the store's state
+        // (0x6380 when its record is unreadable), and a reset must complete in any case.
+        let _ = self.store.load(Selection::Only(Group::Communication), self.entries, values);
+    }
 }
 
 #[cfg(test)]

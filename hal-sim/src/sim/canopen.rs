@@ -687,4 +687,74 @@ mod reset_tests {
         assert_eq!(reply[..4], [0x43, 0x65, 0x60, 0]);
         assert_eq!(u32::from_le_bytes(reply[4..].try_into().unwrap()), 12_345);
     }
+
+    /// Expedited download of `value` (`len` bytes) to `index:sub`; the answer's command byte.
+    fn download(r: &mut CanopenRunner, index: u16, sub: u8, value: u32, len: u8) -> u8 {
+        let command = 0x23 | ((4 - len) << 2);
+        let [i0, i1] = index.to_le_bytes();
+        let v = value.to_le_bytes();
+        sdo(r, [command, i0, i1, sub, v[0], v[1], v[2], v[3]])[0]
+    }
+
+    /// Expedited upload of `index:sub` as an unsigned value.
+    fn upload(r: &mut CanopenRunner, index: u16, sub: u8) -> u32 {
+        let [i0, i1] = index.to_le_bytes();
+        let reply = sdo(r, [0x40, i0, i1, sub, 0, 0, 0, 0]);
+        assert_eq!(reply[0] & 0xF3, 0x43, "upload {index:#06x}:{sub}: {reply:02x?}");
+        let len = 4 - usize::from((reply[0] >> 2) & 3);
+        let mut v = [0u8; 4];
+        v[..len].copy_from_slice(&reply[4..4 + len]);
+        u32::from_le_bytes(v)
+    }
+
+    /// The communication parameters a new user sets (heartbeat 0x1017, EMCY inhibit 0x1015, verify configuration
+    /// 0x1020:01, TPDO 1 event timer 0x1800:05) and their defaults.
+    const COMMUNICATION: [(u16, u8, u32, u8, u32); 4] =
+        [(0x1017, 0, 150, 2, 0), (0x1015, 0, 7, 2, 0), (0x1020, 1, 15_000, 4, 0), (0x1800, 5, 200, 2, 0)];
+
+    fn nmt(r: &mut CanopenRunner, command: u8) {
+        let boot = r.lock_step(CanFrame::new(0x000, &[command, 1]).unwrap());
+        assert!(boot.iter().any(|d| d.frame.id() == 0x701 && d.frame.data() == [0]), "boot-up after {command:#x}");
+    }
+
+    /// Proves CiA 301 §7.3.2 and §7.5.2.13: communication parameters saved with 0x1010 are the power-on values,
+    /// so a reset node (the drive restarts from its parameter store) and a reset communication both bring them
+    /// back, not the defaults, while unsaved changes are dropped; the heartbeat runs with the saved 0x1017 (150 ms:
+    /// 6 or 7 heartbeats in one second); "save communication parameters" (0x1010:02) alone is enough; after
+    /// "restore defaults" (0x1011:02) the next reset brings the defaults (0).
+    #[test]
+    fn saved_communication_parameters_survive_reset_node_and_reset_communication() {
+        let mut r = CanopenRunner::new(CanopenConfig { clock: CanClock::LockStep, ..CanopenConfig::default() });
+        r.run_for(2_000_000);
+        for (index, sub, value, len, _) in COMMUNICATION {
+            assert_eq!(download(&mut r, index, sub, value, len), 0x60, "{index:#06x}:{sub}");
+        }
+        let save = u32::from_le_bytes(*b"save");
+        assert_eq!(download(&mut r, 0x1010, 1, save, 4), 0x60, "save all");
+        // Changed again without saving: the resets bring back the saved values, not these.
+        for (index, sub, value, len, _) in COMMUNICATION {
+            assert_eq!(download(&mut r, index, sub, value + 1, len), 0x60, "{index:#06x}:{sub}");
+        }
+        for command in [0x81, 0x82] {
+            nmt(&mut r, command);
+            for (index, sub, value, _, _) in COMMUNICATION {
+                assert_eq!(upload(&mut r, index, sub), value, "{index:#06x}:{sub} after NMT {command:#x}");
+            }
+            let heartbeats = r.run_for(1_000_000_000).iter().filter(|d| d.frame.id() == 0x701).count();
+            assert!((6..=7).contains(&heartbeats), "{heartbeats} heartbeats in 1 s after NMT {command:#x}");
+        }
+        // "Save communication parameters" alone.
+        assert_eq!(download(&mut r, 0x1017, 0, 100, 2), 0x60);
+        assert_eq!(download(&mut r, 0x1010, 2, save, 4), 0x60, "save communication");
+        nmt(&mut r, 0x82);
+        assert_eq!(upload(&mut r, 0x1017, 0), 100, "0x1017 after save communication and reset communication");
+        // "Restore default parameters" of the communication group: the defaults at the next reset.
+        let load = u32::from_le_bytes(*b"load");
+        assert_eq!(download(&mut r, 0x1011, 2, load, 4), 0x60, "restore communication defaults");
+        assert_eq!(upload(&mut r, 0x1017, 0), 100, "running values unchanged until the reset");
+        nmt(&mut r, 0x82);
+        for (index, sub, _, _, default) in COMMUNICATION {
+            assert_eq!(upload(&mut r, index, sub), default, "{index:#06x}:{sub} after restoring the defaults");
+        }
+    }
 }
