@@ -14,7 +14,7 @@
 
 use std::fmt::Write as _;
 
-use crate::model::{Access, DataType, Description, Object, ObjectCode, Pdo, SubObject, Value, WriteCondition};
+use crate::model::{Access, DataType, Description, Object, ObjectCode, PdoMapping, SubObject, Value, WriteCondition};
 
 /// Fixed creation and modification date of the generated EDS (CiA 306 §4.2, `mm-dd-yyyy`), so that the output
 /// depends only on the description.
@@ -218,7 +218,7 @@ fn var_section(out: &mut String, header: &str, name: &str, sub: &SubObject) {
     if let Some(v) = default_value(sub) {
         keys.push(("DefaultValue", v));
     }
-    keys.push(("PDOMapping", if sub.pdo == Pdo::No { "0" } else { "1" }.into()));
+    keys.push(("PDOMapping", if sub.pdo == PdoMapping::No { "0" } else { "1" }.into()));
     if let Some((low, high)) = limits(sub) {
         keys.push(("LowLimit", int_text(sub.data_type, low)));
         keys.push(("HighLimit", int_text(sub.data_type, high)));

@@ -8,7 +8,7 @@
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
-use crate::model::{Access, DataType, Description, Object, ObjectCode, Pdo, SubObject, Value, WriteCondition};
+use crate::model::{Access, DataType, Description, Object, ObjectCode, PdoMapping, SubObject, Value, WriteCondition};
 use crate::sii;
 
 /// Direction of a PDO.
@@ -258,10 +258,10 @@ fn access_xml(s: &SubObject) -> String {
 
 fn pdo_flag_xml(s: &SubObject) -> &'static str {
     match s.pdo {
-        Pdo::No => "",
-        Pdo::Rx => "<PdoMapping>R</PdoMapping>",
-        Pdo::Tx => "<PdoMapping>T</PdoMapping>",
-        Pdo::Both => "<PdoMapping>RT</PdoMapping>",
+        PdoMapping::No => "",
+        PdoMapping::Rx => "<PdoMapping>R</PdoMapping>",
+        PdoMapping::Tx => "<PdoMapping>T</PdoMapping>",
+        PdoMapping::Both => "<PdoMapping>RT</PdoMapping>",
     }
 }
 

@@ -85,7 +85,7 @@ fn print_summary(path: &Path, d: &Description) {
         for s in &o.subs {
             *storage.entry(s.storage.word()).or_default() += 1;
             persistent += usize::from(s.persistent);
-            mappable += usize::from(s.pdo != od_gen::model::Pdo::No);
+            mappable += usize::from(s.pdo != od_gen::model::PdoMapping::No);
             if let Some(h) = &s.handle {
                 handles.push(format!("{h} (0x{:04X}:{:02X})", o.index, s.sub));
             }

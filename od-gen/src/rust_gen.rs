@@ -10,7 +10,9 @@
 use std::collections::BTreeMap;
 use std::fmt::Write;
 
-use crate::model::{Access, DataType, Description, ObjectCode, Pdo, StorageKind, SubObject, Value, WriteCondition};
+use crate::model::{
+    Access, DataType, Description, ObjectCode, PdoMapping, StorageKind, SubObject, Value, WriteCondition,
+};
 
 /// Where one RAM entry lives in the value storage.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -123,12 +125,12 @@ fn access(a: Access) -> &'static str {
     }
 }
 
-fn pdo(p: Pdo) -> &'static str {
+fn pdo(p: PdoMapping) -> &'static str {
     match p {
-        Pdo::No => "PdoMapping::No",
-        Pdo::Rx => "PdoMapping::Rx",
-        Pdo::Tx => "PdoMapping::Tx",
-        Pdo::Both => "PdoMapping::Both",
+        PdoMapping::No => "PdoMapping::No",
+        PdoMapping::Rx => "PdoMapping::Rx",
+        PdoMapping::Tx => "PdoMapping::Tx",
+        PdoMapping::Both => "PdoMapping::Both",
     }
 }
 

@@ -14,7 +14,8 @@ use std::fmt::Display;
 
 use crate::description::{RawAttrs, RawDevice, RawFile, RawObject, RawSub};
 use crate::model::{
-    Access, DataType, Description, Device, Object, ObjectCode, Pdo, StorageKind, SubObject, Value, WriteCondition,
+    Access, DataType, Description, Device, Object, ObjectCode, PdoMapping, StorageKind, SubObject, Value,
+    WriteCondition,
 };
 
 /// The mistakes found so far, one formatted line each.
@@ -498,13 +499,13 @@ fn entry(
         }
     };
     let pdo = match a.pdo.as_deref() {
-        None | Some("no") => Pdo::No,
-        Some("rx") => Pdo::Rx,
-        Some("tx") => Pdo::Tx,
-        Some("both") => Pdo::Both,
+        None | Some("no") => PdoMapping::No,
+        Some("rx") => PdoMapping::Rx,
+        Some("tx") => PdoMapping::Tx,
+        Some("both") => PdoMapping::Both,
         Some(word) => {
             r.push(at, format_args!("unknown pdo '{word}' (expected no, rx, tx or both)"));
-            Pdo::No
+            PdoMapping::No
         }
     };
     let writable_in = match a.writable_in.as_deref() {
@@ -662,7 +663,7 @@ fn entry(
     }
 
     // PDO mapping, persistence and storage.
-    if pdo != Pdo::No && data_type.pdo_bits().is_none() {
+    if pdo != PdoMapping::No && data_type.pdo_bits().is_none() {
         r.push(at, format_args!("{type_name} cannot be PDO-mapped (pdo = \"{}\")", pdo.word()));
     }
     let persistent = a.persistent.unwrap_or(false);
@@ -850,7 +851,7 @@ fn pdo_mappings(d: &Description, complete: &BTreeMap<u16, bool>, r: &mut Report)
                 );
                 continue;
             };
-            if e.pdo == Pdo::No {
+            if e.pdo == PdoMapping::No {
                 r.push(&at, format_args!("maps {target} '{name}', which is not PDO-mappable (pdo = \"no\")"));
             } else if rx && !e.pdo.rx() {
                 r.push(

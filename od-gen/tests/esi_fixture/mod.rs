@@ -5,7 +5,8 @@
 #![allow(dead_code)]
 
 use od_gen::model::{
-    Access, DataType, Description, Device, Object, ObjectCode, Pdo, StorageKind, SubObject, Value, WriteCondition,
+    Access, DataType, Description, Device, Object, ObjectCode, PdoMapping, StorageKind, SubObject, Value,
+    WriteCondition,
 };
 
 /// The `[device]` table of `firmware/device.toml` at the time of writing.
@@ -42,7 +43,7 @@ pub fn sub(sub: u8, name: &str, data_type: DataType, access: Access, default: Va
         name: name.into(),
         data_type,
         access,
-        pdo: Pdo::No,
+        pdo: PdoMapping::No,
         default,
         min: None,
         max: None,
@@ -121,7 +122,7 @@ fn assign(index: u16, name: &str, pdo: u16) -> Object {
     )
 }
 
-fn mappable(mut s: SubObject, pdo: Pdo) -> SubObject {
+fn mappable(mut s: SubObject, pdo: PdoMapping) -> SubObject {
     s.pdo = pdo;
     s
 }
@@ -133,7 +134,7 @@ pub fn description() -> Description {
     let u32_ = DataType::Unsigned32;
     let mut objects = vec![
         var(0x1000, "Device type", sub(0, "", u32_, Access::ReadOnly, Value::Int(0x0002_0192))),
-        var(0x1001, "Error register", mappable(sub(0, "", u8_, Access::ReadOnly, Value::Int(0)), Pdo::Tx)),
+        var(0x1001, "Error register", mappable(sub(0, "", u8_, Access::ReadOnly, Value::Int(0)), PdoMapping::Tx)),
         var(
             0x1008,
             "Manufacturer device name",
@@ -195,8 +196,8 @@ pub fn description() -> Description {
                 ..sub(0, "", DataType::OctetString, Access::ReadWrite, Value::Text("AB=;".into()))
             },
         ),
-        var(0x6040, "Controlword", mappable(sub(0, "", u16_, Access::ReadWrite, Value::Int(0)), Pdo::Rx)),
-        var(0x6041, "Statusword", mappable(sub(0, "", u16_, Access::ReadOnly, Value::Int(0)), Pdo::Tx)),
+        var(0x6040, "Controlword", mappable(sub(0, "", u16_, Access::ReadWrite, Value::Int(0)), PdoMapping::Rx)),
+        var(0x6041, "Statusword", mappable(sub(0, "", u16_, Access::ReadOnly, Value::Int(0)), PdoMapping::Tx)),
         var(
             0x605A,
             "Quick stop option code",
@@ -208,7 +209,7 @@ pub fn description() -> Description {
         var(
             0x6064,
             "Position actual value",
-            mappable(sub(0, "", DataType::Integer32, Access::ReadOnly, Value::Int(0)), Pdo::Tx),
+            mappable(sub(0, "", DataType::Integer32, Access::ReadOnly, Value::Int(0)), PdoMapping::Tx),
         ),
         var(
             0x607A,
@@ -219,7 +220,7 @@ pub fn description() -> Description {
                     max: Some(1_000_000),
                     ..sub(0, "", DataType::Integer32, Access::ReadWrite, Value::Int(-5))
                 },
-                Pdo::Rx,
+                PdoMapping::Rx,
             ),
         ),
     ];
