@@ -29,7 +29,7 @@ fn mul_u128(a: u128, b: u128) -> u128 {
 ///
 /// Schoolbook division in 32-bit digits on the hardware divider (Knuth, TAOCP vol. 2, 4.3.1, algorithm D; the
 /// word-size steps as in Hacker's Delight, 9-4 and 9-5):
-/// - a divisor below 2^64: [`div_128_by_64`] once, or twice when the quotient needs more than 64 bits;
+/// - a divisor below 2^64: `div_128_by_64` once, or twice when the quotient needs more than 64 bits;
 /// - a larger divisor (quotient below 2^64): the top 64 bits of the normalised divisor give the quotient or one
 ///   more, and one comparison settles it.
 #[must_use]

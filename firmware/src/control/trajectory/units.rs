@@ -1,0 +1,199 @@
+//! The profile modes' motion quantities and their conversion from the dictionary's units: [`Velocity`] (Q32
+//! inc/tick), [`Acceleration`] (Q40 inc/tick²) and [`MotionScale`] (rpm and rpm/s for a sensor resolution).
+
+use super::SLOW_TICK_HZ;
+use crate::control::wide::{div_round_u, div_shl, mul_shr, round_shr, sat_i32, sat_i64};
+
+/// rpm -> inc/tick: 60 s/min * 2500 ticks/s.
+const RPM_TICKS: u128 = 60 * SLOW_TICK_HZ as u128;
+/// rpm/s -> inc/tick²: 60 s/min * 2500² ticks²/s².
+const RPM_PER_S_TICKS2: u128 = 60 * (SLOW_TICK_HZ as u128) * (SLOW_TICK_HZ as u128);
+
+/// A velocity in increments per slow tick (400 us), Q32 (units of 2^-32 inc/tick).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct Velocity(pub i64);
+
+/// An acceleration in increments per slow tick squared, Q40 (units of 2^-40 inc/tick²).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct Acceleration(pub i64);
+
+impl Velocity {
+    /// Zero velocity.
+    pub const ZERO: Self = Self(0);
+    /// Fraction bits of the representation.
+    pub const FRAC_BITS: u32 = 32;
+
+    /// From the raw Q32 bits (2^-32 inc/tick).
+    #[must_use]
+    pub const fn from_bits(bits: i64) -> Self {
+        Self(bits)
+    }
+
+    /// The raw Q32 bits (2^-32 inc/tick).
+    #[must_use]
+    pub const fn to_bits(self) -> i64 {
+        self.0
+    }
+
+    /// From whole increments per slow tick.
+    #[must_use]
+    pub const fn from_inc_per_tick(inc_per_tick: i32) -> Self {
+        // |inc| < 2^31: the Q32 value stays below 2^63.
+        Self((inc_per_tick as i64) << 32)
+    }
+
+    /// From increments per second, rounded toward zero, saturating. Divides: not for the slow tick.
+    #[must_use]
+    pub fn from_inc_per_s(inc_per_s: i64) -> Self {
+        Self(sat_i64(div_shl(i128::from(inc_per_s), i128::from(SLOW_TICK_HZ), 32)))
+    }
+
+    /// To increments per second, rounded to nearest.
+    #[must_use]
+    pub fn to_inc_per_s(self) -> i64 {
+        // |bits * 2500| < 2^75: no wrap in i128.
+        sat_i64(round_shr(i128::from(self.0).wrapping_mul(i128::from(SLOW_TICK_HZ)), 32))
+    }
+
+    /// Increments per tick in Q16 (`I16F16` bits, the format of `control::velocity`), rounded, saturating.
+    #[must_use]
+    pub fn to_inc_per_tick_q16(self) -> i32 {
+        sat_i32(round_shr(i128::from(self.0), 16))
+    }
+
+    pub(super) fn wide(self) -> i128 {
+        i128::from(self.0)
+    }
+}
+
+impl Acceleration {
+    /// Zero acceleration.
+    pub const ZERO: Self = Self(0);
+    /// Fraction bits of the representation.
+    pub const FRAC_BITS: u32 = 40;
+    /// The largest representable acceleration (about 8.4e6 inc/tick²): "no limit".
+    pub const MAX: Self = Self(i64::MAX);
+
+    /// From the raw Q40 bits (2^-40 inc/tick²).
+    #[must_use]
+    pub const fn from_bits(bits: i64) -> Self {
+        Self(bits)
+    }
+
+    /// The raw Q40 bits (2^-40 inc/tick²).
+    #[must_use]
+    pub const fn to_bits(self) -> i64 {
+        self.0
+    }
+
+    /// From increments per second squared, rounded toward zero, saturating. Divides: not for the slow tick.
+    #[must_use]
+    pub fn from_inc_per_s2(inc_per_s2: i64) -> Self {
+        let ticks2 = i128::from(SLOW_TICK_HZ).wrapping_mul(i128::from(SLOW_TICK_HZ));
+        Self(sat_i64(div_shl(i128::from(inc_per_s2), ticks2, 40)))
+    }
+
+    /// To increments per second squared, rounded to nearest.
+    #[must_use]
+    pub fn to_inc_per_s2(self) -> i64 {
+        // |bits| * 2500² < 2^86: no wrap in i128.
+        let ticks2 = i128::from(SLOW_TICK_HZ).wrapping_mul(i128::from(SLOW_TICK_HZ));
+        sat_i64(round_shr(i128::from(self.0).wrapping_mul(ticks2), 40))
+    }
+
+    /// Increments per tick² in Q16 (`I16F16` bits, the format of `control::velocity`), rounded, saturating.
+    #[must_use]
+    pub fn to_inc_per_tick2_q16(self) -> i32 {
+        sat_i32(round_shr(i128::from(self.0), 24))
+    }
+
+    pub(super) fn wide(self) -> i128 {
+        i128::from(self.0)
+    }
+}
+
+/// Conversion between the dictionary's motion units and the internal ones, for a given sensor resolution
+/// (increments per revolution: 4096 for the reference encoder, ARCHITECTURE.md "Reference plant").
+///
+/// The dictionary's velocity unit is rpm (0x60A9 default, device.toml 0x6081/0x607F/0x60FF/0x60B1) and its
+/// acceleration unit rpm/s (0x60AA default, 0x6083..0x6085, 0x60C5, 0x60C6). `v [inc/tick] = rpm * N / (60 * 2500)`
+/// and `a [inc/tick²] = rpm/s * N / (60 * 2500²)`. The factors carry 16 extra fraction bits, computed once in
+/// [`MotionScale::new`]; each conversion is then one multiply and a shift (relative error below 2^-40 for
+/// N >= 1).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MotionScale {
+    increments_per_revolution: u32,
+    /// inc/tick Q48 per rpm.
+    velocity_factor: u128,
+    /// inc/tick² Q56 per rpm/s.
+    acceleration_factor: u128,
+    /// rpm Q96 per inc/tick Q0 (i.e. rpm per Q32 velocity bit, Q64... see `velocity_to_rpm`).
+    rpm_factor: u128,
+}
+
+impl MotionScale {
+    /// The scale for `increments_per_revolution` (0 is taken as 1). Divides: call when the sensor configuration
+    /// changes, not per tick.
+    #[must_use]
+    pub fn new(increments_per_revolution: u32) -> Self {
+        let n = u128::from(increments_per_revolution.max(1));
+        // n < 2^32: n 2^48 < 2^80, n 2^56 < 2^88, 150,000 2^64 < 2^82: no overflow.
+        let velocity_factor = div_round_u(n << 48, RPM_TICKS);
+        let acceleration_factor = div_round_u(n << 56, RPM_PER_S_TICKS2);
+        let rpm_factor = div_round_u(RPM_TICKS << 64, n);
+        Self {
+            increments_per_revolution: increments_per_revolution.max(1),
+            velocity_factor,
+            acceleration_factor,
+            rpm_factor,
+        }
+    }
+
+    /// Increments per revolution (at least 1).
+    #[must_use]
+    pub const fn increments_per_revolution(&self) -> u32 {
+        self.increments_per_revolution
+    }
+
+    /// A velocity in rpm (0x6081, 0x607F, 0x60FF, 0x60B1) in internal units, rounded, saturating.
+    #[must_use]
+    pub fn velocity_from_rpm(&self, rpm: i64) -> Velocity {
+        let factor = i128::try_from(self.velocity_factor).unwrap_or(i128::MAX);
+        Velocity(sat_i64(round_shr(mul_shr(i128::from(rpm), factor, 0), 16)))
+    }
+
+    /// A velocity in rpm, rounded to nearest (e.g. for 0x606B velocity demand value).
+    #[must_use]
+    pub fn velocity_to_rpm(&self, velocity: Velocity) -> i64 {
+        // v [Q32 inc/tick] * (150,000 / N) [Q64] = rpm in Q96.
+        let factor = i128::try_from(self.rpm_factor).unwrap_or(i128::MAX);
+        let rpm_q64 = mul_shr(velocity.wide(), factor, 32);
+        sat_i64(round_shr(rpm_q64, 64))
+    }
+
+    /// An acceleration in rpm/s (0x6083..0x6085, 0x60C5, 0x60C6) in internal units, rounded, saturating at
+    /// [`Acceleration::MAX`].
+    #[must_use]
+    pub fn acceleration_from_rpm_per_s(&self, rpm_per_s: u32) -> Acceleration {
+        let factor = i128::try_from(self.acceleration_factor).unwrap_or(i128::MAX);
+        Acceleration(sat_i64(round_shr(mul_shr(i128::from(rpm_per_s), factor, 0), 16)))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn scale_units() {
+        let s = MotionScale::new(4096);
+        // 3000 rpm = 204,800 inc/s = 81.92 inc/tick.
+        assert_eq!(s.velocity_from_rpm(3000).to_inc_per_s(), 204_800);
+        assert_eq!(s.velocity_to_rpm(s.velocity_from_rpm(-2999)), -2999);
+        // 20,000 rpm/s = 1,365,333.3 inc/s².
+        assert_eq!(s.acceleration_from_rpm_per_s(20_000).to_inc_per_s2(), 1_365_333);
+        // 0x60C5's default 2^32 - 1 rpm/s is 46,912 inc/tick² at 4096 inc/rev: representable.
+        assert_eq!(s.acceleration_from_rpm_per_s(u32::MAX).to_bits() >> 40, 46_912);
+        assert_eq!(MotionScale::new(u32::MAX).acceleration_from_rpm_per_s(u32::MAX), Acceleration::MAX);
+    }
+}
