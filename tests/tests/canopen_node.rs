@@ -2,7 +2,8 @@
 //! simulated drive and the reference plant behind it: boot-up, NMT states and what each allows (CiA 301 Table
 //! 88), SDO expedited/segmented/block through the node, the CiA 301 remap procedure and its abort codes, a CSP
 //! run driven by SYNC at 1 ms with RPDO set-points and TPDO actual values, heartbeat and EMCY frames, the
-//! heartbeat loss with the 0x6007 reaction, and frames nobody expects.
+//! heartbeat loss with the 0x6007 reaction, and frames nobody expects; and the node over a device that is not the
+//! drive (a recording double of `comm::device::FieldbusDevice`).
 //!
 //! Timing as on the bus: the master's frames of a 1 ms cycle are handed to the node at the start of the cycle
 //! (SYNC first, then the RPDO), then the plant and the drive run 25 PWM periods of 40 us and the node's tier 3
@@ -567,4 +568,106 @@ fn random_frames_never_break_the_node() {
     }
     rig.nmt(0x80, 0);
     assert_eq!(rig.node.state(), NmtState::PreOperational);
+}
+
+/// A device that is not the drive: a dictionary and a record of the events the node reports.
+struct RecordingDevice {
+    dictionary: firmware::od::access::Dictionary,
+    remote: Vec<bool>,
+    setpoints: u32,
+    lost: Vec<firmware::supervision::communication::LinkLoss>,
+    shutdowns: u32,
+    emcy: Option<[u8; 8]>,
+}
+
+impl firmware::comm::device::FieldbusDevice for RecordingDevice {
+    fn dictionary(&self) -> &firmware::od::access::Dictionary {
+        &self.dictionary
+    }
+    fn dictionary_mut(&mut self) -> &mut firmware::od::access::Dictionary {
+        &mut self.dictionary
+    }
+    fn power_stage_enabled(&self) -> bool {
+        false
+    }
+    fn setpoint_received(&mut self) {
+        self.setpoints += 1;
+    }
+    fn set_remote(&mut self, remote: bool) {
+        self.remote.push(remote);
+    }
+    fn communication_lost(&mut self, loss: firmware::supervision::communication::LinkLoss) {
+        self.lost.push(loss);
+    }
+    fn communication_restored(&mut self, _: firmware::supervision::communication::LinkLoss) {}
+    fn poll_emcy(&mut self) -> Option<[u8; 8]> {
+        self.emcy.take()
+    }
+    fn shutdown(&mut self) {
+        self.shutdowns += 1;
+    }
+}
+
+/// Proves the node works against the narrow device interface alone (`comm::device::FieldbusDevice`), with no
+/// drive behind it: boot-up 0x705 [00]; an SDO upload answered from the device's dictionary (0x1000, CiA 301
+/// §7.2.4.3.6 expedited answer 0x43); NMT start reports remote = true and an event-driven RPDO 1 writes the
+/// controlword and reports one set-point; an EMCY the device produces goes out on 0x085; NMT reset node makes
+/// the node put the device in its safe state (`shutdown` once more than the power-on reset did) before the
+/// boot-up.
+#[test]
+fn the_node_serves_any_device_through_the_fieldbus_interface() {
+    let mut device = RecordingDevice {
+        dictionary: firmware::od::access::Dictionary::new(NODE),
+        remote: Vec::new(),
+        setpoints: 0,
+        lost: Vec::new(),
+        shutdowns: 0,
+        emcy: None,
+    };
+    let mut app = NoApplicationObjects;
+    let mut node = CanopenNode::new(NODE);
+    let mut now_us = 0u64;
+    let mut sent = Vec::new();
+    let mut run = |node: &mut CanopenNode, device: &mut RecordingDevice, frame: Option<CanFrame>| {
+        now_us += 400;
+        if let Some(f) = frame {
+            node.handle_frame(&f, device, &mut app, now_us);
+        }
+        let event = node.process(device, &mut app, now_us);
+        let mut out = Vec::new();
+        while let Some(f) = node.transmit() {
+            out.push(f);
+        }
+        sent.extend(out.iter().copied());
+        (event, out)
+    };
+    assert!(matches!(run(&mut node, &mut device, None).0, Some(NodeEvent::Reset { kind: ResetKind::Node, .. })));
+    let (event, out) = run(&mut node, &mut device, None);
+    assert_eq!(event, Some(NodeEvent::Booted));
+    assert_eq!(out.iter().map(|f| (f.id(), f.data().to_vec())).collect::<Vec<_>>(), vec![(0x705, vec![0])]);
+
+    let request = SdoRequest::InitiateUpload { index: 0x1000, sub: 0 }.to_frame();
+    let (_, out) = run(&mut node, &mut device, CanFrame::new(0x605, &request));
+    let answer = out.iter().find(|f| f.id() == 0x585).expect("an SDO answer");
+    let device_type = firmware::od::generated::DEVICE_TYPE;
+    assert_eq!(answer.data()[0], 0x43);
+    assert_eq!(u32::from_le_bytes(answer.data()[4..8].try_into().unwrap()), device_type);
+
+    run(&mut node, &mut device, CanFrame::new(0x000, &[0x01, NODE]));
+    assert_eq!(device.remote.last(), Some(&true), "operational: remote");
+    run(&mut node, &mut device, CanFrame::new(0x205, &[0x0F, 0x00, 0x01]));
+    assert_eq!(device.dictionary.get(handles::CONTROLWORD), 0x000F, "RPDO 1 written into the device's dictionary");
+    assert_eq!(device.setpoints, 1, "one set-point reported");
+
+    device.emcy = Some([0x10, 0x81, 0x11, 0, 0, 0, 0, 0]);
+    let (_, out) = run(&mut node, &mut device, None);
+    assert!(out.iter().any(|f| f.id() == 0x085 && f.data()[..2] == [0x10, 0x81]), "the device's EMCY: {out:?}");
+
+    // The power-on reset is a reset node too (one shutdown already); the NMT command adds one.
+    let shutdowns = device.shutdowns;
+    run(&mut node, &mut device, CanFrame::new(0x000, &[0x81, NODE]));
+    assert_eq!(device.shutdowns, shutdowns + 1, "reset node: the device to its safe state");
+    assert!(device.lost.is_empty());
+    let (_, out) = run(&mut node, &mut device, None);
+    assert!(out.iter().any(|f| f.id() == 0x705 && f.data() == [0]), "boot-up after the reset: {out:?}");
 }

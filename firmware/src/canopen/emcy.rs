@@ -1,4 +1,4 @@
-//! The EMCY producer on CAN (CiA 301 §7.2.7): the drive's emergency messages ([`Drive::poll_emcy`], 8 bytes,
+//! The EMCY producer on CAN (CiA 301 §7.2.7): the drive's emergency messages ([`FieldbusDevice::poll_emcy`], 8 bytes,
 //! inhibit time 0x1015 applied by the drive's queue, `fault/emcy.rs`) sent on the COB-ID of 0x1014
 //! (0x80 + node-ID; bit 31 set = EMCY not valid, then nothing is sent).
 //!
@@ -10,7 +10,7 @@
 use super::frame::CanFrame;
 use super::ids;
 use super::pdo::FrameSink;
-use crate::drive::Drive;
+use crate::comm::device::FieldbusDevice;
 use crate::od::access::Dictionary;
 
 /// Messages one poll sends at most (the rest wait in the drive's queue).
@@ -44,7 +44,7 @@ impl EmcyProducer {
 
     /// Tier 3 (pre-operational and operational): moves up to [`EMCY_PER_POLL`] messages from the drive to the
     /// transmit queue while it has room.
-    pub fn poll<S: FrameSink + ?Sized>(&mut self, drive: &mut Drive, sink: &mut S) {
+    pub fn poll<D: FieldbusDevice + ?Sized, S: FrameSink + ?Sized>(&mut self, drive: &mut D, sink: &mut S) {
         if !self.valid {
             return;
         }

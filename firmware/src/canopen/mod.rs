@@ -37,7 +37,7 @@
 //!   in progress, the PDO data, the SYNC and heartbeat supervision are dropped, and the communication losses
 //!   reported are restored (IDX L7336-L7350: reset communication is the recovery of the CAN errors);
 //! - reset node: first the power stage goes to a safe state (controlword 0x6040 = 0 "disable voltage" and
-//!   [`Drive::shutdown`]: outputs off, the motor coasts), then as reset communication. The application part
+//!   [`FieldbusDevice::shutdown`]: outputs off, the motor coasts), then as reset communication. The application part
 //!   (0x2000..0x9FFF back to their power-on values) is the runtime's, told by the event: on the target it restarts
 //!   the microcontroller, which loads the parameter store; the event also carries the bit rate 0x2001 asks for.
 //!
@@ -70,8 +70,8 @@ use self::heartbeat::{Heartbeat, HeartbeatEvent};
 use self::nmt::{Nmt, NmtCommand, NmtState, ResetKind, Service};
 use self::pdo::{FrameSink, Pdos};
 use self::sync::{SyncConsumer, SyncEvent};
+use crate::comm::device::FieldbusDevice;
 use crate::comm::sdo::server::{abort_frame, SdoServer};
-use crate::drive::Drive;
 use crate::od::access::{AccessContext, ApplicationObjects};
 use crate::od::generated::{handles, MAX_PDO_BYTES_ETHERCAT};
 use crate::supervision::communication::LinkLoss;
@@ -224,10 +224,10 @@ impl CanopenNode {
 
     /// Tier 3 with a bus: takes up to [`RX_PER_POLL`] received frames, runs [`CanopenNode::process`], and hands
     /// the queued frames to the bus while it takes them (the rest wait for the next poll).
-    pub fn poll<B: CanBus, A: ApplicationObjects + ?Sized>(
+    pub fn poll<D: FieldbusDevice + ?Sized, B: CanBus, A: ApplicationObjects + ?Sized>(
         &mut self,
         bus: &mut B,
-        drive: &mut Drive,
+        drive: &mut D,
         app: &mut A,
         now_us: u64,
     ) -> Option<NodeEvent> {
@@ -251,10 +251,10 @@ impl CanopenNode {
     }
 
     /// One received frame (see the module documentation for which tier calls it for which frame).
-    pub fn handle_frame<A: ApplicationObjects + ?Sized>(
+    pub fn handle_frame<D: FieldbusDevice + ?Sized, A: ApplicationObjects + ?Sized>(
         &mut self,
         frame: &CanFrame,
-        drive: &mut Drive,
+        drive: &mut D,
         app: &mut A,
         now_us: u64,
     ) {
@@ -314,9 +314,9 @@ impl CanopenNode {
 
     /// Tier 3 without a bus: the reset and boot in initialisation, else the SDO server's own frames (block-upload
     /// segments, timeout), EMCYs, the SYNC supervision, the event-driven TPDOs and RPDO deadlines, the heartbeat.
-    pub fn process<A: ApplicationObjects + ?Sized>(
+    pub fn process<D: FieldbusDevice + ?Sized, A: ApplicationObjects + ?Sized>(
         &mut self,
-        drive: &mut Drive,
+        drive: &mut D,
         app: &mut A,
         now_us: u64,
     ) -> Option<NodeEvent> {
@@ -374,7 +374,7 @@ impl CanopenNode {
 
     /// A SYNC: counter and length ([`SyncConsumer::on_frame`]), then the PDOs in operational.
     #[inline]
-    fn on_sync(&mut self, data: &[u8], drive: &mut Drive, now_us: u64) {
+    fn on_sync<D: FieldbusDevice + ?Sized>(&mut self, data: &[u8], drive: &mut D, now_us: u64) {
         match self.sync.on_frame(data, now_us) {
             SyncEvent::Sync { counter, restored } => {
                 if restored && core::mem::take(&mut self.sync_lost) {
@@ -394,7 +394,13 @@ impl CanopenNode {
 
     /// An SDO request: the CANopen write rules ([`guard`]) on an initiate, then the shared server; a download to
     /// a communication object reconfigures the node part it belongs to.
-    fn on_sdo<A: ApplicationObjects + ?Sized>(&mut self, data: &[u8], drive: &mut Drive, app: &mut A, now_us: u64) {
+    fn on_sdo<D: FieldbusDevice + ?Sized, A: ApplicationObjects + ?Sized>(
+        &mut self,
+        data: &[u8],
+        drive: &mut D,
+        app: &mut A,
+        now_us: u64,
+    ) {
         let [cmd, i0, i1, sub, v0, v1, v2, v3] = *data else {
             // CiA 301 §7.2.4.3: SDO frames have 8 bytes; others are ignored (as the server does).
             self.ignore();
@@ -455,7 +461,7 @@ impl CanopenNode {
 
     /// Reads the node's configuration again after a download to the communication area (tier 3): every part reads
     /// its objects (a few table look-ups each); the PDOs restart their transmission history.
-    fn reconfigure(&mut self, drive: &Drive, now_us: u64) {
+    fn reconfigure<D: FieldbusDevice + ?Sized>(&mut self, drive: &D, now_us: u64) {
         let d = drive.dictionary();
         self.pdos.configure(d);
         self.sync.configure(d);
@@ -464,10 +470,10 @@ impl CanopenNode {
     }
 
     /// Carries out `kind` (see the module documentation); returns the bit rate a reset node asks for.
-    fn reset<A: ApplicationObjects + ?Sized>(
+    fn reset<D: FieldbusDevice + ?Sized, A: ApplicationObjects + ?Sized>(
         &mut self,
         kind: ResetKind,
-        drive: &mut Drive,
+        drive: &mut D,
         app: &mut A,
     ) -> Option<BitRate> {
         if kind == ResetKind::Node {
@@ -516,7 +522,7 @@ impl CanopenNode {
     }
 
     /// End of initialisation: configuration read, boot-up message queued, pre-operational.
-    fn boot(&mut self, drive: &mut Drive, now_us: u64) {
+    fn boot<D: FieldbusDevice + ?Sized>(&mut self, drive: &mut D, now_us: u64) {
         self.reconfigure(drive, now_us);
         drive.dictionary_mut().set(handles::ACTIVE_FIELDBUS, 1);
         if let Some(frame) = CanFrame::new(ids::cob_id(ids::HEARTBEAT_BASE, self.node_id), &[0]) {
@@ -529,7 +535,7 @@ impl CanopenNode {
 
     /// After a state change: statusword bit 9 "remote" in operational (IDX L5582), the PDOs stop when
     /// operational is left, the SYNC supervision restarts when SYNC is no longer consumed.
-    fn follow_state(&mut self, drive: &mut Drive) {
+    fn follow_state<D: FieldbusDevice + ?Sized>(&mut self, drive: &mut D) {
         let state = self.nmt.state();
         if state == self.last_state {
             return;

@@ -28,8 +28,8 @@
 use heapless::Vec;
 
 use super::frame::CanFrame;
+use crate::comm::device::FieldbusDevice;
 use crate::comm::pdo::{compile_item, PdoItem};
-use crate::drive::Drive;
 use crate::od::abort::SdoAbort;
 use crate::od::access::Dictionary;
 use crate::od::entry::{DataType, Storage};
@@ -451,9 +451,15 @@ impl Pdos {
     }
 
     /// RPDO `n` received `data` at `now_us` (operational only; the node checks). An event-driven RPDO is written
-    /// into the dictionary and handed to the drive at once ([`Drive::setpoint_received`]); a synchronous one waits
-    /// for the next SYNC. A deadline loss or a length error reported earlier is restored by a good PDO.
-    pub fn receive(&mut self, n: usize, data: &[u8], drive: &mut Drive, now_us: u64) -> Option<RpdoOutcome> {
+    /// into the dictionary and handed to the drive at once ([`FieldbusDevice::setpoint_received`]); a synchronous
+    /// one waits for the next SYNC. A deadline loss or a length error reported earlier is restored by a good PDO.
+    pub fn receive<D: FieldbusDevice + ?Sized>(
+        &mut self,
+        n: usize,
+        data: &[u8],
+        drive: &mut D,
+        now_us: u64,
+    ) -> Option<RpdoOutcome> {
         let pdo = self.rpdo.get_mut(n)?;
         let need = usize::from(pdo.compiled.len);
         if data.len() < need {
@@ -483,13 +489,13 @@ impl Pdos {
 
     /// A SYNC (with its counter when 0x1019 > 0) in operational: first the synchronous TPDOs are sampled and
     /// queued (actual values as at the SYNC), then the synchronous RPDOs received since the previous SYNC are
-    /// applied and handed to the drive once ([`Drive::setpoint_received`]). Returns whether set-points were
+    /// applied and handed to the drive once ([`FieldbusDevice::setpoint_received`]). Returns whether set-points were
     /// applied.
     #[inline]
-    pub fn on_sync<S: FrameSink + ?Sized>(
+    pub fn on_sync<D: FieldbusDevice + ?Sized, S: FrameSink + ?Sized>(
         &mut self,
         counter: Option<u8>,
-        drive: &mut Drive,
+        drive: &mut D,
         now_us: u64,
         sink: &mut S,
     ) -> bool {
@@ -549,7 +555,12 @@ impl Pdos {
 
     /// Tier 3 in operational: the event-driven TPDOs (change of the mapped data, inhibit time, event timer) and
     /// the RPDO deadlines (event timer 0x14xx:05, armed by the first PDO: [`LinkLoss::RxPdoTimeout`] once).
-    pub fn poll_events<S: FrameSink + ?Sized>(&mut self, drive: &mut Drive, now_us: u64, sink: &mut S) {
+    pub fn poll_events<D: FieldbusDevice + ?Sized, S: FrameSink + ?Sized>(
+        &mut self,
+        drive: &mut D,
+        now_us: u64,
+        sink: &mut S,
+    ) {
         let values: &[u8] = drive.dictionary().values().bytes();
         for t in &mut self.tpdo {
             if !t.valid || t.transmission != Transmission::Event {
@@ -584,7 +595,7 @@ impl Pdos {
     }
 
     /// A remote frame for TPDO `n`: its data now, if the PDO allows RTR (COB-ID bit 30 clear).
-    pub fn remote_request(&mut self, n: usize, drive: &Drive, now_us: u64) -> Option<CanFrame> {
+    pub fn remote_request<D: FieldbusDevice + ?Sized>(&mut self, n: usize, drive: &D, now_us: u64) -> Option<CanFrame> {
         let t = self.tpdo.get_mut(n)?;
         if !t.valid || !t.rtr_allowed {
             return None;

@@ -46,6 +46,7 @@
 pub mod blocks;
 pub mod calibration;
 pub mod commutation;
+mod fieldbus;
 pub mod hall_position;
 pub mod objects;
 pub mod protection;

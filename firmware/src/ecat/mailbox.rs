@@ -367,8 +367,8 @@ impl Mailbox {
         &self.foe
     }
 
-    /// Queues a CoE emergency (ETG.1000.6 §5.6.4; the fault manager's 8-byte EMCY, `Drive::poll_emcy`). It goes
-    /// out when SM1 and the reply queue are free. Only while the mailbox runs for CoE (PRE-OP, SAFE-OP, OP).
+    /// Queues a CoE emergency (ETG.1000.6 §5.6.4; the fault manager's 8-byte EMCY, `FieldbusDevice::poll_emcy`).
+    /// It goes out when SM1 and the reply queue are free. Only while the mailbox runs for CoE (PRE-OP, SAFE-OP, OP).
     pub fn send_emergency(&mut self, emcy: &[u8; 8]) -> Result<(), EmergencyRefused> {
         match self.running {
             Some(AlState::PreOp | AlState::SafeOp | AlState::Op) => self.coe.queue_emergency(emcy),

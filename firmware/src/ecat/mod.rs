@@ -12,7 +12,8 @@
 //! - [`foe`]: FoE read/write requests, accepted only in BOOT and handed to a [`foe::FoeSink`].
 //! - [`process_data`]: the PDO mapping and assignment validated as a whole, and the process images packed and
 //!   unpacked through the dictionary without searching.
-//! - [`slave`]: [`slave::EthercatSlave`], the drive as a slave: the above tied to [`crate::drive::Drive`].
+//! - [`slave`]: [`slave::EthercatSlave`], the drive as a slave: the above tied to the device
+//!   ([`crate::comm::device::FieldbusDevice`]).
 //! - [`sync`]: the synchronisation objects 0x1C32/0x1C33 (free run, SM-synchronous, DC SYNC0) and their checks.
 //! - [`sync_pll`]: the DC phase-locked loop that locks the PWM period to SYNC0.
 //! - [`spi_pdi`]: the ET1100/AX58100-class SPI PDI: the framing of an access and [`spi_pdi::SpiEsc`], the

@@ -1,5 +1,5 @@
 //! The drive as an EtherCAT slave: the state machine ([`Esm`]), the mailbox ([`Mailbox`], CoE and FoE) and the
-//! process data ([`ProcessDataLayout`], [`SyncCounters`]) tied to the [`Drive`].
+//! process data ([`ProcessDataLayout`], [`SyncCounters`]) tied to the device ([`FieldbusDevice`], the drive).
 //!
 //! Two entry points, as the tiers of the firmware call them:
 //! - [`EthercatSlave::poll`] (tier 3, background): the AL control requests, the mailbox, the drive's EMCYs as
@@ -10,7 +10,7 @@
 //!   fixed arrays of the largest EtherCAT image (40 bytes, IDX L2196).
 //!
 //! **Outputs only in OP.** SM2 is read from SAFE-OP on (so the ESC's buffer turns over and the cycle is counted)
-//! but unpacked into the dictionary and handed to the drive ([`Drive::setpoint_received`]) only in OP: in
+//! but unpacked into the dictionary and handed to the drive ([`FieldbusDevice::setpoint_received`]) only in OP: in
 //! SAFE-OP the outputs stay in their safe state (ETG.1000.6 §6.4.1; comms-faults-bootloader.md §1.2 table). The
 //! inputs are written from SAFE-OP on (ETG.1000.6 §6.4.1: "inputs valid" in SAFE-OP).
 //!
@@ -23,7 +23,7 @@
 //!   fault table applies the reaction 0x6007 selects;
 //! - the synchronisation error: once [`SyncCounters::status`] reports it (0x10F1:02 limit passed), OP falls
 //!   back to SAFE-OP with 0x001A (GT L571-L577) and the drive gets [`LinkLoss::EthercatSyncError`];
-//! - either loss is reported as restored ([`Drive::communication_restored`]) when the master has brought the
+//! - either loss is reported as restored ([`FieldbusDevice::communication_restored`]) when the master has brought the
 //!   slave to OP again, so that a fault reset is accepted from then on.
 //!
 //! **SM-event-missed** is counted in DC mode only (a SYNC0 without fresh outputs since the previous one,
@@ -32,7 +32,7 @@
 //! is caught by the process-data watchdog above, which gives the master the documented 0x001B instead of a
 //! sync error a few cycles after the last frame.
 //!
-//! **Emergencies**: every EMCY the fault manager produces ([`Drive::poll_emcy`]) goes out as a CoE emergency
+//! **Emergencies**: every EMCY the fault manager produces ([`FieldbusDevice::poll_emcy`]) goes out as a CoE emergency
 //! (ETG.1000.6 §5.6.4) while the mailbox runs for CoE (PRE-OP, SAFE-OP, OP). A message the mailbox cannot
 //! take yet (queue full, or the mailbox stopped) is kept and offered again at the next poll, and no further
 //! one is taken from the drive meanwhile, so the order is kept and none is lost here.
@@ -43,7 +43,7 @@ use super::foe::{FoeSink, NoFoeSink};
 use super::mailbox::{Mailbox, MailboxContext, MailboxLayout};
 use super::process_data::ProcessDataLayout;
 use super::sync::{SyncCounters, SyncMode};
-use crate::drive::Drive;
+use crate::comm::device::FieldbusDevice;
 use crate::od::access::ApplicationObjects;
 use crate::od::generated::MAX_PDO_BYTES_ETHERCAT;
 use crate::supervision::communication::LinkLoss;
@@ -124,14 +124,14 @@ impl EthercatSlave {
     }
 
     /// Tier 3: the AL control requests, the mailbox (SDO with the drive's application objects `app`), the
-    /// EMCYs from [`Drive::poll_emcy`], the process-data watchdog; `now_ms` is a millisecond clock.
+    /// EMCYs from [`FieldbusDevice::poll_emcy`], the process-data watchdog; `now_ms` is a millisecond clock.
     ///
     /// Order: the ESM first and the mailbox after it (see [`Esm::poll`]: the SM-activation event is the ESM's
     /// to see), the supervision between them so that a loss found now is reported in this poll's emergency.
-    pub fn poll<E: Esc, A: ApplicationObjects + ?Sized>(
+    pub fn poll<D: FieldbusDevice + ?Sized, E: Esc, A: ApplicationObjects + ?Sized>(
         &mut self,
         esc: &mut E,
-        drive: &mut Drive,
+        drive: &mut D,
         app: &mut A,
         now_ms: u32,
     ) {
@@ -141,10 +141,10 @@ impl EthercatSlave {
 
     /// [`EthercatSlave::poll`] with FoE writes going to `foe_sink` (issue 7: the firmware download in BOOT,
     /// `boot::program::SharedPort`) instead of the built-in sink that answers 0x8001.
-    pub fn poll_with_foe<E: Esc, A: ApplicationObjects + ?Sized, S: FoeSink + ?Sized>(
+    pub fn poll_with_foe<D: FieldbusDevice + ?Sized, E: Esc, A: ApplicationObjects + ?Sized, S: FoeSink + ?Sized>(
         &mut self,
         esc: &mut E,
-        drive: &mut Drive,
+        drive: &mut D,
         app: &mut A,
         foe_sink: &mut S,
         now_ms: u32,
@@ -168,13 +168,13 @@ impl EthercatSlave {
     }
 
     /// The process-data cycle (SM2 event in SM-synchronous mode, SYNC0 in DC mode, every slow tick in free run):
-    /// reads the outputs, hands them to the drive with [`Drive::setpoint_received`], writes the inputs, counts;
-    /// `now_ns` is the ESC's local time.
+    /// reads the outputs, hands them to the drive with [`FieldbusDevice::setpoint_received`], writes the inputs,
+    /// counts; `now_ns` is the ESC's local time.
     ///
     /// Outputs are read only when SM2 holds a buffer the master wrote since the last read (SM2 status bit 0), so
     /// a cycle without a new frame neither latches the old set-point again nor counts an SM event.
     #[inline]
-    pub fn cycle<E: Esc>(&mut self, esc: &mut E, drive: &mut Drive, now_ns: u32) {
+    pub fn cycle<D: FieldbusDevice + ?Sized, E: Esc>(&mut self, esc: &mut E, drive: &mut D, now_ns: u32) {
         let (Some(pd), Some(layout)) = (self.process_data.as_mut(), self.esm.layout()) else {
             return;
         };
@@ -236,7 +236,7 @@ impl EthercatSlave {
     /// Follows the ESM: sets the process data up when SAFE-OP was entered (layout compiled), drops it below
     /// SAFE-OP, reports a restored link on reaching OP again, and sets statusword bit 9 "remote" in SAFE-OP and
     /// OP (the master's process data reaches the drive).
-    fn follow_state<E: Esc>(&mut self, esc: &mut E, drive: &mut Drive) {
+    fn follow_state<D: FieldbusDevice + ?Sized, E: Esc>(&mut self, esc: &mut E, drive: &mut D) {
         let state = self.esm.state();
         match (self.esm.layout(), self.esm.synchronisation()) {
             (Some(layout), Some(sync)) => {
@@ -264,9 +264,9 @@ impl EthercatSlave {
     /// The process data for a layout just compiled: SM2/SM3 where the master put them (checked against the
     /// layout by the ESM), the synchronisation published into 0x1C32/0x1C33 (sub 2 and 0x0A in DC), fresh
     /// counters with the limit 0x10F1:02.
-    fn start_process_data<E: Esc>(
+    fn start_process_data<D: FieldbusDevice + ?Sized, E: Esc>(
         esc: &mut E,
-        drive: &mut Drive,
+        drive: &mut D,
         layout: &ProcessDataLayout,
         sync: &super::sync::Synchronisation,
     ) -> ProcessData {
@@ -289,7 +289,7 @@ impl EthercatSlave {
 
     /// In OP: the process-data watchdog (0x001B) and the synchronisation error (0x001A), see the module
     /// documentation.
-    fn supervise<E: Esc>(&mut self, esc: &mut E, drive: &mut Drive) {
+    fn supervise<D: FieldbusDevice + ?Sized, E: Esc>(&mut self, esc: &mut E, drive: &mut D) {
         if self.esm.state() != AlState::Op {
             return;
         }
@@ -308,7 +308,13 @@ impl EthercatSlave {
     }
 
     /// OP -> SAFE-OP with `code` and the error indication (SM2 disabled), and the loss to the drive.
-    fn lose<E: Esc>(&mut self, esc: &mut E, drive: &mut Drive, code: AlStatusCode, loss: LinkLoss) {
+    fn lose<D: FieldbusDevice + ?Sized, E: Esc>(
+        &mut self,
+        esc: &mut E,
+        drive: &mut D,
+        code: AlStatusCode,
+        loss: LinkLoss,
+    ) {
         let _ = self.esm.local_error(esc, code);
         self.last_state = self.esm.state();
         drive.communication_lost(loss);
@@ -316,7 +322,7 @@ impl EthercatSlave {
     }
 
     /// Hands the drive's EMCYs to the mailbox, keeping the one it could not take (see the module documentation).
-    fn forward_emergencies(&mut self, drive: &mut Drive) {
+    fn forward_emergencies<D: FieldbusDevice + ?Sized>(&mut self, drive: &mut D) {
         for _ in 0..EMCY_PER_POLL {
             let Some(emcy) = self.pending_emcy.take().or_else(|| drive.poll_emcy()) else {
                 return;
