@@ -707,6 +707,60 @@ mod reset_tests {
         u32::from_le_bytes(v)
     }
 
+    /// Proves CiA 301 §7.5.2.13 for the whole communication area: every persistent RAM entry of 0x1000..0x1FFF
+    /// (its `$NODEID+` COB-IDs aside, which keep their defaults here so that the node stays reachable) set to
+    /// another value within its limits, saved with 0x1010:02 and changed back to the defaults unsaved, holds the
+    /// saved bytes again after a reset node (a restart from the parameter store) and after a reset communication.
+    #[test]
+    fn every_persistent_communication_entry_comes_back_after_both_resets() {
+        use firmware::od::entry::{Limits, Storage};
+        let mut r = CanopenRunner::new(CanopenConfig { clock: CanClock::LockStep, ..CanopenConfig::default() });
+        r.run_for(2_000_000);
+        let entries: Vec<_> = {
+            let d = r.drives[0].sim.drive.dictionary();
+            d.table()
+                .entries()
+                .iter()
+                .filter(|e| (0x1000..=0x1FFF).contains(&e.index) && e.persistent && !e.node_id_relative)
+                .filter(|e| matches!(e.storage, Storage::Ram { .. }) && e.data_type.fixed_size().is_some())
+                .copied()
+                .collect()
+        };
+        assert!(entries.len() > 100, "{} persistent communication entries", entries.len());
+        // Each value one above its default (or one below at the top of its range), as raw little-endian bytes.
+        let defaults = r.drives[0].sim.drive.dictionary().values().bytes().to_vec();
+        let dict = r.drives[0].sim.drive.dictionary_mut();
+        let mut changed = 0;
+        for e in &entries {
+            let Some(raw) = dict.values_mut().raw_mut(e) else { continue };
+            let mut bytes = [0u8; 8];
+            bytes[..raw.len()].copy_from_slice(raw);
+            let value = u64::from_le_bytes(bytes);
+            let max = match e.limits {
+                Limits::Unsigned { max, .. } => max,
+                _ => u64::MAX >> (64 - 8 * raw.len() as u32),
+            };
+            let new = if value < max { value + 1 } else { value - 1 };
+            raw.copy_from_slice(&new.to_le_bytes()[..raw.len()]);
+            changed += 1;
+        }
+        let saved = r.drives[0].sim.drive.dictionary().values().bytes().to_vec();
+        let save = u32::from_le_bytes(*b"save");
+        assert_eq!(download(&mut r, 0x1010, 2, save, 4), 0x60, "save communication");
+        // Unsaved: the running values back to the defaults.
+        r.drives[0].sim.drive.dictionary_mut().values_mut().bytes_mut().copy_from_slice(&defaults);
+        for command in [0x81, 0x82] {
+            nmt(&mut r, command);
+            let now = r.drives[0].sim.drive.dictionary().values().bytes().to_vec();
+            for e in &entries {
+                let Storage::Ram { offset, len } = e.storage else { continue };
+                let range = usize::from(offset)..usize::from(offset) + usize::from(len);
+                assert_eq!(now[range.clone()], saved[range], "{:#06x}:{} after NMT {command:#x}", e.index, e.sub);
+            }
+        }
+        println!("{changed} persistent communication entries saved and back after reset node and reset communication");
+    }
+
     /// The communication parameters a new user sets (heartbeat 0x1017, EMCY inhibit 0x1015, verify configuration
     /// 0x1020:01, TPDO 1 event timer 0x1800:05) and their defaults.
     const COMMUNICATION: [(u16, u8, u32, u8, u32); 4] =
