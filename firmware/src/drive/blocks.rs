@@ -12,7 +12,8 @@
 //! tier 1 has not yet acted on from one it has, on the host and on the target alike.
 
 use super::calibration::CalibrationConfig;
-use super::commutation::{AlignmentConfig, CommutationMethod, EncoderConfig};
+use super::commutation::{AlignmentConfig, CommutationMethod};
+use super::encoder::EncoderConfig;
 use super::scaling::ShuntOffsets;
 use super::FastSignals;
 use crate::control::angle::ElectricalAngle;

@@ -46,6 +46,7 @@
 pub mod blocks;
 pub mod calibration;
 pub mod commutation;
+pub mod encoder;
 mod fieldbus;
 pub mod hall_position;
 pub mod objects;
@@ -71,7 +72,8 @@ use crate::supervision::{Supervision, SupervisionInputs};
 
 use blocks::{CommutationSettings, PowerLevel, PowerRequest, SetPoint, Settings, Tier1Report};
 use calibration::CalibrationConfig;
-use commutation::{hall_offset_from_od, AlignmentConfig, CommutationMethod, EncoderConfig};
+use commutation::{hall_offset_from_od, AlignmentConfig, CommutationMethod};
+use encoder::EncoderConfig;
 use scaling::ShuntOffsets;
 
 /// Why a power-stage request was refused.

@@ -4,7 +4,7 @@
 //! The inputs are sampled once per PWM period with the encoder count, so an input edge is placed within 40 us:
 //! at the homing zero-search speed (0x6099:02, default 10 rpm = 0.03 inc per period at 4096 inc/rev) that is
 //! exact to the increment. The index is captured by the encoder timer in hardware (TIM4 CCR3), so its position
-//! is exact at any speed. The positions are raw encoder positions ([`crate::drive::commutation::Encoder::position`]);
+//! is exact at any speed. The positions are raw encoder positions ([`crate::drive::encoder::Encoder::position`]);
 //! tier 2 moves them into the coordinates of 0x6064.
 //!
 //! Cost in tier 1: one compare when nothing changed; the latching itself is a cold path.
