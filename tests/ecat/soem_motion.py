@@ -2,7 +2,7 @@
 """SOEM (PyPI pysoem) runs a CSP move through the drive's process data, then (--watchdog) goes quiet.
 
 Run by tests/tests/ecat_real_masters.rs in a private network namespace against `drive-sim ethercat --lock-step`
-(issue 6, "What it must show"; the in-process version is tests/tests/ecat_slave.rs). Steps:
+(issue 6, "What it must show"; the in-process version is tests/tests/ecat/slave.rs). Steps:
 1. PRE-OP: 0x1C32:01 = --sync (0 free run, 1 SM-synchronous, 2 DC SYNC0), 0x1C33:01 likewise (0, 0x22, 2), in free run 0x1C32:02 =
    the cycle; 0x60C2 = the cycle (1 ms = 1 x 10^-3 s, 200 us = 200 x 10^-6 s) so that CSP interpolates between
    set-points; the PDO layout read over SDO (where the controlword, target, statusword... lie).

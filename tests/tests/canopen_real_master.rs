@@ -30,7 +30,7 @@ use hal_sim::sim::update::PowerOnObjects;
 
 const INC_PER_REV: f64 = 4096.0;
 
-/// Following-error bounds of the motion issue for the 10-revolution CSP move (tests/tests/motion_cyclic.rs,
+/// Following-error bounds of the motion issue for the 10-revolution CSP move (tests/tests/motion/cyclic.rs,
 /// canopen_node.rs): peak and RMS, increments.
 const FE_PEAK_MAX: f64 = 30.0;
 const FE_RMS_MAX: f64 = 8.0;

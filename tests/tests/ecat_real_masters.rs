@@ -271,7 +271,7 @@ fn run_motion(name: &str, sim_args: &str, master_args: &str) -> real_master::Run
 /// 0x60C2 = the cycle, a 10-revolution minimum-jerk move with 2,449 rpm peak (the motion issue's CSP case:
 /// distance and peak speed) computed by the master, 10,000 cycles; `sync` is 0x1C32:01 (0 free run, 1
 /// SM-synchronous, 2 DC with the ESC's clock 100 ppm fast). The bounds are those of the in-process test
-/// (tests/tests/ecat_slave.rs, motion_cyclic.rs): following error 0x60F4 from the TxPDO peak <= 30 inc and RMS
+/// (tests/tests/ecat/slave.rs, motion_cyclic.rs): following error 0x60F4 from the TxPDO peak <= 30 inc and RMS
 /// <= 8 inc during the move, statusword bit 13 never set, within +-1 inc of the target after it; every working
 /// counter right and 0x1C32:0B = 0x1C33:0B = 0 read over SDO at the end.
 ///

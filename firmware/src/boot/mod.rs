@@ -24,7 +24,7 @@
 //! image -> the image confirms itself (record Confirmed). A reset before the confirmation swaps back (revert):
 //! the previous image is gone only after the new one confirmed itself. Every step is a record, every record
 //! is written after the flash work it describes, and every step can run again, so a power cut anywhere ends
-//! in a boot of the old or the new image, never of a half image (`tests/tests/boot_power_cut.rs`).
+//! in a boot of the old or the new image, never of a half image (`tests/tests/boot/power_cut.rs`).
 //!
 //! # Crates
 //! * Ed25519: `ed25519-compact` (no_std, no alloc, streaming verification, feature `opt_size`). Measured on

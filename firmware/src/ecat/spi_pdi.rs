@@ -2,7 +2,7 @@
 //! derivative the ASIX AX58100: the framing of one access (pure, host-tested) and [`SpiEsc`], the [`Esc`]
 //! implementation over any full-duplex byte bus ([`SpiBus`]). The board supplies the bus (`board::esc_spi`,
 //! SPI1 of the STM32F405); the tests supply a model chip that interprets the bytes into `hal-sim`'s emulated ESC
-//! (`tests/tests/ecat_spi_pdi.rs`).
+//! (`tests/tests/ecat/spi_pdi.rs`).
 //!
 //! **Why this class and not the LAN9252**: the ET1100-class SPI addresses the ESC's register file and process
 //! RAM directly (the address is in the command), which is exactly what the [`Esc`] trait is: read or write `n`

@@ -13,7 +13,7 @@
 //! 56 V trip.
 //!
 //! Every EMCY the drive sends is read each slow tick: a fault's is a false trip, a warning's a warning. The
-//! figures are what `drive-sim duty-cycle` prints and `tests/tests/fault_duty_cycle.rs` asserts (both zero).
+//! figures are what `drive-sim duty-cycle` prints and `tests/tests/fault/duty_cycle.rs` asserts (both zero).
 
 use firmware::fault::{EmcyMessage, FaultId};
 use firmware::od::generated::handles as h;

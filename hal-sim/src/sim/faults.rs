@@ -15,7 +15,7 @@
 //!    sequence enables the drive again.
 //!
 //! Latencies are counted in PWM periods (40 us): from the injection to the detection, and from the detection to
-//! the outputs off. `drive-sim fault-matrix` prints the table; `tests/tests/fault_matrix.rs` asserts it.
+//! the outputs off. `drive-sim fault-matrix` prints the table; `tests/tests/fault/matrix.rs` asserts it.
 
 use firmware::cia402::State;
 use firmware::drive::DriveConfig;

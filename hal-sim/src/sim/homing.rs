@@ -1,5 +1,5 @@
 //! Homing mode (HMM, 0x6060 = 6) on the reference plant, driven through CiA 402 as a fieldbus master drives it,
-//! with the true reference computed from the plant's geometry. `tests/tests/motion_homing.rs` asserts these
+//! with the true reference computed from the plant's geometry. `tests/tests/motion/homing.rs` asserts these
 //! figures.
 //!
 //! # A run ([`homing_run_with`])

@@ -1,7 +1,7 @@
 //! Motion scenarios on the reference plant, driven through CiA 402 as a fieldbus master drives the drive: the
 //! controlword and the targets are written into the dictionary, and in the cyclic modes a set-point is delivered
 //! every master cycle (`Simulation::setpoint_received`, what the fieldbus layer calls at SYNC or the SM2 event).
-//! `drive-sim csp` and `drive-sim csv-sweep` print these figures; `tests/tests/motion_cyclic.rs` asserts them.
+//! `drive-sim csp` and `drive-sim csv-sweep` print these figures; `tests/tests/motion/cyclic.rs` asserts them.
 //!
 //! Every scenario starts from [`prepare_motion`]: the current-loop scenarios' preparation (offset calibration,
 //! commissioning on the free shaft until the commutation is indexed), the rotor brought to rest, then «Shutdown»,

@@ -2,7 +2,7 @@
 //! (0x6060 = 1) with the set-point handshake (controlword bits 4/5, statusword bits 10/12) and PVM (0x6060 = 3)
 //! with halt (bit 8) and the speed bit (12). The master writes the controlword, 0x607A / 0x60FF and the profile
 //! objects 0x6081 / 0x6083 / 0x6084 / 0x6086 into the dictionary between two slow ticks and reads the statusword
-//! of each slow tick, as a PDO exchange once per slow tick would. `tests/tests/motion_profile.rs` asserts these
+//! of each slow tick, as a PDO exchange once per slow tick would. `tests/tests/motion/profile.rs` asserts these
 //! figures.
 //!
 //! # Time base

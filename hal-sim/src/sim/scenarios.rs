@@ -1,5 +1,5 @@
 //! Scenarios on the reference plant and the figures they measure. `drive-sim` prints them and the tests of
-//! `drive-tests` (`tests/tests/current_loop.rs`) assert on them, so the command line and the tests run the same code.
+//! `drive-tests` (`tests/tests/drive/current_loop.rs`) assert on them, so the command line and the tests run the same code.
 //!
 //! All scenarios start the same way ([`prepare`]): the reference plant with chosen shunt offsets, the rotor at a
 //! non-special angle, CiA 402 transition 3 (offset calibration) and 4 (enable), then a commissioning run on the

@@ -232,7 +232,7 @@ fn commissioned_drive() -> Simulation {
 /// Proves: the default PDO mapping brings the slave to OP; every LRW has working counter 3 (SM3 read + SM2
 /// written); the controlword sequence 0x06, 0x07, 0x0F in the RxPDO takes the drive to «Operation enabled»,
 /// which the master sees in the TxPDO's statusword; the drive follows a 10-revolution jerk-limited move
-/// (2,449 rpm peak, the motion issue's CSP case) within the motion bounds of tests/tests/motion_cyclic.rs (peak
+/// (2,449 rpm peak, the motion issue's CSP case) within the motion bounds of tests/tests/motion/cyclic.rs (peak
 /// following error <= 30 inc, RMS <= 8 inc, statusword bit 13 never set) read from the TxPDO; 0x1C32:0B and
 /// 0x1C33:0B stay 0. Then, without frames, the ESC's process-data watchdog (0x0420 default: 100 ms) expires,
 /// the slave shows SAFE-OP + error 0x001B, the drive reaches the 0x6007 reaction (default 3: «Quick stop

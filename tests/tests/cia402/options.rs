@@ -4,9 +4,7 @@
 //! L999-1019, IDX L5623-5640; 0x605B/0x605C IDX L5642-5680; 0x605D Gamma Table 6-8 L1021-1036; 0x605E IDX
 //! L5682-5705; 0x6007 IDX L5488-5510, E3 L6553-6580), and the standstill gating of IDX 0x30E0 (L4827-4898).
 
-mod cia402_support;
-
-use cia402_support::*;
+use crate::support::*;
 use firmware::cia402::{
     Brake, Config, FaultClass, Motion, OptionCodes, PowerStage, State, Stop, StopRamp, StopThen, Ticks, Transition,
 };

@@ -143,7 +143,7 @@ impl Rig {
     }
 }
 
-/// The reference plant commissioned and at rest (as tests/tests/ecat_slave.rs does).
+/// The reference plant commissioned and at rest (as tests/tests/ecat/slave.rs does).
 fn commissioned_drive() -> Simulation {
     let (mut sim, _) = prepare(&Setup { seed: 1, ..Setup::default() }).expect("commissioning");
     let theta = sim.plant.state().theta_m_rad;
@@ -387,7 +387,7 @@ const RPDO_CW_TARGET: u16 = 0x205;
 /// heartbeat stops.
 ///
 /// Proves: the controlword sequence 0x06, 0x07, 0x0F in the RPDO enables the drive, seen in the TPDO statusword;
-/// the drive follows the 10-revolution jerk-limited move of tests/tests/motion_cyclic.rs (2,449 rpm peak) within
+/// the drive follows the 10-revolution jerk-limited move of tests/tests/motion/cyclic.rs (2,449 rpm peak) within
 /// the motion bounds (peak following error <= 30 inc, RMS <= 8 inc, statusword bit 13 never set) read from the
 /// TPDOs, which come once per SYNC; no SYNC is missed. Then, with 0x1016:01 supervising node 127 at 50 ms, the
 /// master's silence makes the drive carry out the 0x6007 reaction (default 3: «Quick stop active») no earlier than

@@ -6,12 +6,10 @@
 //!   invalid entry, or an enabled assignment naming anything but mapping objects of its direction
 //!   (CiA 301 §7.5.2.36; ETG.1000.6 0x1C12/0x1C13).
 
-mod od_support;
-
+use crate::support::*;
 use firmware::od::access::{AccessContext, CommState, Dictionary};
 use firmware::od::entry::{DataType, Limits, Storage};
 use firmware::od::pdo_map::{self, Direction, MapEntry};
-use od_support::*;
 use proptest::prelude::*;
 
 const STATES: [CommState; 6] = [

@@ -3,9 +3,7 @@
 //! from bytes, streamed into slot B, and in flash; and the development key compiled into the firmware is the
 //! one in `keys/`.
 
-mod boot_support;
-
-use boot_support::*;
+use crate::support::*;
 use firmware::boot::image::{ImageError, ImageHeader, HARDWARE_ID, HEADER_LEN, HEADER_OFFSET, MAX_PAYLOAD_LEN};
 use firmware::boot::keys::DEV_PUBLIC_KEY;
 use firmware::boot::sign::public_key;

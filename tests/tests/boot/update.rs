@@ -3,9 +3,7 @@
 //! back; an image that never confirms is reverted at the next reset; a pending image damaged in slot B is
 //! rejected; no new download while a trial runs.
 
-mod boot_support;
-
-use boot_support::*;
+use crate::support::*;
 use firmware::boot::image::ImageError;
 use firmware::boot::loader::{boot, running_image, BootEvent, Outcome};
 use firmware::boot::state::{scan, BootState};

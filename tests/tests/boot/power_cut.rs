@@ -10,9 +10,7 @@
 //! Images: old 150 KiB payload (two sectors), new 140 KiB; bootloader buffer 4 KiB. The counts of cut points
 //! are printed (`--nocapture`) and asserted to be the whole write sequence.
 
-mod boot_support;
-
-use boot_support::*;
+use crate::support::*;
 use firmware::boot::loader::{boot, BootEvent, Outcome};
 use firmware::boot::swap::BootError;
 use firmware::boot::update::confirm;

@@ -11,9 +11,7 @@
 //!
 //! A command with no transition in a state leaves the state unchanged.
 
-mod cia402_support;
-
-use cia402_support::*;
+use crate::support::*;
 use firmware::cia402::{
     Brake, Command, Controlword, FaultClass, Motion, OptionCodes, PowerStage, State, Statusword, Transition,
 };

@@ -3,13 +3,11 @@
 //! for the failure it names, including the PDO mapping and assignment procedure (CiA 301 §7.5.2.36; IDX
 //! L2196-L2216; ETG.1000.6 0x1C12/0x1C13).
 
-mod od_support;
-
+use crate::support::*;
 use firmware::od::abort::SdoAbort;
 use firmware::od::access::{AccessContext, CommState, Download, NoApplicationObjects};
 use firmware::od::entry::{Access, DataType, Entry, Limits, PdoMapping, Storage, WriteCondition};
 use firmware::od::pdo_map::{self, MapEntry, MapTarget};
-use od_support::*;
 
 /// A value the entry accepts, to write back: its current value for RAM entries, 1 for fixed-size application
 /// entries (within any limits), some bytes for an application domain.

@@ -3,9 +3,7 @@
 //! (decision documented in `firmware::cia402::modes`: on the fly at the next step, Gamma L607/L675 "dynamically
 //! switchable"; held while a stop runs; bit 10 reported set on a change, Gamma L912).
 
-mod cia402_support;
-
-use cia402_support::*;
+use crate::support::*;
 use firmware::cia402::{
     FaultClass, Mode, ModeUpdate, Motion, OptionCodes, State, Stop, StopRamp, StopThen, SUPPORTED_DRIVE_MODES,
 };

@@ -9,9 +9,7 @@
 //! - transition 16 only with 0x605A = 5..8 (Gamma L834);
 //! - the statusword reports the state (IDX Table 2-5) and bit 4 is the power stage.
 
-mod cia402_support;
-
-use cia402_support::*;
+use crate::support::*;
 use firmware::cia402::{
     Brake, Config, Controlword, FaultClass, FaultInput, Inputs, Motion, OptionCodes, QuickStopOption, State,
     StateMachine, Ticks, Transition,

@@ -1,0 +1,10 @@
+//! The drive against the simulated power stage and plant: the current loop, the CiA 402 sequence, commutation, I/O and
+//! parameters.
+//!
+//! One test binary for the area; each module is one of its test files.
+
+mod cia402;
+mod commutation;
+mod current_loop;
+mod io;
+mod parameters;

@@ -1,0 +1,8 @@
+//! Motion: the cyclic modes, homing, the velocity observer and the profile modes against the plant.
+//!
+//! One test binary for the area; each module is one of its test files.
+
+mod cyclic;
+mod homing;
+mod observer;
+mod profile;
