@@ -25,7 +25,7 @@ use firmware::od::access::{Dictionary, NoApplicationObjects};
 use firmware::od::entry::{Access, Entry};
 use firmware::od::generated::handles;
 use hal_sim::can::timing::frame_bits;
-use hal_sim::sim::motion::JerkLimitedMove;
+use hal_sim::scenarios::motion::JerkLimitedMove;
 use hal_sim::sim::update::PowerOnObjects;
 
 const INC_PER_REV: f64 = 4096.0;

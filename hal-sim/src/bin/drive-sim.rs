@@ -31,13 +31,13 @@ mod canopen;
 
 use hal_sim::esc::pcap::PcapWriter;
 use hal_sim::esc::socket::Direction;
+use hal_sim::scenarios::motion::{self, CspConfig};
+use hal_sim::scenarios::profile::{self, Profile};
+use hal_sim::scenarios::{self, Setup, SpinConfig, SpinStepFigures, SWEEP_FREQUENCIES_HZ};
+use hal_sim::scenarios::{duty_cycle, faults, homing};
 use hal_sim::sim::ethercat::{ClockMode, EthercatConfig, EthercatRunner};
-use hal_sim::sim::motion::{self, CspConfig};
 use hal_sim::sim::plot::{Plot, Series};
-use hal_sim::sim::profile::{self, Profile};
-use hal_sim::sim::scenarios::{self, Setup, SpinConfig, SpinStepFigures, SWEEP_FREQUENCIES_HZ};
 use hal_sim::sim::trace::Trace;
-use hal_sim::sim::{duty_cycle, faults, homing};
 
 const USAGE: &str =
     "usage: drive-sim <current-step | spinning | csp | csv-sweep | ppm | homing | fault-matrix | duty-cycle | bench | ethercat | canopen> [--seed N] [--default-gains | --gains P,I] \

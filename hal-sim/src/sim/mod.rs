@@ -1,5 +1,6 @@
-//! The firmware's drive running against the simulated plant: the runner, the scenarios and their figures, and the
-//! trace (CSV) and plot (SVG) writers used by `drive-sim` and by the scenario tests of `drive-tests`.
+//! The firmware's drive running against the simulated plant: the runner ([`Simulation`]), the fieldbus runners
+//! ([`canopen`], [`ethercat`]), the update regions ([`update`]), and the trace (CSV) and plot (SVG) writers used by
+//! `drive-sim` and by the scenario tests of `drive-tests`. The scenarios themselves are [`crate::scenarios`].
 //!
 //! The loop is the hardware's (`firmware::hal::power`, `crate::plant` timeline): `plant.step(previous command)`
 //! simulates one PWM period and returns its centre sample; tier 1 ([`Tier1State`]) takes the blocks the drive
@@ -10,14 +11,8 @@
 //! tick reads is the one of the period that raised it.
 
 pub mod canopen;
-pub mod duty_cycle;
 pub mod ethercat;
-pub mod faults;
-pub mod homing;
-pub mod motion;
 pub mod plot;
-pub mod profile;
-pub mod scenarios;
 pub mod trace;
 pub mod update;
 

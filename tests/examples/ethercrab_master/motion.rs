@@ -9,7 +9,7 @@ use ethercrab::std::ethercat_now;
 use ethercrab::subdevice_group::{DcConfiguration, HasDc, NoDc, Op};
 use ethercrab::{DcSync, DefaultLock, SubDeviceGroup, SubDeviceRef};
 use firmware::od::access::Dictionary;
-use hal_sim::sim::motion::{JerkLimitedMove, INC_PER_REV};
+use hal_sim::scenarios::motion::{JerkLimitedMove, INC_PER_REV};
 
 use super::objects::dict_upload;
 use super::{download, emit, err, Args, Master, Outcome, Sync, MAX_SUBDEVICES, PDI_LEN};
@@ -539,7 +539,7 @@ where
     let (enable_cycles, inputs) = pd.enable(8, enable_limit, follow).await?;
     emit("enable_cycles", enable_cycles);
     let start = input(&inputs, 0x6064)?;
-    // The motion issue's CSP case (hal_sim::sim::motion::CspConfig::default): 10 rev, 3,000 rpm, 20,000 rpm/s.
+    // The motion issue's CSP case (hal_sim::scenarios::motion::CspConfig::default): 10 rev, 3,000 rpm, 20,000 rpm/s.
     let per_rpm = INC_PER_REV / 60.0;
     let mv = JerkLimitedMove::new(start as f64, 10.0 * INC_PER_REV, 3_000.0 * per_rpm, 20_000.0 * per_rpm);
     let target = (start as f64 + mv.distance).round() as i64;

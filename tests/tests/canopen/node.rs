@@ -18,8 +18,8 @@ use firmware::comm::sdo::wire::{BlockSegment, SdoFrame, SdoRequest, SdoResponse}
 use firmware::fault::FaultId;
 use firmware::od::access::NoApplicationObjects;
 use firmware::od::generated::handles;
-use hal_sim::sim::motion::JerkLimitedMove;
-use hal_sim::sim::scenarios::{prepare, Setup};
+use hal_sim::scenarios::motion::JerkLimitedMove;
+use hal_sim::scenarios::{prepare, Setup};
 use hal_sim::sim::Simulation;
 
 const NODE: u8 = 5;

@@ -8,7 +8,7 @@
 use firmware::cia402::State;
 use firmware::od::generated::handles as h;
 use firmware::power_state::PowerState;
-use hal_sim::sim::motion::prepare_motion;
+use hal_sim::scenarios::motion::prepare_motion;
 use hal_sim::sim::Simulation;
 
 /// Whether the last command switched the outputs on.

@@ -1,10 +1,10 @@
 //! Commutation on the reference plant: Hall start, Hall-edge and index refinement, and forced alignment when no
 //! Hall sensor is configured (0x3000:01). Angle errors are the drive's angle against the plant's true electrical
-//! angle at the sample instant (`hal_sim::sim::scenarios::angle_error_deg`).
+//! angle at the sample instant (`hal_sim::scenarios::angle_error_deg`).
 
 use firmware::power_state::{CommutationStage, PowerState};
 use hal_sim::plant::PlantParams;
-use hal_sim::sim::scenarios::angle_error_deg;
+use hal_sim::scenarios::angle_error_deg;
 use hal_sim::sim::Simulation;
 
 fn simulation(start_angle_rad: f64) -> Simulation {

@@ -1,7 +1,7 @@
 //! The current loop on the reference plant: step response, bandwidth, offset calibration, spinning motor under a
 //! load step, and the drive's protection and calibration faults.
 //!
-//! Every figure comes from `hal_sim::sim::scenarios`, the same code `drive-sim current-step` and `drive-sim
+//! Every figure comes from `hal_sim::scenarios`, the same code `drive-sim current-step` and `drive-sim
 //! spinning` run, so the command line and the tests cannot disagree. The plant is the reference plant of
 //! `shared/design/ARCHITECTURE.md` (noise, shunt offsets, dead time, bus dynamics); the gains are the dictionary
 //! defaults of 0x30A0 (1,555,000 uV/A, 2,450,000 uV/(A ms): a 1.5 kHz crossover). The bounds are the issue's;
@@ -11,7 +11,7 @@ use firmware::hal::power::PwmCommand;
 use firmware::od::generated::handles as h;
 use firmware::power_state::{CalibrationError, DriveError, PowerState, Trip};
 use hal_sim::plant::PlantParams;
-use hal_sim::sim::scenarios::{self, Setup, SpinConfig};
+use hal_sim::scenarios::{self, Setup, SpinConfig};
 use hal_sim::sim::{SimError, Simulation};
 
 /// q-axis step 0 -> 2 A at standstill, rotor locked, reference through target torque 0x6071 (625 per mille).

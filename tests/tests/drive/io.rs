@@ -4,7 +4,7 @@
 
 use firmware::cia402::State;
 use firmware::od::generated::handles as h;
-use hal_sim::sim::motion::prepare_motion;
+use hal_sim::scenarios::motion::prepare_motion;
 use hal_sim::sim::Simulation;
 
 /// Periods of 40 us in `ms` milliseconds.

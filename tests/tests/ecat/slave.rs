@@ -18,8 +18,8 @@ use firmware::od::access::NoApplicationObjects;
 use firmware::od::generated;
 use hal_sim::esc::datagram::{Command, FrameBuilder};
 use hal_sim::esc::Esc;
-use hal_sim::sim::motion::JerkLimitedMove;
-use hal_sim::sim::scenarios::{prepare, Setup};
+use hal_sim::scenarios::motion::JerkLimitedMove;
+use hal_sim::scenarios::{prepare, Setup};
 use hal_sim::sim::Simulation;
 
 const COE: u8 = 3;
@@ -218,7 +218,7 @@ fn at(offsets: &[(u16, usize)], index: u16) -> usize {
 }
 
 /// The reference plant commissioned (encoder indexed) and at rest, the CiA 402 machine not yet enabled by a
-/// master: what `hal_sim::sim::motion::prepare_motion` does before its controlword sequence.
+/// master: what `hal_sim::scenarios::motion::prepare_motion` does before its controlword sequence.
 fn commissioned_drive() -> Simulation {
     let (mut sim, _) = prepare(&Setup { seed: 1, ..Setup::default() }).expect("commissioning");
     let theta = sim.plant.state().theta_m_rad;

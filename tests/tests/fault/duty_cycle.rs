@@ -1,8 +1,8 @@
 //! No false trips (issue 5): 60 s of CSV velocity steps at the current limit, braking with regeneration into the
 //! bus, and load steps, with the reference current-sensor noise, raise no fault and no warning
-//! (`hal_sim::sim::duty_cycle`; `drive-sim duty-cycle` prints the same figures).
+//! (`hal_sim::scenarios::duty_cycle`; `drive-sim duty-cycle` prints the same figures).
 
-use hal_sim::sim::duty_cycle::duty_cycle;
+use hal_sim::scenarios::duty_cycle::duty_cycle;
 
 #[test]
 fn a_sixty_second_duty_cycle_raises_no_fault_and_no_warning() {

@@ -16,7 +16,7 @@ use firmware::od::generated::handles as h;
 use firmware::sensors::hall::HallSector;
 use firmware::supervision::feedback::hall_distance;
 use hal_sim::plant::faults::EncoderNoise;
-use hal_sim::sim::motion::prepare_motion;
+use hal_sim::scenarios::motion::prepare_motion;
 use hal_sim::sim::Simulation;
 
 /// The faults of the feedback supervision.

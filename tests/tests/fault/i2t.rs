@@ -5,7 +5,7 @@
 
 use firmware::cia402::State;
 use firmware::od::generated::handles as h;
-use hal_sim::sim::motion::prepare_motion;
+use hal_sim::scenarios::motion::prepare_motion;
 
 /// First-order thermal model of the seeds (`firmware::fault::i2t`): from cold, at k times the nominal current,
 /// the limit comes after tau ln(k^2 / (k^2 - 1)). Tolerance 2 % (the issue's): the drive integrates the measured

@@ -1,11 +1,11 @@
 //! The fault matrix (issue 5): every fault of the table injected on the reference plant where it matters, with its
 //! code (0x603F), error register (0x1001), history entry (0x1003), EMCY, the state its reaction class leads to,
 //! the stop performed, the time from the detection to the outputs off (at most one PWM period for class "d"),
-//! and the reset rules (refused while a level cause persists, accepted after). `hal_sim::sim::faults` holds the
+//! and the reset rules (refused while a level cause persists, accepted after). `hal_sim::scenarios::faults` holds the
 //! cases and the checks; `drive-sim fault-matrix` prints the same table.
 
 use firmware::fault::{FaultId, ReactionClass, FAULT_COUNT};
-use hal_sim::sim::faults::{cases, matrix_table, run_case};
+use hal_sim::scenarios::faults::{cases, matrix_table, run_case};
 
 #[test]
 fn every_fault_of_the_table_has_a_case() {

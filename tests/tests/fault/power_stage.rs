@@ -5,7 +5,7 @@
 use firmware::cia402::State;
 use firmware::drive::protection::{BUS_OVER_VOLTAGE_MV, BUS_UNDER_VOLTAGE_MV};
 use firmware::od::generated::handles as h;
-use hal_sim::sim::motion::prepare_motion;
+use hal_sim::scenarios::motion::prepare_motion;
 use hal_sim::sim::Simulation;
 
 /// Runs until the drive switches the outputs off; the periods it took.

@@ -10,7 +10,7 @@ use firmware::fault::FaultId;
 use firmware::od::generated::handles as h;
 use firmware::supervision::phases::PHASE_OPEN_FAULT;
 use firmware::supervision::stall::STALL_TICKS;
-use hal_sim::sim::motion::prepare_motion;
+use hal_sim::scenarios::motion::prepare_motion;
 use hal_sim::sim::Simulation;
 
 /// PWM periods per master cycle (1 ms).

@@ -13,7 +13,7 @@ use firmware::cia402::State;
 use firmware::control::frames::Amps;
 use firmware::fault::table::FaultId;
 use firmware::od::generated::handles as h;
-use hal_sim::sim::motion::prepare_motion;
+use hal_sim::scenarios::motion::prepare_motion;
 use hal_sim::sim::Simulation;
 
 /// Error-register 0x1001 bit 3, temperature (CiA 301; IDX L1580).

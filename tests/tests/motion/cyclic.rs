@@ -1,12 +1,12 @@
 //! The cyclic synchronous modes on the reference plant, driven through CiA 402 as a master drives them: CSP
 //! following a jerk-limited move, CSV step and velocity-loop bandwidth, CST torque through the current loop.
 //!
-//! The figures come from `hal_sim::sim::motion`, the code `drive-sim csp` and `drive-sim csv-sweep` run. Gains are
+//! The figures come from `hal_sim::scenarios::motion`, the code `drive-sim csp` and `drive-sim csv-sweep` run. Gains are
 //! the dictionary defaults (0x30A1, 0x30A2), tuned for the reference plant. Bounds are the motion issue's.
 
 use firmware::cia402::State;
 use firmware::od::generated::handles as h;
-use hal_sim::sim::motion::{self, CspConfig};
+use hal_sim::scenarios::motion::{self, CspConfig};
 
 /// CSP at a 1 ms master cycle (0x60C2 = 1 ms), 10 revolutions, sin² ramps up to 3,000 rpm and 20,000 rpm/s.
 ///

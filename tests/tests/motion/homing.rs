@@ -1,6 +1,6 @@
 //! Homing mode (HMM) on the reference plant, driven through CiA 402 as a master drives it: every supported method
 //! of 0x60E3 from both sides of its reference, the homing errors of a missing switch and of a current threshold
-//! that is never reached, and the statusword. The runs and the true references are `hal_sim::sim::homing`'s (the
+//! that is never reached, and the statusword. The runs and the true references are `hal_sim::scenarios::homing`'s (the
 //! geometry, the coordinates and the end-stop model are described there).
 //!
 //! # Tolerances
@@ -25,7 +25,7 @@
 //! other builds loaded the two cores.
 
 use firmware::motion::homing::SUPPORTED_METHODS;
-use hal_sim::sim::homing::{self, HomingConfig, HomingMatrix, HomingResult, Outcome, Start};
+use hal_sim::scenarios::homing::{self, HomingConfig, HomingMatrix, HomingResult, Outcome, Start};
 
 const SEED: u64 = 1;
 const BIT10: u16 = 1 << 10;

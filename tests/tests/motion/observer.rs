@@ -5,9 +5,9 @@
 //! is 0 most of the time and 1 now and then, and the low-pass filter turns each step into a velocity spike of
 //! thousands of rpm. The observer predicts the motion from the current and corrects with the position, so its
 //! estimate is smooth. Both runs use the same velocity gains (EPOS4's tuned Hall-only case, S1 Tab 2-17, scaled
-//! to the reference inertia; see `hal_sim::sim::motion::hall_only_velocity`).
+//! to the reference inertia; see `hal_sim::scenarios::motion::hall_only_velocity`).
 
-use hal_sim::sim::motion::hall_only_velocity;
+use hal_sim::scenarios::motion::hall_only_velocity;
 
 /// Measured on seeds 1 and 2: the observer holds 300.0 rpm with 3.4 to 3.5 rpm RMS ripple (18 rpm peak to peak);
 /// the low-pass estimate does not hold the speed at all (the saturated reaction to each Hall step drives the

@@ -2,7 +2,7 @@
 //! (trapezoidal and sin²), set of set-points, change on the fly; PVM reaching and holding a velocity, the speed
 //! bit, halt and release.
 //!
-//! The figures come from `hal_sim::sim::profile` (its module documentation fixes the time base: tick 0 is the slow
+//! The figures come from `hal_sim::scenarios::profile` (its module documentation fixes the time base: tick 0 is the slow
 //! tick that takes the set-point, a profile of `D` ticks has its last sample at tick `D - 1`, and a delay of 0
 //! means the bit rises in that very tick). Gains, windows and profile objects are the dictionary defaults
 //! unless a test says otherwise: 0x6067 = 10 inc, 0x6068 = 0 ms, 0x606D = 30 rpm, 0x606E = 0 ms, 0x606F = 10 rpm,
@@ -11,7 +11,7 @@
 //! window is beyond the plant (the last increment against 3 mNm of Coulomb friction takes the integral tens of
 //! ticks after a sin² move).
 
-use hal_sim::sim::profile::{self, PpmFigures, PpmSequenceFigures, Profile, PvmFigures, SPEED_RESOLUTION_RPM};
+use hal_sim::scenarios::profile::{self, PpmFigures, PpmSequenceFigures, Profile, PvmFigures, SPEED_RESOLUTION_RPM};
 
 /// 0x6067 default, increments.
 const POSITION_WINDOW_INC: i32 = 10;

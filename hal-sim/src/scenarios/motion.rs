@@ -11,10 +11,10 @@ use core::f64::consts::PI;
 
 use firmware::od::generated::handles as h;
 
-use super::scenarios::{prepare, Setup};
-use super::trace::Trace;
-use super::{SimError, Simulation};
+use super::{prepare, Setup};
 use crate::plant::PERIOD_S;
+use crate::sim::trace::Trace;
+use crate::sim::{SimError, Simulation};
 
 /// Increments per revolution of the reference encoder (1,024 lines, quadrature).
 pub const INC_PER_REV: f64 = 4096.0;

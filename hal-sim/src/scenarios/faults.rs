@@ -25,8 +25,8 @@ use firmware::od::generated::handles as h;
 use firmware::supervision::communication::{LinkLoss, ProcessDataWatchdog, WatchdogEvent};
 
 use super::motion::prepare_motion;
-use super::{SimError, Simulation};
 use crate::flash::SimFlash;
+use crate::sim::{SimError, Simulation};
 
 /// PWM periods per slow tick.
 const PERIODS_PER_SLOW_TICK: u64 = 10;

@@ -1,5 +1,9 @@
-//! Scenarios on the reference plant and the figures they measure. `drive-sim` prints them and the tests of
-//! `drive-tests` (`tests/tests/drive/current_loop.rs`) assert on them, so the command line and the tests run the same code.
+//! Scenarios on the reference plant and the figures they measure, apart from the harness that runs them
+//! ([`crate::sim`]). `drive-sim` prints them and the tests of `drive-tests` (`tests/tests/drive/current_loop.rs`
+//! and the other areas) assert on them, so the command line and the tests run the same code.
+//!
+//! This module holds the current-loop scenarios and the start every scenario shares; [`motion`] (CSP, CSV),
+//! [`profile`] (PPM, PVM), [`homing`], [`faults`] (the fault matrix) and [`duty_cycle`] hold the others.
 //!
 //! All scenarios start the same way ([`prepare`]): the reference plant with chosen shunt offsets, the rotor at a
 //! non-special angle, CiA 402 transition 3 (offset calibration) and 4 (enable), then a commissioning run on the
@@ -7,15 +11,21 @@
 //! current loop works in the true rotor frame. Figures are computed from the plant's true currents at the sample
 //! instants (what the motor carries, free of ADC noise), except where a figure is about the drive's own estimate.
 
+pub mod duty_cycle;
+pub mod faults;
+pub mod homing;
+pub mod motion;
+pub mod profile;
+
 use core::f64::consts::PI;
 use std::time::Instant;
 
 use firmware::drive::DriveConfig;
 use firmware::hal::power::PWM_FREQUENCY_HZ;
 
-use super::trace::Trace;
-use super::{SimError, Simulation};
 use crate::plant::{Mechanics, PlantParams, PERIOD_S};
+use crate::sim::trace::Trace;
+use crate::sim::{SimError, Simulation};
 
 /// Gains of 0x30A0 used by the scenarios unless told otherwise: `None` keeps the dictionary defaults
 /// (1,555,000 uV/A and 2,450,000 uV/(A ms), designed for a 1.5 kHz crossover).

@@ -68,8 +68,8 @@ use core::f64::consts::PI;
 use firmware::od::generated::handles as h;
 
 use super::motion::prepare_motion;
-use super::{SimError, Simulation};
 use crate::plant::{InputSource, PERIOD_S};
+use crate::sim::{SimError, Simulation};
 
 /// 0x6099:01 speed for switch search used by the runs, rpm.
 pub const SWITCH_SEARCH_RPM: u32 = 300;

@@ -19,8 +19,8 @@ use firmware::fault::{EmcyMessage, FaultId};
 use firmware::od::generated::handles as h;
 
 use super::motion::prepare_motion;
-use super::trace::Trace;
-use super::SimError;
+use crate::sim::trace::Trace;
+use crate::sim::SimError;
 
 /// Length of the duty cycle, s.
 pub const DURATION_S: f64 = 60.0;

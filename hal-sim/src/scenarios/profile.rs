@@ -27,8 +27,8 @@ use firmware::od::generated::handles as h;
 use firmware::power_state::PowerState;
 
 use super::motion::{prepare_motion, INC_PER_REV};
-use super::trace::Trace;
-use super::{SimError, Simulation};
+use crate::sim::trace::Trace;
+use crate::sim::{SimError, Simulation};
 
 /// «Enable operation».
 const ENABLE_OPERATION: u16 = 0x000F;
