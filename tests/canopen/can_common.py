@@ -95,6 +95,17 @@ class Recorder:
                 self.cond.wait(left)
 
 
+def nmt_and_bootup(recorder, node, command):
+    """Sends the NMT `command` (a reset) to `node` and returns the first frame on its boot-up COB-ID after it, as
+    (cob_id, data); Fail when none comes within 2 s."""
+    mark = recorder.mark()
+    node.nmt.state = command
+    got = recorder.wait(mark, lambda fs: any(c == 0x700 + node.id for c, _ in fs), 2.0)
+    if got is None:
+        raise Fail(f"no boot-up message after {command}")
+    return next((c, d) for c, d in got if c == 0x700 + node.id)
+
+
 def barrier(node):
     """An SDO upload of 0x1000 answered: everything sent before has been handled (see the module docstring)."""
     node.sdo.upload(0x1000, 0)

@@ -13,20 +13,15 @@ import struct
 
 import canopen
 
-from can_common import Fail, barrier, connect, emit, main, parser, send_syncs
+from can_common import Fail, barrier, connect, emit, main, nmt_and_bootup, parser, send_syncs
 
 HEARTBEAT_MS = 10
 SYNCS_PER_STATE = 30
 
 
-def bootup(network, recorder, node, command, name):
-    mark = recorder.mark()
-    node.nmt.state = command
-    got = recorder.wait(mark, lambda fs: any(c == 0x700 + node.id for c, _ in fs), 2.0)
-    if got is None:
-        raise Fail(f"no boot-up message after {command}")
-    first = next((c, d) for c, d in got if c == 0x700 + node.id)
-    emit(name, f"{first[0]:03x}:{first[1].hex()}")
+def bootup(recorder, node, command, name):
+    cob_id, data = nmt_and_bootup(recorder, node, command)
+    emit(name, f"{cob_id:03x}:{data.hex()}")
 
 
 def heartbeats_in(network, recorder, node, command):
@@ -49,8 +44,8 @@ def run(args):
     network, nodes, recorder = connect(args.port, args.eds, [args.node])
     node = nodes[args.node]
     try:
-        bootup(network, recorder, node, "RESET", "bootup_after_reset_node")
-        bootup(network, recorder, node, "RESET COMMUNICATION", "bootup_after_reset_comm")
+        bootup(recorder, node, "RESET", "bootup_after_reset_node")
+        bootup(recorder, node, "RESET COMMUNICATION", "bootup_after_reset_comm")
         node.sdo.download(0x1017, 0, struct.pack("<H", HEARTBEAT_MS))
         emit("heartbeat_time_ms", struct.unpack("<H", node.sdo.upload(0x1017, 0))[0])
         for command in ("PRE-OPERATIONAL", "OPERATIONAL", "STOPPED", "PRE-OPERATIONAL", "OPERATIONAL", "STOPPED",

@@ -14,7 +14,7 @@ communication).
 
 import struct
 
-from can_common import Fail, barrier, connect, emit, main, parser, send_syncs
+from can_common import Fail, barrier, connect, emit, main, nmt_and_bootup, parser, send_syncs
 
 # (name, index, sub, struct format, value to save)
 PARAMETERS = [
@@ -27,10 +27,9 @@ SYNCS_PER_SECOND = 100
 
 
 def reset(recorder, node, command):
-    mark = recorder.mark()
-    node.nmt.state = command
-    if recorder.wait(mark, lambda fs: any(c == 0x700 + node.id and d == b"\x00" for c, d in fs), 2.0) is None:
-        raise Fail(f"no boot-up message after {command}")
+    _, data = nmt_and_bootup(recorder, node, command)
+    if data != b"\x00":
+        raise Fail(f"boot-up after {command} carried {data.hex()}, not 00")
 
 
 def read(node, index, sub, fmt):

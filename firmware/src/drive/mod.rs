@@ -323,15 +323,6 @@ impl Drive {
         &self.report
     }
 
-    /// The power state as tier 2 sees it: the reported one, or, while a request is pending, the one it leads to.
-    fn power(&self) -> PowerState {
-        if self.report.power_sequence == self.setpoint.power.sequence {
-            self.report.power
-        } else {
-            self.predicted
-        }
-    }
-
     /// A power-stage request: `change` edits the request, `predicted` is the state it leads to.
     fn request(&mut self, change: impl FnOnce(&mut PowerRequest), predicted: PowerState) {
         change(&mut self.setpoint.power);
@@ -422,7 +413,7 @@ impl Drive {
         let r = &self.report;
         let s = &r.signals;
         let commutation = &self.settings.commutation;
-        let power = self.power();
+        let power = self.state();
         SupervisionInputs {
             now: self.axis.now(),
             state: self.axis.state(),
@@ -523,7 +514,7 @@ impl Drive {
     pub fn slow_tick(&mut self) {
         self.update_averages();
         // A fault reports what the tripping tick measured, not what came after.
-        let power = self.power();
+        let power = self.state();
         let r = &self.report;
         let fault = match power {
             PowerState::Fault(e) => Some(e),
@@ -569,17 +560,17 @@ impl Drive {
         self.last_power_request = out.power;
         if changed || enforce {
             if !out.power.enabled {
-                if !matches!(self.power(), PowerState::Off | PowerState::Fault(_)) {
+                if !matches!(self.state(), PowerState::Off | PowerState::Fault(_)) {
                     self.shutdown();
                 }
             } else if out.start_calibration {
                 // Refused only in a fault or while calibrating: the machine then waits (and the fault is reported).
                 let _ = self.switch_on();
             } else if out.power.controllers_enabled {
-                if self.power() == PowerState::SwitchedOn {
+                if self.state() == PowerState::SwitchedOn {
                     let _ = self.enable_operation();
                 }
-            } else if self.power() == PowerState::OperationEnabled {
+            } else if self.state() == PowerState::OperationEnabled {
                 self.disable_operation();
             }
         }
@@ -698,7 +689,7 @@ impl Drive {
     /// current-offset calibration (outputs at 50 % duty); the state becomes [`PowerState::SwitchedOn`] when it
     /// succeeds (within `CalibrationConfig::timeout_ticks`), or [`PowerState::Fault`] when it fails.
     pub fn switch_on(&mut self) -> Result<(), RequestError> {
-        match self.power() {
+        match self.state() {
             PowerState::Off | PowerState::SwitchedOn => {
                 self.configure_commutation();
                 self.refresh_parameters();
@@ -718,7 +709,7 @@ impl Drive {
     /// CiA 402 transition 4 "enable operation": tier 1 starts the commutation (from its next period's sensors)
     /// and the current loop with empty integrators.
     pub fn enable_operation(&mut self) -> Result<(), RequestError> {
-        match self.power() {
+        match self.state() {
             PowerState::SwitchedOn => {
                 self.request(|p| p.level = PowerLevel::OperationEnabled, PowerState::OperationEnabled);
                 Ok(())
@@ -730,7 +721,7 @@ impl Drive {
 
     /// CiA 402 transition 5 "disable operation": outputs off, stays calibrated.
     pub fn disable_operation(&mut self) {
-        let predicted = match self.power() {
+        let predicted = match self.state() {
             PowerState::OperationEnabled => PowerState::SwitchedOn,
             other => other,
         };
@@ -740,7 +731,7 @@ impl Drive {
     /// CiA 402 transitions 6/8/9 "shutdown"/"disable voltage" and every forced off: outputs off, calibration to be
     /// redone at the next switch-on. A latched fault stays latched.
     pub fn shutdown(&mut self) {
-        let predicted = match self.power() {
+        let predicted = match self.state() {
             PowerState::Fault(e) => PowerState::Fault(e),
             _ => PowerState::Off,
         };
@@ -749,7 +740,7 @@ impl Drive {
 
     /// CiA 402 transition 15 "fault reset": back to [`PowerState::Off`].
     pub fn fault_reset(&mut self) {
-        let predicted = match self.power() {
+        let predicted = match self.state() {
             PowerState::Fault(_) => PowerState::Off,
             other => other,
         };
@@ -816,7 +807,11 @@ impl Drive {
     /// The power-stage state: tier 1's last report, or the state a request tier 1 has not yet acted on leads to.
     #[must_use]
     pub fn state(&self) -> PowerState {
-        self.power()
+        if self.report.power_sequence == self.setpoint.power.sequence {
+            self.report.power
+        } else {
+            self.predicted
+        }
     }
 
     /// The shunt offsets in use, as tier 1 last reported them.

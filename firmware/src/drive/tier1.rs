@@ -292,11 +292,11 @@ impl Tier1State {
         out.pwm_command()
     }
 
-    /// A bus trip; the tripping sample is what the fault snapshot reports.
+    /// A bus trip; the tripping sample is what the fault snapshot reports (`fast_step` has put `v_bus` in the
+    /// signals the trip sample copies).
     #[cold]
     #[inline(never)]
     fn trip_bus(&mut self, v_bus: Volts) -> PwmCommand {
-        self.signals.v_bus = v_bus;
         let trip = self.limits.bus_trip(v_bus);
         self.trip(DriveError::Protection(trip))
     }

@@ -49,6 +49,7 @@ pub mod canopen;
 mod critical;
 #[cfg(all(feature = "ethercat", not(feature = "qemu")))]
 pub mod ethercat;
+mod figures;
 pub mod log;
 mod panic;
 pub mod program;

@@ -18,6 +18,7 @@ use core::sync::atomic::{compiler_fence, AtomicBool, AtomicU32, Ordering};
 use cortex_m::peripheral::NVIC;
 
 use super::app::{self, FastState};
+use super::figures::{count, record_max};
 use crate::board::counter;
 use crate::board::interrupt::Interrupt;
 use crate::board::PowerStage;
@@ -165,20 +166,16 @@ pub unsafe extern "C" fn on_adc() {
     };
     t.power.write(&pwm);
 
-    if cost > FAST_TICK_MAX.load(Ordering::Relaxed) {
-        FAST_TICK_MAX.store(cost, Ordering::Relaxed);
-    }
+    record_max(&FAST_TICK_MAX, cost);
     // The periods, not the runs: a lost period still counts, so the PLL's period index (`rt::ethercat`) stays on
     // the timer's grid.
-    FAST_TICKS.store(FAST_TICKS.load(Ordering::Relaxed).wrapping_add(1).wrapping_add(lost), Ordering::Relaxed);
+    count(&FAST_TICKS, lost.wrapping_add(1));
     if tick.slow_tick_due {
         // After the PWM write: the report is tier 2's, and costs this period's output nothing.
         let before = counter::now();
         REPORT.publish(&t.fast.report());
         let cost = counter::now().wrapping_sub(before);
-        if cost > REPORT_MAX.load(Ordering::Relaxed) {
-            REPORT_MAX.store(cost, Ordering::Relaxed);
-        }
+        record_max(&REPORT_MAX, cost);
         super::tier2::SLOW_TICK.raise();
     }
 }
@@ -232,9 +229,7 @@ pub fn on_period_timer() {
     if missed > 0 {
         FAST_MISSED.store(FAST_MISSED.load(Ordering::Relaxed).saturating_add(missed), Ordering::Relaxed);
     }
-    if latency > TIER1_LATENCY_MAX.load(Ordering::Relaxed) {
-        TIER1_LATENCY_MAX.store(latency, Ordering::Relaxed);
-    }
+    record_max(&TIER1_LATENCY_MAX, latency);
     if latency < TIER1_LATENCY_MIN.load(Ordering::Relaxed) {
         TIER1_LATENCY_MIN.store(latency, Ordering::Relaxed);
     }

@@ -16,6 +16,7 @@ use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use embassy_executor::{InterruptExecutor, SendSpawner};
 
 use super::app;
+use super::figures::{count, record_max};
 use super::signal::TickSignal;
 use crate::board::counter;
 use crate::board::interrupt::Interrupt;
@@ -133,7 +134,7 @@ fn publish_blocks(drive: &mut Drive) {
 fn take_report(drive: &mut Drive) {
     match super::tier1::REPORT.read() {
         Ok(report) => drive.receive_report(&report.block),
-        Err(_) => REPORTS_TORN.store(REPORTS_TORN.load(Ordering::Relaxed).wrapping_add(1), Ordering::Relaxed),
+        Err(_) => count(&REPORTS_TORN, 1),
     }
 }
 
@@ -141,10 +142,7 @@ fn take_report(drive: &mut Drive) {
 fn with_drive_timed<R>(f: impl FnOnce(&mut Drive) -> R, max: &AtomicU32) -> Option<R> {
     let start = counter::now();
     let result = with_drive(f);
-    let cost = counter::now().wrapping_sub(start);
-    if cost > max.load(Ordering::Relaxed) {
-        max.store(cost, Ordering::Relaxed);
-    }
+    record_max(max, counter::now().wrapping_sub(start));
     result
 }
 
@@ -180,7 +178,7 @@ async fn slow_loop() {
         let start = counter::now();
         if new > 1 {
             let missed = new.wrapping_sub(1);
-            SLOW_MISSED.store(SLOW_MISSED.load(Ordering::Relaxed).wrapping_add(missed), Ordering::Relaxed);
+            count(&SLOW_MISSED, missed);
             // The loops lost their period: a fault (0xFF0B), not only a counter.
             let _ = with_drive(|drive| drive.motion_loop_overrun(missed));
         }
@@ -197,11 +195,8 @@ async fn slow_loop() {
         // sources run between slow ticks.
         #[cfg(all(feature = "ethercat", not(feature = "qemu")))]
         super::ethercat::free_run_tick();
-        let total = counter::now().wrapping_sub(start);
-        if total > TIER2_TOTAL_MAX.load(Ordering::Relaxed) {
-            TIER2_TOTAL_MAX.store(total, Ordering::Relaxed);
-        }
-        SLOW_TICKS.store(SLOW_TICKS.load(Ordering::Relaxed).wrapping_add(1), Ordering::Relaxed);
+        record_max(&TIER2_TOTAL_MAX, counter::now().wrapping_sub(start));
+        count(&SLOW_TICKS, 1);
         super::tier3::TICK.raise();
     }
 }
