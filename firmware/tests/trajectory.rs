@@ -61,6 +61,19 @@ fn rates(p: &ProfileParams) -> (f64, f64, f64) {
     (v_f(p.velocity), a_f(p.acceleration) * k, a_f(p.deceleration) * k)
 }
 
+/// The step after a move or velocity command: it still samples the motion in force and sets the command's origin
+/// (the command takes effect in the step after it, `control::trajectory` generator, "When a command takes
+/// effect"). Returns that sample.
+fn latency(g: &mut ProfileGenerator) -> Setpoint {
+    let before = g.setpoint();
+    let origin = g.step();
+    assert!(!g.is_done(), "a command waits for the next step");
+    if before.velocity == Velocity::ZERO && before.acceleration == Acceleration::ZERO {
+        assert_eq!(origin, before, "at rest, the latency step holds the position");
+    }
+    origin
+}
+
 /// Steps until done (at most `max` ticks); returns the samples.
 fn run(g: &mut ProfileGenerator, max: usize) -> Vec<Setpoint> {
     let mut out = Vec::new();
@@ -75,6 +88,7 @@ fn check_move_from_rest(start: i64, target: i64, p: &ProfileParams) -> (usize, f
     let mut g = ProfileGenerator::new(start);
     assert_eq!(g.start_move(target, false, p, ChangeMode::Immediately), Ok(MoveAccepted::Started));
     let planned = planned_duration_ticks(start, Velocity::ZERO, target, p).unwrap();
+    latency(&mut g);
     let out = run(&mut g, 10_000_000);
     let (v, a, b) = rates(p);
     let (t_analytic, _) = analytic_from_rest((target - start) as f64, v, a, b);
@@ -152,6 +166,7 @@ fn triangular_moves_both_shapes() {
         for d in [1i64, 2, 7, 100, 1000, -1, -55, -4000] {
             let mut g = ProfileGenerator::new(1_000);
             g.start_move(d, true, &p, ChangeMode::Immediately).unwrap();
+            latency(&mut g);
             let out = run(&mut g, 1_000_000);
             let (v, a, b) = rates(&p);
             let (t, vp) = analytic_from_rest(d as f64, v, a, b);
@@ -170,8 +185,9 @@ fn zero_move_and_negative_moves() {
     let p = params(1000, 10_000, 10_000, 0);
     let mut g = ProfileGenerator::new(-5);
     g.start_move(-5, false, &p, ChangeMode::Immediately).unwrap();
-    assert!(g.is_done());
+    assert_eq!(latency(&mut g).position, -5);
     assert_eq!(g.step().position, -5);
+    assert!(g.is_done());
     check_move_from_rest(1_000_000, -2_000_000, &p);
     check_move_from_rest(-2_000_000_000, -1_990_000_007, &params(25_000, 1_000_000, 1_000_000, 1));
 }
@@ -188,11 +204,12 @@ fn change_on_the_fly_reverses_and_arrives_exactly() {
         let mut g = ProfileGenerator::new(0);
         g.start_move(100_000, false, &p, ChangeMode::Immediately).unwrap();
         let before = steps(&mut g, 600);
-        let v0 = v_f(before.last().unwrap().velocity);
-        assert!(v0 > 50.0);
         // A target behind the current position: must stop (with the deceleration) and come back.
         let here = before.last().unwrap().position;
         g.start_move(here - 5_000, false, &p, ChangeMode::Immediately).unwrap();
+        // The stop starts from the command's origin.
+        let v0 = v_f(latency(&mut g).velocity);
+        assert!(v0 > 50.0);
         let out = run(&mut g, 1_000_000);
         assert_eq!(g.setpoint().position, here - 5_000);
         let mut prev = v0;
@@ -241,6 +258,8 @@ fn change_on_the_fly_unavoidable_overshoot() {
     steps(&mut g, 1_000);
     let here = g.setpoint().position;
     g.start_move(here + 100, false, &p, ChangeMode::Immediately).unwrap();
+    // The stop starts from the command's origin, one tick further on.
+    let origin = latency(&mut g).position;
     let out = run(&mut g, 1_000_000);
     let furthest = out.iter().map(|s| s.position).max().unwrap();
     assert!(furthest > here + 100);
@@ -248,7 +267,7 @@ fn change_on_the_fly_unavoidable_overshoot() {
     // Stopping distance v² / 2d.
     let v = v_f(p.velocity);
     let ds = v * v / (2.0 * a_f(p.deceleration));
-    assert!(((furthest - here) as f64 - ds).abs() < 2.0, "{} vs {ds}", furthest - here);
+    assert!(((furthest - origin) as f64 - ds).abs() < 2.0, "{} vs {ds}", furthest - origin);
 }
 
 #[test]
@@ -318,6 +337,7 @@ fn pvm_ramps_and_reversal() {
         let v1 = s.velocity_from_rpm(2000);
         g.set_velocity_target(v1, &p).unwrap();
         let planned = planned_velocity_duration_ticks(Velocity::ZERO, v1, &p).unwrap();
+        latency(&mut g);
         let up = run(&mut g, 100_000);
         assert_eq!(up.len() as u64, planned);
         assert!((up.len() as f64 - (v_f(v1) / a).ceil()).abs() <= 1.0);
@@ -335,6 +355,7 @@ fn pvm_ramps_and_reversal() {
         // Reverse: decelerate to 0 with the deceleration, accelerate with the acceleration.
         let v2 = s.velocity_from_rpm(-1000);
         g.set_velocity_target(v2, &p).unwrap();
+        latency(&mut g);
         let down = run(&mut g, 100_000);
         let t = v_f(v1) / d + v_f(v2).abs() / a;
         assert!((down.len() as f64 - t.ceil()).abs() <= 1.0, "{} vs {t}", down.len());
@@ -493,24 +514,58 @@ proptest! {
     ) {
         let mut g = ProfileGenerator::new(0);
         g.start_move(d1, false, &p1, ChangeMode::Immediately).unwrap();
-        let before = steps(&mut g, k);
-        let s0 = g.setpoint();
+        steps(&mut g, k);
         let reference = if rel { d1 } else { 0 };
+        g.start_move(d2, rel, &p2, ChangeMode::Immediately).unwrap();
+        let s0 = latency(&mut g);
         let planned = planned_duration_ticks(s0.position, s0.velocity, reference + d2, &p2).unwrap();
         prop_assume!(planned < 40_000);
-        g.start_move(d2, rel, &p2, ChangeMode::Immediately).unwrap();
         let out = run(&mut g, 100_000);
         prop_assert!(g.is_done());
         prop_assert_eq!(g.setpoint().position, reference + d2);
         // The plan starts from the exact (unrounded) state, so the count may differ by one from the rounded one.
         prop_assert!((out.len() as i64 - planned as i64).abs() <= 1);
         let peak = a_f(p2.acceleration).max(a_f(p2.deceleration));
-        let mut prev = v_f(before.last().copied().unwrap_or_default().velocity);
+        let mut prev = v_f(s0.velocity);
         for s in &out {
             let v = v_f(s.velocity);
             prop_assert!((v - prev).abs() <= peak * 1.000_001 + 1e-6, "velocity step {}", v - prev);
             prop_assert!(v.abs() <= v_f(p2.velocity).max(v_f(p1.velocity)) * 1.000_001 + 1e-6);
             prev = v;
+        }
+    }
+
+    /// Planning ahead between steps ([`ProfileGenerator::prepare`], which the drive runs in tier 2's background
+    /// step) never changes a sample: random command sequences of every kind give the same samples, bit for bit,
+    /// with `prepare` after every step and without it.
+    #[test]
+    fn prepare_never_changes_the_samples(
+        start in -1_000_000i64..1_000_000,
+        p1 in arb_params(), p2 in arb_params(),
+        cmds in proptest::collection::vec((0u8..7, -200_000i64..200_000, any::<bool>(), 0usize..400), 1..8),
+    ) {
+        let s = scale();
+        let mut plain = ProfileGenerator::new(start);
+        let mut prepared = ProfileGenerator::new(start);
+        for (i, (kind, x, rel, ticks)) in cmds.into_iter().enumerate() {
+            let p = if i % 2 == 0 { p1 } else { p2 };
+            for g in [&mut plain, &mut prepared] {
+                let _ = match kind {
+                    0 => g.start_move(x, rel, &p, ChangeMode::Immediately).map(|_| ()),
+                    1 => g.start_move(x, rel, &p, ChangeMode::AfterCurrent).map(|_| ()),
+                    2 | 3 => g.start_move(x, rel, &p, ChangeMode::AfterCurrentNoStop).map(|_| ()),
+                    4 => g.set_velocity_target(s.velocity_from_rpm(x / 100), &p),
+                    5 => { g.halt(p.deceleration); Ok(()) }
+                    _ => { g.quick_stop(p.deceleration); Ok(()) }
+                };
+            }
+            for _ in 0..ticks {
+                prepared.prepare();
+                prop_assert_eq!(plain.step(), prepared.step());
+                prop_assert_eq!(plain.is_done(), prepared.is_done());
+                prop_assert_eq!(plain.target(), prepared.target());
+                prop_assert_eq!(plain.take_buffered_started(), prepared.take_buffered_started());
+            }
         }
     }
 
@@ -543,7 +598,7 @@ proptest! {
             for _ in 0..20 {
                 g.step();
             }
-            let _ = (g.is_done(), g.remaining_ticks(), s.velocity_to_rpm(g.setpoint().velocity));
+            let _ = (g.is_done(), s.velocity_to_rpm(g.setpoint().velocity));
         }
     }
 }

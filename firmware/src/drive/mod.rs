@@ -376,8 +376,9 @@ impl Drive {
     /// Converts the parameters that changed since the last call into the units the tiers use (current gains
     /// 0x30A0, motor data and limits, and the axis's motion parameters, gains, monitoring limits and brake
     /// timing), applies the I2t current limit, and publishes the actual values (0x6077, 0x6078, 0x30D1, 0x30D2,
-    /// 0x6079, 0x3200:01, ...). Tier 2 runs it before each [`Self::slow_tick`] (its cost is reported separately: it compares the
-    /// raw values every time, and converts, with 64- and 128-bit arithmetic, only what changed).
+    /// 0x6079, 0x3200:01, ...), and plans the profile command the next slow tick takes into force. Tier 2 runs it
+    /// before each [`Self::slow_tick`] (its cost is reported separately: it compares the raw values every time,
+    /// and converts, with 64- and 128-bit arithmetic, only what changed).
     pub fn background(&mut self) {
         self.refresh_parameters();
         self.publish_actual_values();
@@ -398,6 +399,10 @@ impl Drive {
             self.thermal_limit = supervised.current_limit;
             self.apply_limits();
         }
+        // Last, so that the plan starts from the parameters just converted: the profile generator's planning,
+        // which does not fit the slow tick's budget (`control::trajectory` generator, "When a command takes
+        // effect").
+        self.axis.prepare_motion();
     }
 
     /// The demand scale with the current limits of the protections in force (I2t and thermal derating): the

@@ -388,6 +388,12 @@ impl Axis {
         }
     }
 
+    /// Plans the profile move, velocity command or buffered move the next step takes into force
+    /// ([`ProfileGenerator::prepare`]); the drive runs it before each step, outside the step's time budget.
+    pub fn prepare_motion(&mut self) {
+        self.generator.prepare();
+    }
+
     /// Converts the parameters that changed (motion parameters, gains, monitoring limits, brake timing); the
     /// drive runs it before each step, outside the step's time budget.
     pub fn refresh(&mut self, d: &mut Dictionary) {

@@ -434,6 +434,9 @@ mod tests {
         }
     }
 
+    /// Steps between the tick that takes a command and the first step of its motion.
+    const LATENCY: usize = crate::control::trajectory::COMMAND_LATENCY_TICKS as usize;
+
     #[test]
     fn entry_at_rest_reports_target_reached_and_a_held_bit4_starts_nothing() {
         let p = binary_params();
@@ -480,25 +483,26 @@ mod tests {
         let duration = planned_duration_ticks(0, Velocity::ZERO, i64::from(target), &p).unwrap() as usize;
         let mut rig = Rig::new(Plant::Delay, 0, 0);
         rig.run(&input(0, target, p, w), 3);
-        // Tick k: bit 4 rises -> bit 12 rises in the same tick, the move starts.
+        // Tick k: bit 4 rises -> bit 12 rises in the same tick; the move starts in the next one.
         let k = rig.next_index();
         let s = rig.tick(&input(NEW_SET_POINT, target, p, w));
         assert!(s.bit12 && !s.target_reached);
-        assert!(rig.log[k].0.velocity > Velocity::ZERO, "the first sample moves");
+        assert_eq!(rig.log[k].0, Setpoint::default(), "the tick that takes the set-point holds");
         // Bit 4 held: bit 12 stays; the master clears bit 4 at k + 4: bit 12 falls in that tick.
         for _ in 0..3 {
             assert!(rig.tick(&input(NEW_SET_POINT, target, p, w)).bit12);
         }
+        assert!(rig.log[k + LATENCY].0.velocity > Velocity::ZERO, "the next sample moves");
         assert!(!rig.tick(&input(0, target, p, w)).bit12);
         rig.run(&input(0, target, p, w), duration + 10);
-        // Generator done at step k + duration - 1; the delayed axis arrives one tick later.
-        let done = k + duration - 1;
+        // Generator done at step k + LATENCY + duration - 1; the delayed axis arrives one tick later.
+        let done = k + LATENCY + duration - 1;
         assert_eq!((rig.log[done].0.position, rig.log[done].0.velocity), (i64::from(target), Velocity::ZERO));
         assert_ne!(rig.log[done - 1].0.velocity, Velocity::ZERO);
         let reached = rig.first_reached(k).unwrap();
         assert_eq!(reached, rig.expected_reached(target, 0, 0, done));
         assert!(reached <= done + 1);
-        assert!(rig.log[k + duration..].iter().all(|(_, s)| s.target_reached && !s.bit12));
+        assert!(rig.log[k + LATENCY + duration..].iter().all(|(_, s)| s.target_reached && !s.bit12));
     }
 
     #[test]
@@ -510,9 +514,9 @@ mod tests {
         let k = rig.next_index();
         rig.tick(&input(NEW_SET_POINT | RELATIVE, 1024, p, w));
         rig.run(&input(RELATIVE, 1024, p, w), 200);
-        // Done at k + 191; the delayed axis (demand rounded to whole increments) is at 2024 already then.
-        assert_eq!(rig.first_reached(k), Some(k + 191));
-        assert_eq!(rig.expected_reached(2024, 0, 0, k + 191), k + 191);
+        // Done at k + LATENCY + 191; the delayed axis (demand rounded to whole increments) is at 2024 already then.
+        assert_eq!(rig.first_reached(k), Some(k + LATENCY + 191));
+        assert_eq!(rig.expected_reached(2024, 0, 0, k + LATENCY + 191), k + LATENCY + 191);
         assert_eq!(rig.position, 2024);
         // Relative -2048 from the target 2024; then absolute 0.
         let k = rig.next_index();
@@ -520,15 +524,15 @@ mod tests {
         let d = planned_duration_ticks(2024, Velocity::ZERO, -24, &p).unwrap() as usize;
         assert_eq!(d, 128 + (2048 - 512) / 8);
         rig.run(&input(RELATIVE, -2048, p, w), d + 10);
-        assert_eq!(rig.first_reached(k), Some(k + d - 1));
+        assert_eq!(rig.first_reached(k), Some(k + LATENCY + d - 1));
         assert_eq!(rig.position, -24);
         let k = rig.next_index();
         rig.tick(&input(NEW_SET_POINT, 0, p, w));
         rig.run(&input(0, 0, p, w), 100);
         let d = planned_duration_ticks(-24, Velocity::ZERO, 0, &p).unwrap() as usize;
         let reached = rig.first_reached(k).unwrap();
-        assert_eq!(reached, rig.expected_reached(0, 0, 0, k + d - 1));
-        assert!(reached <= k + d);
+        assert_eq!(reached, rig.expected_reached(0, 0, 0, k + LATENCY + d - 1));
+        assert!(reached <= k + LATENCY + d);
         assert_eq!(rig.position, 0);
     }
 
@@ -544,20 +548,22 @@ mod tests {
         assert!(cruising(before.velocity, p.velocity));
         let mut reference = rig.generator;
         reference.start_move(40_000, false, &p, ChangeMode::Immediately).unwrap();
-        let mut expected = 0usize;
+        // The new plan starts from the sample of the next step (cruising, one tick further on).
+        let origin = reference.step();
+        let mut expected = LATENCY;
         while !reference.is_done() {
             reference.step();
             expected += 1;
         }
-        let analytic = planned_duration_ticks(before.position, before.velocity, 40_000, &p).unwrap() as usize;
-        assert!(expected.abs_diff(analytic) <= 1, "{expected} vs {analytic}");
+        let analytic = planned_duration_ticks(origin.position, origin.velocity, 40_000, &p).unwrap() as usize;
+        assert!(expected.abs_diff(LATENCY + analytic) <= 1, "{expected} vs {analytic}");
         let k = rig.next_index();
         let s = rig.tick(&input(NEW_SET_POINT | IMMEDIATELY, 40_000, p, w));
         assert!(s.bit12 && !s.target_reached);
         assert_eq!(rig.generator.target(), Some(40_000));
         rig.run(&input(IMMEDIATELY, 40_000, p, w), expected + 10);
         // No stop in between: the demand velocity stays at the profile velocity until the final ramp.
-        let moving = &rig.log[..k + expected - 1];
+        let moving = &rig.log[LATENCY..k + expected - 1];
         assert!(moving.iter().all(|(sp, s)| sp.velocity > Velocity::ZERO && !s.target_reached));
         assert!(rig.log[k..k + 100].iter().all(|(sp, _)| cruising(sp.velocity, p.velocity)));
         let reached = rig.first_reached(k).unwrap();
@@ -586,29 +592,29 @@ mod tests {
         let s = rig.tick(&third);
         assert!(s.bit12 && rig.ppm.request_pending());
         assert_eq!(rig.generator.target(), Some(1024));
-        // SP1 ends at step k + 191 (exactly on its target, at rest); SP2 starts in that step and SP3 is taken
-        // into the freed buffer in the same step, so bit 12 never drops.
-        while rig.next_index() < k + 192 {
+        // SP1 ends at step k + LATENCY + 191 (exactly on its target, at rest); SP2 starts in that step and SP3
+        // is taken into the freed buffer in the same step, so bit 12 never drops.
+        while rig.next_index() < k + LATENCY + 192 {
             let s = rig.tick(&third);
             assert!(s.bit12 && !s.target_reached);
         }
         assert!(!rig.ppm.request_pending());
         assert_eq!(rig.generator.target(), Some(2048));
         assert!(!rig.generator.buffer_free());
-        let (sp, _) = rig.log[k + 191];
+        let (sp, _) = rig.log[k + LATENCY + 191];
         assert_eq!((sp.position, sp.velocity), (1024, Velocity::ZERO), "stops at the first target");
         // The master clears bit 4: bit 12 stays while SP3 waits in the buffer, falls when SP3 starts.
-        while rig.next_index() < k + 2 * 192 - 1 {
+        while rig.next_index() < k + LATENCY + 2 * 192 - 1 {
             assert!(rig.tick(&input(0, 3072, p, w)).bit12);
         }
         let s = rig.tick(&input(0, 3072, p, w));
         assert!(!s.bit12 && rig.generator.buffer_free());
         assert_eq!(rig.generator.target(), Some(3072));
-        let (sp, _) = rig.log[k + 2 * 192 - 1];
+        let (sp, _) = rig.log[k + LATENCY + 2 * 192 - 1];
         assert_eq!((sp.position, sp.velocity), (2048, Velocity::ZERO), "stops at the second target");
         rig.run(&input(0, 3072, p, w), 250);
         // In order, each a full stop-to-stop move; target reached only at the very end.
-        assert_eq!(rig.first_reached(k), Some(k + 3 * 192 - 1));
+        assert_eq!(rig.first_reached(k), Some(k + LATENCY + 3 * 192 - 1));
         assert_eq!(rig.position, 3072);
         assert!(rig.log[k..].windows(2).all(|pair| pair[1].0.position >= pair[0].0.position));
     }
@@ -626,19 +632,19 @@ mod tests {
         let end = rig.first_reached(k).unwrap();
         assert_eq!(rig.position, 4096);
         // Never at rest between start and the final target; at 1024 still at the profile velocity.
-        assert!(rig.log[k..end - 1].iter().all(|(sp, _)| sp.velocity > Velocity::ZERO));
+        assert!(rig.log[k + LATENCY..end - 1].iter().all(|(sp, _)| sp.velocity > Velocity::ZERO));
         let at_first = rig.log[k..].iter().find(|(sp, _)| sp.position >= 1024).unwrap().0;
         assert_eq!(at_first.velocity, p.velocity);
         // Blended: 4096 inc at 8 inc/tick with one ramp up and one down = 64 + 448 + 64 = 576 ticks, exactly.
-        assert_eq!(end, k + 575);
+        assert_eq!(end, k + LATENCY + 575);
         // Without bit 9 the pair stops at 1024: 192 ticks, then 3072 inc in 64 + 320 + 64 = 448 ticks: 640.
         let mut stop = Rig::new(Plant::Delay, 0, 0);
         stop.tick(&input(NEW_SET_POINT, 1024, p, w));
         stop.run(&input(0, 1024, p, w), 30);
         stop.tick(&input(NEW_SET_POINT, 4096, p, w));
         stop.run(&input(0, 4096, p, w), 700);
-        assert_eq!(stop.first_reached(0), Some(639));
-        assert_eq!(stop.log[191].0.velocity, Velocity::ZERO);
+        assert_eq!(stop.first_reached(0), Some(LATENCY + 639));
+        assert_eq!(stop.log[LATENCY + 191].0.velocity, Velocity::ZERO);
     }
 
     #[test]
@@ -649,11 +655,11 @@ mod tests {
         rig.tick(&input(NEW_SET_POINT, 1024, p, w));
         rig.run(&input(0, 1024, p, w), 400);
         // The lagging axis enters the window (|1024 - actual| <= 10) at some step and stays; the bit rises exactly
-        // 25 ticks later, or when the trajectory ends (step 191) if that is later, and never before.
+        // 25 ticks later, or when the trajectory ends (step LATENCY + 191) if that is later, and never before.
         let entered = (0..rig.actual.len()).rev().take_while(|&i| (1024 - rig.actual[i]).abs() <= 10).last().unwrap();
         assert!(entered > 100 && (1024 - rig.actual[entered - 1]).abs() > 10);
-        assert_eq!(rig.first_reached(0), Some((entered + 25).max(191)));
-        assert!(entered + 25 > 191, "the window time decides here");
+        assert_eq!(rig.first_reached(0), Some((entered + 25).max(LATENCY + 191)));
+        assert!(entered + 25 > LATENCY + 191, "the window time decides here");
         // A disturbance out of the window clears the bit at once and restarts the time.
         assert!(rig.log.last().unwrap().1.target_reached);
         rig.position = 1024 + 11;
@@ -673,15 +679,16 @@ mod tests {
         let mut rig = Rig::new(Plant::Delay, 0, 0);
         rig.tick(&input(NEW_SET_POINT, 1024, p, w));
         rig.run(&input(0, 1024, p, w), 300);
-        assert_eq!(rig.first_reached(0), Some(191), "done at step 191, inside the window since long before");
+        assert_eq!(rig.first_reached(0), Some(LATENCY + 191), "done at step 192, inside the window since long before");
     }
 
     /// Bit 10 timing of a single move, the set-point taken at step 0 so that the generator's last step is
-    /// `D - 1` (`D` = `planned_duration_ticks`): window off → exactly `D - 1`; window 0 (± 0 inc) and window 3
-    /// with time 0 or 12 → as [`Rig::expected_reached`] and never later than `D + time` (one tick of lag).
+    /// `LATENCY + D - 1` (`D` = `planned_duration_ticks`): window off → exactly that step; window 0 (± 0 inc)
+    /// and window 3 with time 0 or 12 → as [`Rig::expected_reached`] and never later than `LATENCY + D + time`
+    /// (one tick of lag).
     fn move_timing(profile: ProfileType, target: i32) {
         let p = dictionary_params(profile);
-        let d = planned_duration_ticks(0, Velocity::ZERO, i64::from(target), &p).unwrap() as usize;
+        let d = LATENCY + planned_duration_ticks(0, Velocity::ZERO, i64::from(target), &p).unwrap() as usize;
         for (window, time) in [(None, 7), (Some(0), 0), (Some(0), 12), (Some(3), 0), (Some(3), 12)] {
             let w = windows(window, time);
             let mut rig = Rig::new(Plant::Delay, 0, 0);
@@ -728,6 +735,7 @@ mod tests {
         let w = windows(Some(0), 0);
         let d = planned_duration_ticks(0, Velocity::ZERO, 1024, &p).unwrap() as usize;
         assert_eq!(d, 1 + (1024 - 8) / 8 + 1);
+        let d = LATENCY + d;
         let mut rig = Rig::new(Plant::Delay, 0, 0);
         rig.tick(&input(NEW_SET_POINT, 1024, p, w));
         rig.run(&input(0, 1024, p, w), d + 5);
@@ -773,9 +781,11 @@ mod tests {
         let k = rig.next_index();
         assert!(rig.tick(&input(NEW_SET_POINT, 8192, p, w)).bit12);
         let d = planned_duration_ticks(i64::from(rest), Velocity::ZERO, 8192, &p).unwrap() as usize;
-        assert_eq!(d, 128 + (8192 - 672 - 512) / 8);
+        // At rest at 664 (the halt came after 99 ticks of motion: the first tick took the set-point).
+        assert_eq!(rest, 664);
+        assert_eq!(d, 128 + (8192 - 664 - 512) / 8);
         rig.run(&input(0, 8192, p, w), d + 10);
-        assert_eq!(rig.first_reached(k), Some(k + d - 1));
+        assert_eq!(rig.first_reached(k), Some(k + LATENCY + d - 1));
         assert_eq!(rig.position, 8192);
     }
 
@@ -791,7 +801,7 @@ mod tests {
         let k = rig.next_index();
         assert!(rig.tick(&input(NEW_SET_POINT, 1024, p, w)).bit12);
         rig.run(&input(0, 1024, p, w), 200);
-        assert_eq!(rig.first_reached(k), Some(k + 191));
+        assert_eq!(rig.first_reached(k), Some(k + LATENCY + 191));
     }
 
     #[test]
@@ -811,7 +821,7 @@ mod tests {
         let k = rig.next_index();
         assert!(rig.tick(&input(NEW_SET_POINT, 1024, good, w)).bit12);
         rig.run(&input(0, 1024, good, w), 200);
-        assert_eq!(rig.first_reached(k), Some(k + 191));
+        assert_eq!(rig.first_reached(k), Some(k + LATENCY + 191));
     }
 
     #[test]

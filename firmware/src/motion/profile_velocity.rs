@@ -260,6 +260,9 @@ mod tests {
         }
     }
 
+    /// Steps between the tick that takes a command and the first step of its motion.
+    const LATENCY: usize = crate::control::trajectory::COMMAND_LATENCY_TICKS as usize;
+
     fn ticks(from: Velocity, to: Velocity, p: &ProfileParams) -> usize {
         planned_velocity_duration_ticks(from, to, p).unwrap() as usize
     }
@@ -270,10 +273,10 @@ mod tests {
             let p = dictionary_params(profile);
             let target = MotionScale::new(4096).velocity_from_rpm(-1500);
             let w = windows(Velocity::ZERO, 0, Velocity::ZERO);
-            let d = ticks(Velocity::ZERO, target, &p);
+            let d = LATENCY + ticks(Velocity::ZERO, target, &p);
             let mut rig = Rig::new(Plant::Delay, 0);
             rig.run(&input(0, target, p, w), d + 20);
-            // The generator lands exactly on the target at step d - 1; the delayed axis one tick later.
+            // The generator lands exactly on the target at step LATENCY + D - 1; the delayed axis one tick later.
             assert_eq!(rig.log[d - 1].0.velocity, target);
             assert_ne!(rig.log[d - 2].0.velocity, target);
             assert_eq!(rig.first(0, |s| s.target_reached), Some(d), "{profile:?}");
@@ -290,7 +293,7 @@ mod tests {
         rig.run(&input(0, inc_per_tick(8), p, w), 80);
         let to_7 = ticks(Velocity::ZERO, inc_per_tick(7), &p);
         assert_eq!(to_7, 56);
-        assert_eq!(rig.first(0, |s| s.target_reached), Some(to_7));
+        assert_eq!(rig.first(0, |s| s.target_reached), Some(LATENCY + to_7));
     }
 
     #[test]
@@ -299,14 +302,14 @@ mod tests {
         let w = windows(Velocity::ZERO, 40, Velocity::ZERO);
         let mut rig = Rig::new(Plant::Delay, 0);
         rig.run(&input(0, inc_per_tick(8), p, w), 200);
-        assert_eq!(rig.first(0, |s| s.target_reached), Some(64 + 40));
+        assert_eq!(rig.first(0, |s| s.target_reached), Some(LATENCY + 64 + 40));
         // A first-order lag: inside the window (0.5 inc/tick) from some tick on, bit 10 exactly 40 ticks later.
         let w = windows(Velocity::from_bits(1 << 31), 40, Velocity::ZERO);
         let mut rig = Rig::new(Plant::Lag, 0);
         rig.run(&input(0, inc_per_tick(8), p, w), 300);
         let inside = |v: Velocity| (v.to_bits() - inc_per_tick(8).to_bits()).abs() <= 1 << 31;
         let entered = (0..rig.actual.len()).rev().take_while(|&i| inside(rig.actual[i])).last().unwrap();
-        assert!(entered > 64, "the lag keeps the actual outside past the end of the ramp");
+        assert!(entered > LATENCY + 64, "the lag keeps the actual outside past the end of the ramp");
         assert_eq!(rig.first(0, |s| s.target_reached), Some(entered + 40));
     }
 
@@ -320,15 +323,16 @@ mod tests {
         assert!(rig.log.iter().all(|(_, s)| s.bit12 && s.target_reached && !s.bit13));
         let k = rig.next_index();
         rig.run(&input(0, inc_per_tick(8), p, w), 100);
-        // Demand at step k + n is (n + 1)/8: above 1 from n = 8; the actual one step later.
-        assert_eq!(rig.first(k, |s| !s.bit12), Some(k + 9));
-        assert!(rig.log[k..k + 9].iter().all(|(_, s)| s.bit12));
-        assert!(rig.log[k + 9..].iter().all(|(_, s)| !s.bit12));
+        // Demand at step k + LATENCY + n is (n + 1)/8: above 1 from n = 8; the actual one step later.
+        let above = k + LATENCY + 9;
+        assert_eq!(rig.first(k, |s| !s.bit12), Some(above));
+        assert!(rig.log[k..above].iter().all(|(_, s)| s.bit12));
+        assert!(rig.log[above..].iter().all(|(_, s)| !s.bit12));
         // Back to zero with 1/4 inc/tick²: 32 ticks; demand 8 - (n + 1)/4 is 1 at n = 27, the actual one step later.
         let k = rig.next_index();
         rig.run(&input(0, Velocity::ZERO, p, w), 60);
-        assert_eq!(rig.first(k, |s| s.bit12), Some(k + 28));
-        assert_eq!(rig.first(k, |s| s.target_reached), Some(k + 32));
+        assert_eq!(rig.first(k, |s| s.bit12), Some(k + LATENCY + 28));
+        assert_eq!(rig.first(k, |s| s.target_reached), Some(k + LATENCY + 32));
         assert!(rig.log.iter().all(|(_, s)| !s.bit13));
     }
 
@@ -350,10 +354,10 @@ mod tests {
         // Release: ramps back up to the target with the profile acceleration; bit 10 again at the target.
         let r = rig.next_index();
         rig.run(&input(0, target, p, w), 100);
-        assert_eq!(rig.log[r + 63].0.velocity, target);
+        assert_eq!(rig.log[r + LATENCY + 63].0.velocity, target);
         assert!(!rig.log[r].1.target_reached);
-        assert_eq!(rig.first(r, |s| s.target_reached), Some(r + 64));
-        assert_eq!(rig.first(r, |s| !s.bit12), Some(r + 1));
+        assert_eq!(rig.first(r, |s| s.target_reached), Some(r + LATENCY + 64));
+        assert_eq!(rig.first(r, |s| !s.bit12), Some(r + LATENCY + 1));
     }
 
     #[test]
@@ -362,16 +366,18 @@ mod tests {
         let w = windows(Velocity::ZERO, 0, Velocity::ZERO);
         let mut rig = Rig::new(Plant::Delay, 0);
         rig.run(&input(0, inc_per_tick(8), p, w), 20);
-        let v = rig.generator.setpoint().velocity;
-        assert_eq!(v, Velocity::from_bits(20 << 29), "20/8 inc/tick");
+        // The new target's origin: the sample of the step that takes it, the ramp to +8 one tick further on.
+        let v = Velocity::from_bits(20 << 29);
+        assert_eq!(rig.generator.setpoint().velocity, Velocity::from_bits(19 << 29), "19/8 inc/tick");
         // Reverse: down through 0 with the deceleration, then up to -4 with the acceleration.
         let d = ticks(v, inc_per_tick(-4), &p);
         assert_eq!(d, 10 + 32);
         let k = rig.next_index();
         rig.run(&input(0, inc_per_tick(-4), p, w), 60);
-        assert!(rig.log[k].0.velocity < v, "no further acceleration toward +8");
-        assert_eq!(rig.log[k + d - 1].0.velocity, inc_per_tick(-4));
-        assert_eq!(rig.first(0, |s| s.target_reached), Some(k + d));
+        assert_eq!(rig.log[k].0.velocity, v, "the tick that takes the target still follows the ramp to +8");
+        assert!(rig.log[k + LATENCY].0.velocity < v, "no further acceleration toward +8");
+        assert_eq!(rig.log[k + LATENCY + d - 1].0.velocity, inc_per_tick(-4));
+        assert_eq!(rig.first(0, |s| s.target_reached), Some(k + LATENCY + d));
     }
 
     #[test]
@@ -382,8 +388,8 @@ mod tests {
         rig.run(&input(0, inc_per_tick(-100), p, w), 200);
         assert!(rig.pvm.speed_limited());
         // 0 -> -16 at 1/8 inc/tick²: 128 ticks; target reached against the bound.
-        assert_eq!(rig.log[127].0.velocity, inc_per_tick(-16));
-        assert_eq!(rig.first(0, |s| s.target_reached), Some(128));
+        assert_eq!(rig.log[LATENCY + 127].0.velocity, inc_per_tick(-16));
+        assert_eq!(rig.first(0, |s| s.target_reached), Some(LATENCY + 128));
         assert!(rig.log.iter().all(|(sp, _)| sp.velocity >= inc_per_tick(-16)));
         rig.tick(&input(0, inc_per_tick(-16), p, w));
         assert!(!rig.pvm.speed_limited());
@@ -398,7 +404,7 @@ mod tests {
         assert!(rig.log.iter().all(|(sp, s)| sp.velocity == Velocity::ZERO && s.target_reached && s.bit12));
         let r = rig.next_index();
         rig.run(&input(0, inc_per_tick(8), p, w), 80);
-        assert_eq!(rig.first(r, |s| s.target_reached), Some(r + 64));
+        assert_eq!(rig.first(r, |s| s.target_reached), Some(r + LATENCY + 64));
     }
 
     #[test]
@@ -416,6 +422,6 @@ mod tests {
         // Valid parameters again: ramps to the target.
         let r = rig.next_index();
         rig.run(&input(0, inc_per_tick(4), p, w), 40);
-        assert_eq!(rig.first(r, |s| s.target_reached), Some(r + 32));
+        assert_eq!(rig.first(r, |s| s.target_reached), Some(r + LATENCY + 32));
     }
 }

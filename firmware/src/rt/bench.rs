@@ -41,8 +41,9 @@
 //!    (`tier1::PERIODS_LOST`, which must agree). `insn.masked_max` is the longest wait past the entry cost.
 //!    `insn.tier2_total_max` is the worst whole tier-2 step of a slow period in this part, tier 1's preemptions
 //!    included.
-//! 5. `insn.profile_plan_max` and `insn.profile_step_max`: the profile generator alone (planning a move, a
-//!    velocity command and a halt; one sample), the part of the profile modes' slow tick above the loops.
+//! 5. `insn.profile_plan_max`, `insn.profile_command_max` and `insn.profile_step_max`: the profile generator alone:
+//!    planning a move and a velocity command (`ProfileGenerator::prepare`, run by the background step before the
+//!    slow tick that takes them into force), giving them and a halt (in the slow tick), one sample.
 //! 6. Checks the tiers and the drive (every period ran, tier 2 once per ten, nothing missed, no overrun, the CSP
 //!    run reached operation enabled, followed without a fault or following-error bit, the profile part ended in
 //!    operation enabled) and exits through semihosting: status 0, or 1 when a check failed.
@@ -479,9 +480,10 @@ pub async fn bench() {
     plant::select(Shaft::Free);
     let csp = csp(&mut periods);
     let slow_csp = tier2::SLOW_TICK_MAX.load(Ordering::Relaxed);
-    let background_max = tier2::BACKGROUND_MAX.load(Ordering::Relaxed);
+    let background_csp = tier2::BACKGROUND_MAX.load(Ordering::Relaxed);
     let csp_slow_ticks = tier2::SLOW_TICKS.load(Ordering::Relaxed);
     let (modes, modes_ok, modes_check) = other_modes(&mut periods);
+    let background_max = tier2::BACKGROUND_MAX.load(Ordering::Relaxed);
     modes_check.print("modes_without_fault");
     let slow_max = modes.iter().fold(slow_csp, |max, (_, m)| max.max(*m));
 
@@ -533,10 +535,16 @@ pub async fn bench() {
          (method 34), with the lock and the publications\n"
     ));
     print(format_args!("insn.slow_tick_max={slow_max}\ninsn.slow_tick_csp={slow_csp}\n"));
-    let (plan_max, step_max) = profile_generator_max();
+    let (plan_max, command_max, step_max) = profile_generator_max();
     print(format_args!(
-        "source.profile_plan_max=control::trajectory::ProfileGenerator: start_move, set_velocity_target, halt; \
-         both profile types\ninsn.profile_plan_max={plan_max}\n"
+        "source.profile_plan_max=control::trajectory::ProfileGenerator::prepare: planning a move and a velocity \
+         command from the step after they were given (tier 2's background step, outside the slow tick); both \
+         profile types\ninsn.profile_plan_max={plan_max}\n"
+    ));
+    print(format_args!(
+        "source.profile_command_max=control::trajectory::ProfileGenerator: start_move, set_velocity_target (taken \
+         for the next step), halt (planned at once), as the slow tick calls them; both profile types\n\
+         insn.profile_command_max={command_max}\n"
     ));
     print(format_args!(
         "source.profile_step_max=control::trajectory::ProfileGenerator::step over a move and a velocity ramp\n\
@@ -546,9 +554,11 @@ pub async fn bench() {
         print(format_args!("insn.slow_tick_{name}={max}\n"));
     }
     print(format_args!(
-        "source.background=drive::Drive::background (parameter conversion, hardware supervision, actual values; CSP)\n"
+        "source.background=drive::Drive::background (parameter conversion, hardware supervision, actual values, \
+         the profile generator's planning), with the report taken, the lock and the publications: in CSP \
+         (background_csp) and the worst over all five modes (background_max)\n"
     ));
-    print(format_args!("insn.background_max={background_max}\n"));
+    print(format_args!("insn.background_csp={background_csp}\ninsn.background_max={background_max}\n"));
     print(format_args!(
         "source.ecat_cycle=ecat: SM2 window read, ProcessDataLayout::unpack_outputs, Drive::setpoint_received, \
          SyncCounters::sm_event, pack_inputs, SM3 window write (default PDO mapping)\n"
@@ -597,6 +607,11 @@ pub async fn bench() {
          the lock and the publications, during the timer-driven part (preemptions by tier 1 included)\n"
     ));
     print(format_args!("insn.tier2_total_max={}\n", timed.tier2_total_max));
+    print(format_args!(
+        "source.setpoint_periods_late_max=rt::tier2::slow_loop: periods started between the raise of a slow tick and \
+         the publication of its set-point, during the timer-driven part (0: the next period applies it)\n"
+    ));
+    print(format_args!("count.setpoint_periods_late_max={}\n", timed.setpoint_periods_late_max));
     print(format_args!(
         "source.report_publish=rt::tier1: Tier1State::report and its publication, every tenth period after the \
          PWM write\n"
@@ -653,6 +668,7 @@ struct TimedRun {
     masked_max: u32,
     periods_lost: u32,
     tier2_total_max: u32,
+    setpoint_periods_late_max: u32,
     fast_missed: u32,
     slow_missed: u32,
     periods: u32,
@@ -674,6 +690,7 @@ fn timed_phase() -> TimedRun {
     tier1::TIER1_LATENCY_MAX.store(0, Ordering::Relaxed);
     tier1::TIER1_LATENCY_MIN.store(u32::MAX, Ordering::Relaxed);
     tier2::TIER2_TOTAL_MAX.store(0, Ordering::Relaxed);
+    tier2::SETPOINT_PERIODS_LATE_MAX.store(0, Ordering::Relaxed);
     let lost_before = tier1::PERIODS_LOST.load(Ordering::Relaxed);
     tier1::FAST_MISSED.store(0, Ordering::Relaxed);
     let slow_missed_before = tier2::SLOW_MISSED.load(Ordering::Relaxed);
@@ -709,6 +726,7 @@ fn timed_phase() -> TimedRun {
         masked_max: latency_max.saturating_sub(tier1::TIER1_LATENCY_MIN.load(Ordering::Relaxed)),
         periods_lost: tier1::PERIODS_LOST.load(Ordering::Relaxed).wrapping_sub(lost_before),
         tier2_total_max: tier2::TIER2_TOTAL_MAX.load(Ordering::Relaxed),
+        setpoint_periods_late_max: tier2::SETPOINT_PERIODS_LATE_MAX.load(Ordering::Relaxed),
         fast_missed: tier1::FAST_MISSED.load(Ordering::Relaxed),
         slow_missed: tier2::SLOW_MISSED.load(Ordering::Relaxed).wrapping_sub(slow_missed_before),
         periods: periods.pended,
@@ -912,7 +930,8 @@ fn can_sync_max(drive: &mut Drive) -> Option<CanSync> {
 /// command to `MODES_RPM` and a halt from it, and the longest `step` over the move and the velocity ramp (counter
 /// units; these are the parts of the profile modes' slow tick that `insn.slow_tick_<mode>` shows on top of the
 /// loops).
-fn profile_generator_max() -> (u32, u32) {
+/// The profile generator's costs: (planning, in `prepare`; a command or stop as the slow tick gives it; one step).
+fn profile_generator_max() -> (u32, u32, u32) {
     use crate::control::trajectory::{ChangeMode, MotionScale, ProfileGenerator, ProfileObjects};
     let scale = MotionScale::new(4096);
     let timed = |f: &mut dyn FnMut()| {
@@ -922,7 +941,7 @@ fn profile_generator_max() -> (u32, u32) {
         compiler_fence(Ordering::SeqCst);
         counter::now().wrapping_sub(start)
     };
-    let (mut plan_max, mut step_max) = (0u32, 0u32);
+    let (mut plan_max, mut command_max, mut step_max) = (0u32, 0u32, 0u32);
     for motion_profile_type in [0i16, 1] {
         let objects = ProfileObjects {
             motion_profile_type,
@@ -932,24 +951,27 @@ fn profile_generator_max() -> (u32, u32) {
         let Ok(params) = objects.profile_params(&scale) else { continue };
         let velocity = scale.velocity_from_rpm(i64::from(MODES_RPM));
         let mut generator = black_box(ProfileGenerator::new(0));
-        plan_max = plan_max.max(timed(&mut || {
+        command_max = command_max.max(timed(&mut || {
             let _ =
                 black_box(generator.start_move(i64::from(PPM_DISTANCE_INC), false, &params, ChangeMode::Immediately));
         }));
+        // Each step, with the planning between steps as tier 2's background step runs it.
         while !generator.is_done() {
             step_max = step_max.max(timed(&mut || {
                 black_box(generator.step());
             }));
+            plan_max = plan_max.max(timed(&mut || generator.prepare()));
         }
-        plan_max = plan_max.max(timed(&mut || {
+        command_max = command_max.max(timed(&mut || {
             let _ = black_box(generator.set_velocity_target(velocity, &params));
         }));
         while !generator.is_done() {
             step_max = step_max.max(timed(&mut || {
                 black_box(generator.step());
             }));
+            plan_max = plan_max.max(timed(&mut || generator.prepare()));
         }
-        plan_max = plan_max.max(timed(&mut || generator.halt(params.deceleration)));
+        command_max = command_max.max(timed(&mut || generator.halt(params.deceleration)));
     }
-    (plan_max, step_max)
+    (plan_max, command_max, step_max)
 }

@@ -12,7 +12,7 @@
 //! |-----------------------------|------------------------------|-------------------|-------------------------|
 //! | tier-1 state (`drive::tier1::Tier1State`, power stage) | slot, set before the IRQ is unmasked | start-up, then tier 1 | tier 1 |
 //! | the drive (`drive::Drive`: dictionary, axis, supervision) | `tier2::Tier2Slot`, BASEPRI at tier 2's priority | tier 2, the EtherCAT cycle interrupts and tier 3, one at a time through `tier2::with_drive` | same |
-//! | `tier1::SETTINGS`, `tier1::SETPOINT` | `handoff::Command` (double buffer) | `tier2::with_drive` when a section ends (one at a time: inside the lock) | tier 1 |
+//! | `tier1::SETTINGS`, `tier1::SETPOINT` | `handoff::Command` (double buffer) | `tier2::with_drive` when a section ends (one at a time: under the tier-2 lock) | tier 1 |
 //! | `tier1::REPORT`             | `handoff::Report` (sequence lock) | tier 1, every tenth period after the PWM write | tier 2 |
 //! | `tier1::PERIODS_LOST`, `tier1::REPORT_MAX` | `AtomicU32`      | tier 1            | tier 3, QEMU bench      |
 //! | `tier1::PERIOD_SUPERVISED`  | `AtomicBool`                 | start-up; the QEMU bench with the timer stopped | tier 1 |
@@ -26,10 +26,10 @@
 //! | `tier2::BACKGROUND_MAX`     | `AtomicU32`                  | tier 2            | QEMU bench              |
 //! | `tier2::SLOW_MISSED`, `tier2::TIER2_TOTAL_MAX`, `tier2::REPORTS_TORN` | `AtomicU32` | tier 2 (the bench resets the total with tier 2 idle) | tier 3, QEMU bench |
 //! | `tier3::TICK`               | [`signal::TickSignal`]       | tier 2 (raise)    | tier-3 supervisor       |
-//! | `ethercat` state (SPI ESC, slave, PLL) | `tier2::Tier2Slot`, feature `ethercat` | tier 3 (poll), EXTI0/TIM3 and tier 2 (cycle), each inside the slot and `tier2::with_drive` | same |
+//! | `ethercat` state (SPI ESC, slave, PLL) | `tier2::Tier2Slot`, feature `ethercat` | tier 3 (poll), EXTI0/TIM3 and tier 2 (cycle), each in the slot, under the tier-2 lock (`tier2::with_drive`: BASEPRI, never tier 1) | same |
 //! | TIM1 registers (duties, MOE)| peripheral                   | tier 1; the panic/fault handlers force MOE off | - |
-//! | parameter flash (FLASH_CR, PARAMS_A/B) | `board::flash::ParamFlash` in `app::Params`, owned | start-up reads it (`app::boot`); then tier 3 only, erasing and programming inside `tier2::with_drive` with the power stage off and no request pending (tier 1 keeps running, stalled by the flash with its outputs off) | start-up, tier 3 |
-//! | update flash (slot A, slot B, BOOT_STATE) | `board::boot::UpdateRegion`s in [`program::BoardProgram`], owned | start-up reads slot A's header and the state log ([`program::start`]); then tier 3 only: the confirmation and the download, inside `tier2::with_drive` with the power stage off | start-up, tier 3 |
+//! | parameter flash (FLASH_CR, PARAMS_A/B) | `board::flash::ParamFlash` in `app::Params`, owned | start-up reads it (`app::boot`); then tier 3 only, erasing and programming under the tier-2 lock (`tier2::with_drive`) with the power stage off and no request pending (tier 1 keeps running, stalled by the flash with its outputs off) | start-up, tier 3 |
+//! | update flash (slot A, slot B, BOOT_STATE) | `board::boot::UpdateRegion`s in [`program::BoardProgram`], owned | start-up reads slot A's header and the state log ([`program::start`]); then tier 3 only: the confirmation and the download, under the tier-2 lock (`tier2::with_drive`) with the power stage off | start-up, tier 3 |
 //!
 //! Nothing masks tier 1: tiers 2 and 3 share the drive under BASEPRI at tier 2's priority, and tier 1 shares only
 //! the hand-off blocks (atomics, no lock) with them. The libraries' critical sections (embassy, defmt's RTT

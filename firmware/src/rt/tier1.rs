@@ -45,6 +45,9 @@ pub static SETTINGS: Command<Settings, 15> = Command::new();
 pub static REPORT: Report<Tier1Report, REPORT_WORDS> = Report::new();
 /// Periods tier 1 found lost (the time since its last run was more than one and a half periods). Writer: tier 1.
 pub static PERIODS_LOST: AtomicU32 = AtomicU32::new(0);
+/// [`FAST_TICKS`] when the last slow tick was raised: tier 2 compares it with `FAST_TICKS` after its publication
+/// (`tier2::SETPOINT_PERIODS_LATE_MAX`). Writer: tier 1.
+pub static SLOW_TICK_RAISED_AT: AtomicU32 = AtomicU32::new(0);
 /// Tier 1's periods come from the hardware, so a gap between two runs is a lost period. On from start-up on the
 /// board; in the QEMU image only while the bench's period timer runs (in its pended part the bench itself pends
 /// each period). Writer: start-up, then the QEMU bench with the timer stopped.
@@ -176,6 +179,7 @@ pub unsafe extern "C" fn on_adc() {
         REPORT.publish(&t.fast.report());
         let cost = counter::now().wrapping_sub(before);
         record_max(&REPORT_MAX, cost);
+        SLOW_TICK_RAISED_AT.store(FAST_TICKS.load(Ordering::Relaxed), Ordering::Relaxed);
         super::tier2::SLOW_TICK.raise();
     }
 }

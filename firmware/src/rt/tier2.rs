@@ -36,6 +36,10 @@ pub static SLOW_MISSED: AtomicU32 = AtomicU32::new(0);
 /// Largest whole tier-2 step of one slow period: the report taken, the background step, the slow tick and the
 /// free-run cycle (counter units). Writer: tier 2.
 pub static TIER2_TOTAL_MAX: AtomicU32 = AtomicU32::new(0);
+/// Largest number of periods that started between the raise of a slow tick and the end of its slow tick (the
+/// set-point published): 0 means the period after the one that raised it already applies the slow tick's
+/// set-point, the timing the host simulation assumes. Writer: tier 2.
+pub static SETPOINT_PERIODS_LATE_MAX: AtomicU32 = AtomicU32::new(0);
 /// Reports that could not be read whole ([`crate::handoff::Torn`]: tier 2 was held off for a whole slow period in
 /// the middle of its copy); the drive then keeps the previous one. Writer: tier 2.
 pub static REPORTS_TORN: AtomicU32 = AtomicU32::new(0);
@@ -191,6 +195,11 @@ async fn slow_loop() {
             &BACKGROUND_MAX,
         );
         let _ = with_drive_timed(app::slow_tick, &SLOW_TICK_MAX);
+        let raised_at = super::tier1::SLOW_TICK_RAISED_AT.load(Ordering::Relaxed);
+        record_max(
+            &SETPOINT_PERIODS_LATE_MAX,
+            super::tier1::FAST_TICKS.load(Ordering::Relaxed).wrapping_sub(raised_at),
+        );
         // The free-run process-data cycle (EtherCAT, feature `ethercat`): after the slow tick, as the other cycle
         // sources run between slow ticks.
         #[cfg(all(feature = "ethercat", not(feature = "qemu")))]

@@ -8,10 +8,11 @@
 //! # Time base
 //! Everything is counted in slow ticks (400 us). Tick 0 is the slow tick that first sees the set-point (PPM: the
 //! controlword with the rising bit 4; PVM: the new 0x60FF); its statusword already acknowledges it (bit 12).
-//! The profile generator samples its continuous profile once per tick starting with tick 0, so a profile of
-//! analytic duration `D` ticks ([`planned_duration_ticks`], a whole number: the ceiling of the continuous time)
-//! has its last sample, exactly on the target, at tick `D - 1`. A target-reached bit in that very tick is a
-//! delay of 0: `target_reached_delay_ticks = first tick with bit 10 - (D - 1)`.
+//! The drive plans the profile before the next tick ([`COMMAND_LATENCY_TICKS`] = `L` = 1), and the generator
+//! samples it once per tick from tick `L` on, so a profile of analytic duration `D` ticks
+//! ([`planned_duration_ticks`], a whole number: the ceiling of the continuous time) has its last sample, exactly
+//! on the target, at tick `L + D - 1`. A target-reached bit in that very tick is a delay of 0:
+//! `target_reached_delay_ticks = first tick with bit 10 - (L + D - 1)`.
 //!
 //! The analytic duration is the firmware's own planner ([`planned_duration_ticks`]) fed with the dictionary's
 //! profile objects converted exactly as the drive converts them (`ProfileObjects::profile_params` with the
@@ -21,7 +22,7 @@
 use firmware::cia402::State;
 use firmware::control::trajectory::{
     planned_duration_ticks, planned_velocity_duration_ticks, MotionScale, ProfileObjects, ProfileParams, Velocity,
-    SLOW_TICK_HZ,
+    COMMAND_LATENCY_TICKS, SLOW_TICK_HZ,
 };
 use firmware::od::generated::handles as h;
 use firmware::power_state::PowerState;
@@ -312,6 +313,12 @@ fn analytic_ticks_f64(profile_type: i16, distance: f64, p: &Profile, max_rpm: u3
 // PPM
 // ---------------------------------------------------------------------------------------------------------------
 
+/// The tick of the last sample of a profile of `analytic` ticks started by a command at tick 0: `L + D - 1`.
+#[must_use]
+pub fn last_sample_tick(analytic: u64) -> i64 {
+    i64::try_from(COMMAND_LATENCY_TICKS.saturating_add(analytic)).unwrap_or(i64::MAX).saturating_sub(1)
+}
+
 /// Figures of one absolute PPM move from rest (see the module documentation for the time base).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PpmFigures {
@@ -325,11 +332,14 @@ pub struct PpmFigures {
     pub analytic_ticks_f64: f64,
     /// Tick of the acknowledge (bit 12) relative to the tick that first saw bit 4: 0 when taken at once.
     pub ack_tick: i64,
-    /// First tick whose demand 0x6062 is the target with zero demand velocity (expected `D - 1`).
+    /// First tick with a non-zero demand velocity (expected `L` = [`COMMAND_LATENCY_TICKS`]).
+    pub motion_start_tick: i64,
+    /// First tick whose demand 0x6062 is the target with zero demand velocity (expected `L + D - 1`).
     pub trajectory_end_tick: i64,
     /// First tick after the acknowledge with statusword bit 10 set.
     pub target_reached_tick: i64,
-    /// `target_reached_tick - (D - 1)`: slow ticks bit 10 lags the end of the analytic profile (the key).
+    /// `target_reached_tick - (L + D - 1)`: slow ticks bit 10 lags the end of the analytic profile (the issue's
+    /// key).
     pub target_reached_delay_ticks: i64,
     /// Bit 10 was seen set between the acknowledge and `target_reached_tick` (it must not be).
     pub bit10_early: bool,
@@ -393,6 +403,7 @@ fn ppm_move_inner(
     m.run(HOLD_TICKS)?;
 
     let end_tick = m.since(0).find(|s| s.demand == target && s.demand_rpm == 0.0).map_or(i64::MAX, |s| s.tick);
+    let start_tick = m.since(0).find(|s| s.demand_rpm != 0.0).map_or(i64::MAX, |s| s.tick);
     let hold: Vec<&Sample> = m.since(reached.tick).collect();
     let figures = PpmFigures {
         profile_type,
@@ -400,9 +411,10 @@ fn ppm_move_inner(
         analytic_ticks: analytic,
         analytic_ticks_f64: analytic_f64,
         ack_tick: ack,
+        motion_start_tick: start_tick,
         trajectory_end_tick: end_tick,
         target_reached_tick: reached.tick,
-        target_reached_delay_ticks: reached.tick - (analytic as i64 - 1),
+        target_reached_delay_ticks: reached.tick - last_sample_tick(analytic),
         bit10_early: m.since(ack).any(|s| s.tick < reached.tick && s.bit10()),
         bit10_stays: hold.iter().all(|s| s.bit10()),
         reached_error_inc: (reached.actual.wrapping_sub(target)).abs(),
@@ -434,12 +446,13 @@ pub struct PpmSequenceFigures {
     pub speed_near_first_rpm: f64,
     /// 0x6064 - first target at the tick of that smallest speed, increments (where the axis stopped, if it did).
     pub stop_error_inc: i32,
-    /// Ticks between the first set-point and the end of the last trajectory where the demand velocity was zero.
+    /// Ticks between the start of the first motion (tick `L`) and the end of the last trajectory where the demand
+    /// velocity was zero.
     pub demand_stops_before_end: u32,
     /// The demand went from the start to the first target, then from there to the second, each leg monotonic
     /// and inside its span (no overshoot, nothing out of order).
     pub demand_in_order: bool,
-    /// First tick whose demand is the last target at rest (end of the last trajectory).
+    /// First tick whose demand is the last target at rest (end of the last trajectory; expected `L + D - 1`).
     pub trajectory_end_tick: i64,
     /// Analytic duration of the sequence, whole ticks. Set of set-points: `ceil(T1 + T2)` of the two moves from
     /// rest to rest (f64, independent of the firmware: the buffered move starts at the first one's continuous
@@ -450,7 +463,7 @@ pub struct PpmSequenceFigures {
     pub analytic_ticks_f64: f64,
     /// First tick with bit 10 after the second acknowledge.
     pub target_reached_tick: i64,
-    /// `target_reached_tick - (analytic_ticks - 1)`.
+    /// `target_reached_tick - (L + analytic_ticks - 1)`.
     pub target_reached_delay_ticks: i64,
     /// Bit 10 was seen set between the first acknowledge and `target_reached_tick`.
     pub bit10_early: bool,
@@ -498,7 +511,8 @@ fn ppm_pair(
     let near: Vec<&Sample> = m.since(0).filter(|s| (s.tick - first_tick).abs() <= 25).collect();
     let slowest = near.iter().min_by(|a, b| a.speed_rpm.abs().total_cmp(&b.speed_rpm.abs())).copied();
     let end_tick = m.since(0).find(|s| s.demand == targets[1] && s.demand_rpm == 0.0).map_or(i64::MAX, |s| s.tick);
-    let moving: Vec<&Sample> = m.since(0).filter(|s| s.tick < end_tick).collect();
+    let motion_start = i64::try_from(COMMAND_LATENCY_TICKS).unwrap_or(i64::MAX);
+    let moving: Vec<&Sample> = m.since(motion_start).filter(|s| s.tick < end_tick).collect();
     // One leg: every demand between `from` and `to`, monotonic towards `to`.
     let leg = |samples: &[&Sample], from: i32, to: i32| {
         let (lo, hi) = (from.min(to), from.max(to));
@@ -525,7 +539,7 @@ fn ppm_pair(
         analytic_ticks: analytic,
         analytic_ticks_f64: analytic_f64,
         target_reached_tick: reached.tick,
-        target_reached_delay_ticks: reached.tick - (analytic as i64 - 1),
+        target_reached_delay_ticks: reached.tick - last_sample_tick(analytic),
         bit10_early: m.since(ack1).any(|s| s.tick < reached.tick && s.bit10()),
         final_error_inc: m.last().actual.wrapping_sub(targets[1]),
         following_error_peak_inc: m.since(0).map(|s| s.following_error.abs()).max().unwrap_or(0),
@@ -574,7 +588,8 @@ pub struct PvmFigures {
     pub target_rpm: i32,
     /// Analytic duration of the ramp from rest (`planned_velocity_duration_ticks`), slow ticks.
     pub analytic_ticks: u64,
-    /// First tick with bit 10 after the target was written (tick 0 = the tick that first saw 0x60FF).
+    /// First tick with bit 10 after the target was written (tick 0 = the tick that first saw 0x60FF; the ramp
+    /// ends at `L + D - 1`).
     pub target_reached_tick: i64,
     /// True speed at that tick, rpm.
     pub reached_speed_rpm: f64,
@@ -620,7 +635,8 @@ pub struct PvmFigures {
     pub halted_speed_max_rpm: f64,
     /// Position change over those 100 ms, increments.
     pub halted_drift_inc: i32,
-    /// First tick with bit 10 again counted from the first tick that saw bit 8 cleared.
+    /// First tick with bit 10 again counted from the first tick that saw bit 8 cleared (the ramp ends at
+    /// `L + D - 1`).
     pub resume_ticks: i64,
     /// Mean true speed over 100 ms after the resumed target was reached, rpm.
     pub resumed_mean_rpm: f64,

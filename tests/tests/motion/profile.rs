@@ -2,15 +2,16 @@
 //! (trapezoidal and sin²), set of set-points, change on the fly; PVM reaching and holding a velocity, the speed
 //! bit, halt and release.
 //!
-//! The figures come from `hal_sim::scenarios::profile` (its module documentation fixes the time base: tick 0 is the slow
-//! tick that takes the set-point, a profile of `D` ticks has its last sample at tick `D - 1`, and a delay of 0
-//! means the bit rises in that very tick). Gains, windows and profile objects are the dictionary defaults
+//! The figures come from `hal_sim::scenarios::profile` (its module documentation fixes the time base: tick 0 is the
+//! slow tick that takes the set-point, the motion starts `L` = `COMMAND_LATENCY_TICKS` = 1 tick later, a profile of
+//! `D` ticks has its last sample at tick `L + D - 1`, and a delay of 0 means the bit rises in that very tick). Gains, windows and profile objects are the dictionary defaults
 //! unless a test says otherwise: 0x6067 = 10 inc, 0x6068 = 0 ms, 0x606D = 30 rpm, 0x606E = 0 ms, 0x606F = 10 rpm,
 //! 0x6081 = 1,000 rpm, 0x6083 = 0x6084 = 10,000 rpm/s. The position window is the issue's default; with a
 //! 1-increment window the bound still holds (`ppm_bound_holds_with_a_one_increment_window`), only a 0-increment
 //! window is beyond the plant (the last increment against 3 mNm of Coulomb friction takes the integral tens of
 //! ticks after a sin² move).
 
+use firmware::control::trajectory::COMMAND_LATENCY_TICKS;
 use hal_sim::scenarios::profile::{self, PpmFigures, PpmSequenceFigures, Profile, PvmFigures, SPEED_RESOLUTION_RPM};
 
 /// 0x6067 default, increments.
@@ -28,18 +29,20 @@ const MOVES: [(i32, Profile); 3] = [(20_480, Profile::DEFAULT), (40_960, Profile
 
 /// The bounds of one PPM move.
 ///
-/// - The set-point is acknowledged (bit 12) in the tick that sees bit 4 (the generator has room).
+/// - The set-point is acknowledged (bit 12) in the tick that sees bit 4 (the generator has room); the demand
+///   starts moving `COMMAND_LATENCY_TICKS` (1) later (the drive plans the profile between the two ticks).
 /// - `planned_duration_ticks` is the ceiling of the independent f64 duration (so the analytic time is the
-///   profile's, not an artefact of the firmware's planner), and the demand arrives exactly at tick `D - 1`.
+///   profile's, not an artefact of the firmware's planner), and the demand arrives exactly at tick `L + D - 1`.
 /// - Bit 10 rises between the end of the trajectory and 2 ticks later (issue), never earlier, and stays while
 ///   the axis holds: the position error stays inside the window (10 inc; measured 0 to 2 inc).
 /// - Peak following error 0x60F4 <= 30 inc: the issue's CSP bound, reused as a sanity check of the position loop
 ///   under the profile's feed-forward (measured 1 to 4 inc).
 fn check_move(f: &PpmFigures, what: &str) {
     assert_eq!(f.ack_tick, 0, "{what}: {f:?}");
+    assert_eq!(f.motion_start_tick, COMMAND_LATENCY_TICKS as i64, "{what}: {f:?}");
     let rounding = f.analytic_ticks as f64 - f.analytic_ticks_f64;
     assert!((0.0..1.0).contains(&rounding), "{what}: analytic time {f:?}");
-    assert_eq!(f.trajectory_end_tick, f.analytic_ticks as i64 - 1, "{what}: {f:?}");
+    assert_eq!(f.trajectory_end_tick, profile::last_sample_tick(f.analytic_ticks), "{what}: {f:?}");
     assert!((0..=DELAY_BOUND_TICKS).contains(&f.target_reached_delay_ticks), "{what}: {f:?}");
     assert!(!f.bit10_early && f.bit10_stays, "{what}: {f:?}");
     assert!(f.final_error_inc.abs() <= POSITION_WINDOW_INC, "{what}: {f:?}");
@@ -126,7 +129,7 @@ fn ppm_set_of_set_points_stops_at_each_target_in_order() {
                 assert!(f.demand_rpm_near_first <= 4.0, "{what}: the demand stops at the first target {f:?}");
                 assert!(f.speed_near_first_rpm <= VELOCITY_THRESHOLD_RPM, "{what}: the axis stops {f:?}");
                 assert!(f.stop_error_inc.abs() <= POSITION_WINDOW_INC, "{what}: where it stops {f:?}");
-                assert_eq!(f.trajectory_end_tick, f.analytic_ticks as i64 - 1, "{what}: {f:?}");
+                assert_eq!(f.trajectory_end_tick, profile::last_sample_tick(f.analytic_ticks), "{what}: {f:?}");
             }
         }
     }
@@ -151,7 +154,7 @@ fn ppm_change_on_the_fly_goes_to_the_new_target_without_stopping() {
             assert_eq!(f.demand_stops_before_end, 0, "{what}: {f:?}");
             assert!(f.demand_rpm_near_first >= 990.0, "{what}: {f:?}");
             assert!(f.speed_near_first_rpm >= 900.0, "{what}: {f:?}");
-            let end = f.analytic_ticks as i64 - 1;
+            let end = profile::last_sample_tick(f.analytic_ticks);
             assert!((end..=end + 1).contains(&f.trajectory_end_tick), "{what}: {f:?}");
         }
     }
@@ -187,7 +190,10 @@ fn pvm_reaches_and_holds_the_target_velocity() {
         let what = format!("seed {seed} {} rpm", f.target_rpm);
         let target = f64::from(f.target_rpm);
         assert!(f.bit10_at_rest, "{what}: {f:?}");
-        assert!(f.target_reached_tick <= f.analytic_ticks as i64 - 1 + DELAY_BOUND_TICKS, "{what}: {f:?}");
+        assert!(
+            f.target_reached_tick <= profile::last_sample_tick(f.analytic_ticks) + DELAY_BOUND_TICKS,
+            "{what}: {f:?}"
+        );
         assert!((f.reached_speed_rpm - target).abs() <= VELOCITY_WINDOW_RPM + SPEED_RESOLUTION_RPM, "{what}: {f:?}");
         assert!(f.bit10_held, "{what}: {f:?}");
         assert!(f.ripple_peak_rpm <= VELOCITY_WINDOW_RPM, "{what}: {f:?}");
@@ -236,7 +242,7 @@ fn pvm_halt_stops_and_release_resumes() {
         assert!(f.halted_drift_inc.abs() <= POSITION_WINDOW_INC, "{what}: {f:?}");
         assert_eq!(f.halted_bit12_clear_unexplained, 0, "{what}: {f:?}");
         assert_eq!(f.halted_bit12_clear_ticks, 0, "{what}: {f:?}");
-        assert!(f.resume_ticks <= f.analytic_ticks as i64 - 1 + DELAY_BOUND_TICKS, "{what}: {f:?}");
+        assert!(f.resume_ticks <= profile::last_sample_tick(f.analytic_ticks) + DELAY_BOUND_TICKS, "{what}: {f:?}");
         assert!((f.resumed_mean_rpm - f64::from(f.target_rpm)).abs() <= 2.0, "{what}: {f:?}");
     }
 }

@@ -13,7 +13,7 @@
 //! Both shapes cover the same distance in the same time for the same mean acceleration, so the planner works with
 //! the mean acceleration (`A` linear, `A / 2` sin²) and the shape only enters the per-tick evaluation.
 //!
-//! # Planning (done once per command, never per tick)
+//! # Planning (done once per command, never per tick, and never inside a step when the drive plans ahead)
 //! A move is planned in continuous time as up to four segments, each a velocity ramp (or a cruise) with a start
 //! time, a duration, a start position and velocity, all exact fixed-point values:
 //!
@@ -63,8 +63,9 @@
 //! product each) and one division in 32-bit digits ([`super::wide`]); a sin² ramp adds two Taylor-series sines
 //! (7 multiply steps each, error below 1e-11). Planning a move: about five divisions, a square root and a few
 //! dozen multiply-shifts. Up to about 2,100 instructions per sample and 8,400 per plan on the Cortex-M4; the
-//! divisions are most of it, and a planner in 64-bit formats with the rates' reciprocals taken when the
-//! parameters change would need fewer.
+//! divisions are most of it. A plan does not fit the slow tick's budget beside the loops, so it is made between
+//! two slow ticks ([`ProfileGenerator::prepare`], in tier 2's background step), and a new set-point moves the
+//! axis from the slow tick after the one that takes it (the generator's "When a command takes effect").
 
 mod generator;
 mod params;
@@ -86,6 +87,11 @@ use crate::hal::power::{PWM_FREQUENCY_HZ, SLOW_TICK_DIVIDER};
 pub const SLOW_TICK_HZ: u32 = PWM_FREQUENCY_HZ / SLOW_TICK_DIVIDER;
 /// The slow tick in microseconds: 400.
 pub const SLOW_TICK_MICROS: u32 = 1_000_000 / SLOW_TICK_HZ;
+
+/// Slow ticks from the tick that takes a move or velocity command (PPM set-point, PVM target velocity, a homing
+/// phase's motion) to the first tick of its motion: the command is planned between the two
+/// ([`ProfileGenerator::prepare`]). Halt and quick stop act in the tick that takes them.
+pub const COMMAND_LATENCY_TICKS: u64 = 1;
 
 /// 1.0 in Q32.
 pub(crate) const ONE_Q32: i128 = 1 << 32;

@@ -214,10 +214,25 @@ impl Plan {
         }
     }
 
-    /// At `position` (Q32 inc) moving at `velocity` (Q32 inc/tick) from now on: a velocity command whose ramp is
-    /// over.
-    pub(super) fn endless(position: i128, velocity: i128) -> Self {
-        Self { end_velocity: velocity, kind: PlanKind::Velocity, ..Self::rest(position) }
+    /// At rest at `position` (Q32 inc), nothing planned, in place ([`Self::rest`] without writing the segments,
+    /// which are left as they are, beyond the length).
+    pub(super) fn set_rest(&mut self, position: i128) {
+        self.len = 0;
+        self.duration = 0;
+        self.end_position = position;
+        self.end_velocity = 0;
+        self.residual_rate = 0;
+        self.approach = 0;
+        self.kind = PlanKind::Idle;
+        self.limits = None;
+    }
+
+    /// At `position` (Q32 inc) moving at `velocity` (Q32 inc/tick) from now on, in place: a velocity command whose
+    /// ramp is over.
+    pub(super) fn set_endless(&mut self, position: i128, velocity: i128) {
+        self.set_rest(position);
+        self.end_velocity = velocity;
+        self.kind = PlanKind::Velocity;
     }
 
     pub(super) fn eval(&self, t: i128) -> State {
@@ -252,18 +267,21 @@ impl Plan {
 }
 
 /// Appends segments, tracking the time, position and velocity at the end of the last one.
-struct Builder {
-    segments: [Segment; MAX_SEGMENTS],
-    len: usize,
+struct Builder<'a> {
+    /// The plan being written, in place (a plan is several hundred bytes: building it elsewhere and copying it
+    /// would cost more than some of the arithmetic).
+    plan: &'a mut Plan,
     t: i128,
     p: i128,
     v: i128,
     shape: ProfileType,
 }
 
-impl Builder {
-    fn new(p: i128, v: i128, shape: ProfileType) -> Self {
-        Self { segments: [Segment::default(); MAX_SEGMENTS], len: 0, t: 0, p, v, shape }
+impl<'a> Builder<'a> {
+    /// Starts writing `plan` anew (its old segments are overwritten or left beyond its length).
+    fn new(plan: &'a mut Plan, p: i128, v: i128, shape: ProfileType) -> Self {
+        plan.len = 0;
+        Self { plan, t: 0, p, v, shape }
     }
 
     /// Ramps to `v1` at the mean rate `rate` (Q40, > 0).
@@ -295,9 +313,9 @@ impl Builder {
 
     fn push(&mut self, seg: Segment) {
         let end = seg.eval(seg.duration);
-        if let Some(slot) = self.segments.get_mut(self.len) {
+        if let Some(slot) = self.plan.segments.get_mut(self.plan.len) {
             *slot = seg;
-            self.len = self.len.saturating_add(1);
+            self.plan.len = self.plan.len.saturating_add(1);
             self.t = seg.end();
             self.p = end.p;
         }
@@ -306,25 +324,20 @@ impl Builder {
         self.v = seg.v1();
     }
 
-    fn finish(self, kind: PlanKind, end_position: i128, end_velocity: i128, limits: Option<Limits>) -> Plan {
+    fn finish(self, kind: PlanKind, end_position: i128, end_velocity: i128, limits: Option<Limits>) {
         let residual = end_position.saturating_sub(self.p);
         let duration = self.t;
-        let residual_rate = if duration > 0 { div_shl(residual, duration, 32) } else { 0 };
-        let approach = match self.segments.get(self.len.saturating_sub(1)) {
-            Some(last) if self.len > 0 && end_velocity == 0 => last.v0.signum(),
+        let plan = self.plan;
+        plan.residual_rate = if duration > 0 { div_shl(residual, duration, 32) } else { 0 };
+        plan.approach = match plan.segments.get(plan.len.saturating_sub(1)) {
+            Some(last) if plan.len > 0 && end_velocity == 0 => last.v0.signum(),
             _ => 0,
         };
-        Plan {
-            segments: self.segments,
-            len: self.len,
-            duration,
-            end_position,
-            end_velocity,
-            residual_rate,
-            approach,
-            kind,
-            limits,
-        }
+        plan.duration = duration;
+        plan.end_position = end_position;
+        plan.end_velocity = end_velocity;
+        plan.kind = kind;
+        plan.limits = limits;
     }
 }
 
@@ -349,16 +362,17 @@ pub(super) fn twice_rate_distance(rate: i128, distance: i128) -> i128 {
 }
 
 /// Plans a position move from (`p0`, `v0`) to `target` (Q32 inc), arriving with `end_velocity` (signed, in the
-/// direction of the move; 0 for a normal move).
+/// direction of the move; 0 for a normal move), into `out`.
 pub(super) fn plan_position(
+    out: &mut Plan,
     p0: i128,
     v0: i128,
     target: i128,
     target_inc: i64,
     end_velocity: i128,
     lim: Limits,
-) -> Plan {
-    let mut b = Builder::new(p0, v0, lim.shape);
+) {
+    let mut b = Builder::new(out, p0, v0, lim.shape);
     // Two passes at most: a stop (moving away, or overshoot) makes the second pass start at rest.
     for _ in 0..2 {
         let d = target.saturating_sub(b.p);
@@ -428,9 +442,9 @@ pub(super) fn plan_position(
 }
 
 /// Plans a velocity command from (`p0`, `v0`) to `target` (Q32 inc/tick): stop first if the sign changes, ramp up
-/// with the acceleration and down with the deceleration, then keep the velocity.
-pub(super) fn plan_velocity(p0: i128, v0: i128, target: i128, lim: Limits) -> Plan {
-    let mut b = Builder::new(p0, v0, lim.shape);
+/// with the acceleration and down with the deceleration, then keep the velocity. Into `out`.
+pub(super) fn plan_velocity(out: &mut Plan, p0: i128, v0: i128, target: i128, lim: Limits) {
+    let mut b = Builder::new(out, p0, v0, lim.shape);
     if v0 != 0 && target != 0 && v0.signum() != target.signum() {
         b.ramp_to(0, lim.dec);
     }
@@ -440,9 +454,10 @@ pub(super) fn plan_velocity(p0: i128, v0: i128, target: i128, lim: Limits) -> Pl
     b.finish(PlanKind::Velocity, p, v, Some(lim))
 }
 
-/// Plans a stop from (`p0`, `v0`) with the mean deceleration `dec`, ending at rest on a whole increment.
-pub(super) fn plan_stop(p0: i128, v0: i128, dec: i128, shape: ProfileType) -> Plan {
-    let mut b = Builder::new(p0, v0, shape);
+/// Plans a stop from (`p0`, `v0`) with the mean deceleration `dec`, ending at rest on a whole increment, into
+/// `out`.
+pub(super) fn plan_stop(out: &mut Plan, p0: i128, v0: i128, dec: i128, shape: ProfileType) {
+    let mut b = Builder::new(out, p0, v0, shape);
     b.ramp_to(0, dec.max(1));
     let end = round_shr(b.p, 32).saturating_mul(ONE_Q32);
     b.finish(PlanKind::Stop, end, 0, None)
