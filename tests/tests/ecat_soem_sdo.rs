@@ -202,9 +202,9 @@ fn parameters_of_several_types_write_and_read_back_and_bad_writes_abort_with_the
     }
     let d = Dictionary::new(1);
     let mut cases: Vec<Case> = Vec::new();
-    for data_type in
-        [DataType::Unsigned8, DataType::Unsigned16, DataType::Integer16, DataType::Integer32, DataType::Unsigned32]
-    {
+    // Every type that has a ranged parameter (INTEGER16 had one, the analog input offset 0x3163, which left the
+    // dictionary with the analog inputs; INTEGER32 covers the signed range checks).
+    for data_type in [DataType::Unsigned8, DataType::Unsigned16, DataType::Integer32, DataType::Unsigned32] {
         let e = parameter_of(&d, data_type);
         let size = data_type.fixed_size().expect("fixed size");
         let (min, max) = match e.limits {

@@ -383,6 +383,7 @@ impl Drive {
         self.refresh_parameters();
         self.publish_actual_values();
         self.axis.refresh(&mut self.dictionary);
+        self.axis.publish_velocity_actual_values(&mut self.dictionary);
         // 0x1015 EMCY inhibit time (CiA 301), taken over when it changes.
         let inhibit = InhibitTime(self.dictionary.get(h::INHIBIT_TIME_EMCY));
         if inhibit != self.axis.faults().emcy().inhibit_time() {

@@ -30,6 +30,7 @@ use super::monitor::{ticks_from_ms, Monitor};
 use super::params::MotionParams;
 use super::profile_position::{PpmInput, ProfilePosition};
 use super::profile_velocity::{ProfileVelocity, PvmInput};
+use super::torque_ramp::TorqueRamp;
 use super::{AxisFeedback, LoopDemand, ModeStatus, ModeStep};
 use crate::cia402::machine::{Config, Inputs, Motion, PowerStage, StateMachine, StatusInputs, Stop, StopThen};
 use crate::cia402::{Controlword, Mode, State, StatusFlags, Statusword, StopRamp, Ticks, Transition};
@@ -38,6 +39,7 @@ use crate::control::frames::Amps;
 use crate::control::interpolator::CyclicSetpoint;
 use crate::control::trajectory::{Acceleration, ProfileGenerator, Setpoint, Velocity};
 use crate::control::velocity_estimate::PositionWindow;
+use crate::control::wide::sat_i32;
 use crate::fault::i2t::{I2tConfig, MotorI2t};
 use crate::fault::snapshot::DiagnosisSnapshot;
 use crate::fault::table::FaultId;
@@ -153,6 +155,10 @@ pub struct Axis {
     pvm: ProfileVelocity,
     /// Motor I2t (0x3200:01), with its configuration from 0x3001 and the raw values it was built from.
     i2t: MotorI2t,
+    /// The torque ramp of a CST stop with the slow-down ramp (set when such a stop starts).
+    torque_ramp: Option<TorqueRamp>,
+    /// 0x30D3:01's filter state: the velocity estimate through a first-order 5 Hz low-pass ([`average_velocity`]).
+    velocity_average: Velocity,
     i2t_config: I2tConfig,
     i2t_objects: (u32, u32, u16),
     i2t_warning: bool,
@@ -190,6 +196,8 @@ impl Axis {
             last_position: 0,
             limit_seen: [false; 2],
             i2t: MotorI2t::new(),
+            velocity_average: Velocity::ZERO,
+            torque_ramp: None,
             i2t_warning: false,
             i2t_current_limit_ma: u32::MAX,
             i2t_config: I2tConfig::from_od(
@@ -388,6 +396,16 @@ impl Axis {
         }
     }
 
+    /// Publishes the velocity actual values beside 0x606C from the last step's estimate: 0x6069 (the estimate in
+    /// increments per second, EPOS3 L7006) and 0x30D3:01 (0x606C through a 5 Hz low-pass, stepped here once per
+    /// slow period). The drive runs it in the background step, outside the slow tick's budget.
+    pub fn publish_velocity_actual_values(&mut self, d: &mut Dictionary) {
+        let velocity = self.velocity();
+        d.set(h::VELOCITY_SENSOR_ACTUAL_VALUE, sat_i32(i128::from(velocity.to_inc_per_s())));
+        self.velocity_average = average_velocity(self.velocity_average, velocity);
+        d.set(h::VELOCITY_ACTUAL_VALUE_AVERAGED, self.params.rpm(self.velocity_average));
+    }
+
     /// Plans the profile move, velocity command or buffered move the next step takes into force
     /// ([`ProfileGenerator::prepare`]); the drive runs it before each step, outside the step's time budget.
     pub fn prepare_motion(&mut self) {
@@ -536,8 +554,22 @@ impl Axis {
             Motion::Stop(stop) => {
                 let started = matches!(self.activity, Activity::Stopping { stop: s, .. } if s == stop);
                 if !started {
-                    let on_current_limit = self.begin_stop(stop, fb);
+                    // CST's slow-down ramp is the torque slope 0x6087 (`torque_ramp`), from the torque demand 0x6074.
+                    let cst = self.activity == Activity::Following(Mode::CyclicSyncTorque);
+                    self.torque_ramp = (cst && stop.ramp == StopRamp::SlowDown)
+                        .then(|| TorqueRamp::new(i32::from(d.get(h::TORQUE_DEMAND_VALUE)), d.get(h::TORQUE_SLOPE)));
+                    if self.torque_ramp.is_some() {
+                        // The generator stays where the demand is, for whatever follows the stop.
+                        self.take_over_generator(fb.position);
+                    }
+                    let on_current_limit = self.torque_ramp.is_none() && self.begin_stop(stop, fb);
                     self.activity = Activity::Stopping { stop, on_current_limit };
+                }
+                if let Some(ramp) = &mut self.torque_ramp {
+                    let permille = ramp.step();
+                    self.standstill = ramp.done();
+                    let step = ModeStep { demand: LoopDemand::Torque { permille }, status: ModeStatus::default() };
+                    return (Some(step), fb.position);
                 }
                 let on_current_limit = matches!(self.activity, Activity::Stopping { on_current_limit: true, .. });
                 let standstill = self.monitor.standstill(fb.velocity, fb.now);
@@ -781,6 +813,16 @@ impl Axis {
         d.set(h::VELOCITY_ACTUAL_VALUE, self.params.rpm(velocity));
         self.faults.publish(d);
     }
+}
+
+/// One step of 0x30D3:01's first-order low-pass at the slow tick: `y += (x - y) k`, `k` = 823 / 2^16 = 2 pi 5 Hz /
+/// 2,500 Hz, a 5.0 Hz cut-off (IDX L4804 "velocity actual value averaged").
+fn average_velocity(average: Velocity, velocity: Velocity) -> Velocity {
+    /// `k` in Q16.
+    const K_Q16: i64 = 823;
+    let (y, x) = (average.to_bits(), velocity.to_bits());
+    // Saturates only for a difference above 2^53 (2^21 inc per tick), far beyond any sensor.
+    Velocity::from_bits(y.saturating_add(x.saturating_sub(y).saturating_mul(K_Q16) >> 16))
 }
 
 /// Whether the activity's demand comes from the shared trajectory generator (so it is already continuous).

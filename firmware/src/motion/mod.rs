@@ -13,7 +13,8 @@
 //!
 //! Files: [`profile_position`] (PPM, 0x6060 = 1), [`profile_velocity`] (PVM, 3), [`homing`] (HMM, 6) hold the
 //! modes; [`axis`] ties them, the cyclic modes (8, 9, 10), the stops of the CiA 402 machine, the position and
-//! velocity loops and the monitoring together for [`crate::drive::Drive::slow_tick`].
+//! velocity loops and the monitoring together for [`crate::drive::Drive::slow_tick`]; [`torque_ramp`] is CST's
+//! slow-down ramp (torque slope 0x6087).
 
 pub mod axis;
 pub mod cyclic;
@@ -23,6 +24,7 @@ pub mod monitor;
 pub mod params;
 pub mod profile_position;
 pub mod profile_velocity;
+pub mod torque_ramp;
 
 use crate::cia402::Ticks;
 use crate::control::trajectory::{Acceleration, Setpoint, Velocity};

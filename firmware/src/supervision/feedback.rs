@@ -48,6 +48,10 @@
 //!    following error (0x8611, the position loop pushes while the position does not move) or as the stall
 //!    supervision's «motor blocked» (the current at its limit with no motion).
 //!
+//! Checks 2, 3 and 4 watch the main sensor (the encoder); bit 8 of 0x3000:04 "main sensor supervision disabled"
+//! (IDX Table 6-98) turns them off: their watches restart and their causes clear, so a fault they raised can be
+//! reset. Check 1 watches the Halls and stays on.
+//!
 //! Checks 3 and 4 run in every state (the position is published in every state, and a sensor fault found with
 //! the outputs off is still a fault); entering the offset calibration (switch-on) restarts them, because
 //! `Drive::switch_on` re-reads the sensor configuration and may restart the encoder's position at 0.
@@ -73,6 +77,8 @@ use crate::od::generated::handles as h;
 use crate::power_state::{CommutationStage, PowerState};
 use crate::sensors::hall::HallSector;
 
+/// Bit 8 of 0x3000:04 "axis configuration miscellaneous": main sensor supervision disabled (IDX Table 6-98).
+pub const MAIN_SENSOR_SUPERVISION_DISABLED: u32 = 1 << 8;
 /// Consecutive slow ticks of an invalid Hall state before [`FaultId::HallInvalidState`] (0.4 to 0.8 ms).
 pub const INVALID_HALL_TICKS: u8 = 2;
 /// Consecutive slow ticks of disagreement before [`FaultId::HallEncoderMismatch`] (1.2 ms): one disturbed Hall
@@ -300,6 +306,8 @@ pub struct FeedbackSupervision {
     held_ticks: u8,
     index: IndexWatch,
     signal: SignalLossWatch,
+    /// Bit 8 of 0x3000:04 clear: checks 2 to 4 run.
+    main_sensor_supervised: bool,
 }
 
 impl FeedbackSupervision {
@@ -311,9 +319,11 @@ impl FeedbackSupervision {
         s
     }
 
-    /// Re-reads 0x6080 (max motor speed), which sets the Hall/encoder tolerance.
+    /// Re-reads 0x6080 (max motor speed), which sets the Hall/encoder tolerance, and bit 8 of 0x3000:04 (main
+    /// sensor supervision disabled).
     pub fn refresh(&mut self, d: &Dictionary) {
         self.max_speed_rpm = d.get(h::MAX_MOTOR_SPEED);
+        self.main_sensor_supervised = d.get(h::AXIS_CONFIGURATION_MISC) & MAIN_SENSOR_SUPERVISION_DISABLED == 0;
     }
 
     /// The Hall/encoder tolerance in use.
@@ -328,6 +338,15 @@ impl FeedbackSupervision {
         // Entering the calibration (switch-on) may restart the encoder's position: the position watches restart.
         let restart = matches!(inputs.power, PowerState::Calibrating);
         self.invalid_hall(inputs, sector.is_none(), faults);
+        if !self.main_sensor_supervised {
+            self.index = IndexWatch::default();
+            self.signal = SignalLossWatch::default();
+            (self.mismatch_ticks, self.held_ticks) = (0, 0);
+            for id in [FaultId::EncoderSignalLoss, FaultId::HallEncoderMismatch, FaultId::EncoderIndexMissing] {
+                faults.clear_cause(id);
+            }
+            return;
+        }
         self.signal_loss(inputs, sector, restart, faults);
         self.mismatch(inputs, sector, faults);
         self.index(inputs, restart, faults);
@@ -578,6 +597,44 @@ mod tests {
             }
         }
         assert!(!faults.any_fault());
+    }
+
+    /// 0x3000:04 bit 8 (IDX Table 6-98 "main sensor supervision disabled"): a stopped encoder counter under
+    /// turning Halls raises 0x7380 with the bit clear; with it set, the same run raises nothing, and setting it
+    /// while the fault is active clears the cause, so the fault can be reset. The Hall check stays on.
+    #[test]
+    fn bit_8_of_0x3000_04_turns_the_main_sensor_checks_off() {
+        let run = |s: &mut FeedbackSupervision, faults: &mut FaultManager| {
+            let mut pos = 0.5;
+            for _ in 0..100 {
+                pos += 20.48;
+                let mut i = at(pos, 0.0);
+                if pos > 60.0 {
+                    i.encoder_position = 60;
+                    i.electrical_angle = ElectricalAngle((60.0 * 7.0 / 4096.0 * 360.0 * DEG) as u32);
+                }
+                s.step(&i, faults);
+            }
+        };
+        let mut d = Dictionary::new(1);
+        let mut s = FeedbackSupervision::new(&d);
+        let mut faults = FaultManager::new();
+        run(&mut s, &mut faults);
+        assert!(faults.is_active(FaultId::EncoderSignalLoss), "supervised: the stopped counter is found");
+        assert!(faults.reset_request().is_err(), "the cause persists");
+        d.set(h::AXIS_CONFIGURATION_MISC, MAIN_SENSOR_SUPERVISION_DISABLED);
+        s.refresh(&d);
+        s.step(&at(300.5, 0.0), &mut faults);
+        assert!(faults.reset_request().is_ok(), "the disabled check no longer holds its cause");
+        let mut s = FeedbackSupervision::new(&d);
+        let mut faults = FaultManager::new();
+        run(&mut s, &mut faults);
+        assert!(!faults.any_fault(), "not supervised: nothing raised");
+        // The Hall check is not the main sensor's: still on.
+        let invalid = SupervisionInputs { hall: 0, ..inputs() };
+        s.step(&invalid, &mut faults);
+        s.step(&invalid, &mut faults);
+        assert!(faults.is_active(FaultId::HallInvalidState));
     }
 
     #[test]

@@ -8,3 +8,4 @@ mod properties;
 mod sdo_coe;
 mod sdo_server;
 mod support;
+mod writable;
