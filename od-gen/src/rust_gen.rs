@@ -222,7 +222,7 @@ pub fn rust(d: &Description) -> Result<String, String> {
             let _ = writeln!(
                 w,
                 "    Entry {{ index: 0x{:04X}, sub: 0x{:02X}, name: {:?}, object_code: {}, data_type: {}, access: {}, \
-                 pdo: {}, persistent: {}, write_condition: {}, limits: {}, storage: {}, node_id_relative: {} }},",
+                 pdo: {}, persistent: {}, write_condition: {}, limits: &{}, storage: {}, node_id_relative: {} }},",
                 o.index,
                 s.sub,
                 s.name,

@@ -81,11 +81,11 @@ fn entry(index: u16, sub: u8) -> &'static entry::Entry {
 
 #[test]
 fn limits_storage_and_node_id_defaults() {
-    assert_eq!(entry(0x605A, 0).limits, Limits::OneOf(&[0, 1, 2, 5, 6]));
+    assert_eq!(*entry(0x605A, 0).limits, Limits::OneOf(&[0, 1, 2, 5, 6]));
     // Only `min` given: the type's maximum fills in.
-    assert_eq!(entry(0x6060, 0).limits, Limits::Signed { min: -1, max: 127 });
-    assert_eq!(entry(0x1400, 2).limits, Limits::Unsigned { min: 0, max: 255 });
-    assert_eq!(entry(0x6040, 0).limits, Limits::None);
+    assert_eq!(*entry(0x6060, 0).limits, Limits::Signed { min: -1, max: 127 });
+    assert_eq!(*entry(0x1400, 2).limits, Limits::Unsigned { min: 0, max: 255 });
+    assert_eq!(*entry(0x6040, 0).limits, Limits::None);
     assert_eq!(entry(0x1008, 0).storage, Storage::Const(b"FIX-1"));
     assert_eq!(entry(0x1018, 1).storage, Storage::Const(&[0xCE, 0x0A, 0x00, 0x00]));
     assert_eq!(entry(0x1F50, 1).storage, Storage::Application);

@@ -262,7 +262,7 @@ mod tests {
             pdo,
             persistent: false,
             write_condition: WriteCondition::Always,
-            limits: Limits::None,
+            limits: &Limits::None,
             storage,
             node_id_relative: false,
         }

@@ -285,7 +285,7 @@ fn check_value(entry: &Entry, value: i128) -> Result<(), SdoAbort> {
     if entry.data_type == DataType::Boolean && !(0..=1).contains(&value) {
         return Err(SdoAbort::InvalidValue);
     }
-    let (min, max) = match entry.limits {
+    let (min, max) = match *entry.limits {
         Limits::None => return Ok(()),
         Limits::Signed { min, max } => (i128::from(min), i128::from(max)),
         Limits::Unsigned { min, max } => (i128::from(min), i128::from(max)),
@@ -588,7 +588,7 @@ mod tests {
             pdo: PdoMapping::No,
             persistent: false,
             write_condition: WriteCondition::Always,
-            limits: Limits::None,
+            limits: &Limits::None,
             storage,
             node_id_relative: false,
         }
@@ -604,7 +604,7 @@ mod tests {
         let mut e = entry(index, sub, data_type, Access::ReadWrite, ram(offset, len));
         e.write_condition = WriteCondition::PreOperational;
         if sub == 0 {
-            e.limits = Limits::Unsigned { min: 0, max: 2 };
+            e.limits = &Limits::Unsigned { min: 0, max: 2 };
         }
         e
     }
@@ -614,7 +614,7 @@ mod tests {
         e
     }
 
-    const fn limited(mut e: Entry, limits: Limits) -> Entry {
+    const fn limited(mut e: Entry, limits: &'static Limits) -> Entry {
         e.limits = limits;
         e
     }
@@ -630,11 +630,11 @@ mod tests {
         entry(0x2101, 0, DataType::OctetString, Access::ReadWrite, ram(19, 4)),
         pdo(entry(0x6040, 0, DataType::Unsigned16, Access::ReadWrite, ram(23, 2)), PdoMapping::Rx),
         pdo(entry(0x6041, 0, DataType::Unsigned16, Access::ReadOnly, ram(25, 2)), PdoMapping::Tx),
-        limited(entry(0x605A, 0, DataType::Integer16, Access::ReadWrite, ram(27, 2)), Limits::OneOf(&[0, 1, 2, 5, 6])),
+        limited(entry(0x605A, 0, DataType::Integer16, Access::ReadWrite, ram(27, 2)), &Limits::OneOf(&[0, 1, 2, 5, 6])),
         pdo(
             limited(
                 entry(0x607A, 0, DataType::Integer32, Access::ReadWrite, ram(29, 4)),
-                Limits::Signed { min: -1000, max: 1000 },
+                &Limits::Signed { min: -1000, max: 1000 },
             ),
             PdoMapping::Rx,
         ),

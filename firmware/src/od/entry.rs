@@ -71,8 +71,9 @@ pub struct Entry {
     pub persistent: bool,
     /// When writes are accepted.
     pub write_condition: WriteCondition,
-    /// Range for writes.
-    pub limits: Limits,
+    /// Range for writes. A reference: most entries share a few ranges, and a 4-byte pointer instead of the
+    /// 24-byte enum in each of the several hundred entries saves about 8.5 KB of flash (56 to 36 bytes an entry).
+    pub limits: &'static Limits,
     /// Where the value lives.
     pub storage: Storage,
     /// The default is the declared value plus the node-ID (CiA 301 `$NODEID+` defaults of COB-IDs).

@@ -193,7 +193,7 @@ mod tests {
             pdo: PdoMapping::No,
             persistent: false,
             write_condition: WriteCondition::Always,
-            limits: Limits::None,
+            limits: &Limits::None,
             storage: Storage::Ram { offset, len },
             node_id_relative,
         }

@@ -46,7 +46,7 @@ fn ram_entry(index: u16, sub: u8, data_type: DataType, persistent: bool, offset:
         pdo: PdoMapping::No,
         persistent,
         write_condition: WriteCondition::Always,
-        limits: Limits::None,
+        limits: &Limits::None,
         storage: Storage::Ram { offset, len },
         node_id_relative: false,
     }
