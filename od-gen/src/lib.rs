@@ -28,8 +28,14 @@ pub fn load_str(text: &str, path: &str) -> Result<model::Description, String> {
 /// Every generated file of a validated description, as (file name, contents), in a fixed order:
 /// `od_generated.rs`, `object-reference.md`, `drive.eds`, `drive-esi.xml`, `drive-sii.bin`.
 pub fn render(d: &model::Description) -> Result<Vec<(&'static str, Vec<u8>)>, String> {
+    render_with_names(d, true)
+}
+
+/// [`render`], with the names in `od_generated.rs` or without them ([`rust_gen::rust_with_names`]); the other
+/// files always name everything.
+pub fn render_with_names(d: &model::Description, names: bool) -> Result<Vec<(&'static str, Vec<u8>)>, String> {
     Ok(vec![
-        ("od_generated.rs", rust_gen::rust(d)?.into_bytes()),
+        ("od_generated.rs", rust_gen::rust_with_names(d, names)?.into_bytes()),
         ("object-reference.md", markdown::markdown(d).into_bytes()),
         ("drive.eds", eds::eds(d).into_bytes()),
         ("drive-esi.xml", esi::esi(d).into_bytes()),
@@ -54,8 +60,13 @@ pub fn hex_dump(bytes: &[u8]) -> String {
 /// Reads `description`, validates it and writes every generated file into `out_dir` (files whose contents did
 /// not change are left alone). On failure returns a report with one line per mistake (file, object, reason).
 pub fn generate_all(description: &Path, out_dir: &Path) -> Result<(), String> {
+    generate_all_with_names(description, out_dir, true)
+}
+
+/// [`generate_all`], with or without the names in the firmware's tables ([`rust_gen::rust_with_names`]).
+pub fn generate_all_with_names(description: &Path, out_dir: &Path, names: bool) -> Result<(), String> {
     let d = load(description)?;
-    for (name, contents) in render(&d)? {
+    for (name, contents) in render_with_names(&d, names)? {
         let path = out_dir.join(name);
         if std::fs::read(&path).ok().as_deref() != Some(contents.as_slice()) {
             std::fs::write(&path, contents).map_err(|e| format!("{}: cannot write: {e}", path.display()))?;

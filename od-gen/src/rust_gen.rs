@@ -199,6 +199,14 @@ fn storage(s: &SubObject, slot: Option<RamSlot>) -> Result<String, String> {
 /// Renders `od_generated.rs` for `d`. Fails only when the tables outgrow their index types (64 Ki entries or
 /// 64 KiB of RAM values).
 pub fn rust(d: &Description) -> Result<String, String> {
+    rust_with_names(d, true)
+}
+
+/// [`rust`], with the objects' and entries' names, or with every name empty (`names` false): an image that serves
+/// no names (the CANopen image: only the CoE SDO information service sends them) then leaves the strings out of
+/// flash.
+pub fn rust_with_names(d: &Description, names: bool) -> Result<String, String> {
+    let name = |n: &str| if names { n.to_string() } else { String::new() };
     let layout = ram_layout(d)?;
     let entry_count: usize = d.objects.iter().map(|o| o.subs.len()).sum();
     if entry_count > usize::from(u16::MAX) {
@@ -225,7 +233,7 @@ pub fn rust(d: &Description) -> Result<String, String> {
                  pdo: {}, persistent: {}, write_condition: {}, limits: &{}, storage: {}, node_id_relative: {} }},",
                 o.index,
                 s.sub,
-                s.name,
+                name(&s.name),
                 object_code(o.code),
                 data_type(s.data_type),
                 access(s.access),
@@ -252,7 +260,7 @@ pub fn rust(d: &Description) -> Result<String, String> {
             "    Object {{ index: 0x{:04X}, name: {:?}, object_code: {}, max_sub: {max_sub}, first_entry: {first}, \
              entry_count: {} }},",
             o.index,
-            o.name,
+            name(&o.name),
             object_code(o.code),
             o.subs.len()
         );

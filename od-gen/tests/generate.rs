@@ -171,3 +171,23 @@ fn errors_stop_generation_with_the_full_report() {
     assert_eq!(report.lines().count(), 5, "{report}");
     assert!(!out.exists());
 }
+
+/// Without names (the firmware's CANopen image on the target, which serves no names), every object and entry of
+/// the generated tables has an empty name and nothing else differs.
+#[test]
+fn tables_without_names_differ_only_in_the_names() {
+    let with = od_gen::rust_gen::rust(&description()).expect("generation");
+    let without = od_gen::rust_gen::rust_with_names(&description(), false).expect("generation");
+    // `name: "..."` emptied in the tables with names (no name holds an escaped quote).
+    let mut emptied = String::new();
+    let mut rest = with.as_str();
+    while let Some(at) = rest.find("name: \"") {
+        let (head, tail) = rest.split_at(at + "name: \"".len());
+        emptied.push_str(head);
+        let end = tail.find('"').expect("a closing quote");
+        rest = &tail[end..];
+    }
+    emptied.push_str(rest);
+    assert_ne!(with, without, "the description has names");
+    assert_eq!(emptied, without);
+}
