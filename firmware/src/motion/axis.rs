@@ -38,8 +38,8 @@ use crate::control::demand::DemandScale;
 use crate::control::frames::Amps;
 use crate::control::interpolator::CyclicSetpoint;
 use crate::control::trajectory::{Acceleration, ProfileGenerator, Setpoint, Velocity};
+use crate::control::velocity::sat_i32;
 use crate::control::velocity_estimate::PositionWindow;
-use crate::control::wide::sat_i32;
 use crate::fault::i2t::{I2tConfig, MotorI2t};
 use crate::fault::snapshot::DiagnosisSnapshot;
 use crate::fault::table::FaultId;
@@ -401,7 +401,7 @@ impl Axis {
     /// slow period). The drive runs it in the background step, outside the slow tick's budget.
     pub fn publish_velocity_actual_values(&mut self, d: &mut Dictionary) {
         let velocity = self.velocity();
-        d.set(h::VELOCITY_SENSOR_ACTUAL_VALUE, sat_i32(i128::from(velocity.to_inc_per_s())));
+        d.set(h::VELOCITY_SENSOR_ACTUAL_VALUE, sat_i32(velocity.to_inc_per_s()));
         self.velocity_average = average_velocity(self.velocity_average, velocity);
         d.set(h::VELOCITY_ACTUAL_VALUE_AVERAGED, self.params.rpm(self.velocity_average));
     }
@@ -558,11 +558,13 @@ impl Axis {
                     let cst = self.activity == Activity::Following(Mode::CyclicSyncTorque);
                     self.torque_ramp = (cst && stop.ramp == StopRamp::SlowDown)
                         .then(|| TorqueRamp::new(i32::from(d.get(h::TORQUE_DEMAND_VALUE)), d.get(h::TORQUE_SLOPE)));
-                    if self.torque_ramp.is_some() {
+                    let on_current_limit = if self.torque_ramp.is_some() {
                         // The generator stays where the demand is, for whatever follows the stop.
                         self.take_over_generator(fb.position);
-                    }
-                    let on_current_limit = self.torque_ramp.is_none() && self.begin_stop(stop, fb);
+                        false
+                    } else {
+                        self.begin_stop(stop, fb)
+                    };
                     self.activity = Activity::Stopping { stop, on_current_limit };
                 }
                 if let Some(ramp) = &mut self.torque_ramp {
