@@ -41,6 +41,13 @@ pub struct PowerRequest {
     pub sequence: u8,
 }
 
+/// Periods between the period after a slow tick's report ([`Tier1Report::period`]) and the one from which what the
+/// loops decided in that slow tick applies ([`SetPoint::apply_from`]): tier 2 has the raising period and four
+/// more to publish it, which covers its budget of 40 % of the slow period (`insn.tier2_total_max` of the QEMU
+/// bench) and a tier-3 section holding its lock meanwhile. The QEMU bench measures the periods tier 2 took
+/// (`count.setpoint_periods_late_max`), and its test holds them to this.
+pub const LOOP_SETPOINT_DELAY_PERIODS: u32 = 4;
+
 /// The level of a [`PowerRequest`].
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum PowerLevel {
@@ -54,7 +61,8 @@ pub enum PowerLevel {
 }
 
 /// Tier 2 -> tier 1 at every change: the power request and the q-current reference, already converted
-/// (the loops' demand, or target torque 0x6071 + offset 0x60B2 through the demand scale) and clamped.
+/// (the loops' demand, or target torque 0x6071 + offset 0x60B2 through the demand scale) and clamped, and the
+/// period from which tier 1 applies it.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct SetPoint {
     /// Moves on with every change of this block.
@@ -63,6 +71,11 @@ pub struct SetPoint {
     pub power: PowerRequest,
     /// The q-current reference.
     pub i_q: Amps,
+    /// Tier 1's period number ([`Tier1Report::period`]) from which the block applies: a period already begun for
+    /// a request to act on at once, a later one for what the loops decided in a slow tick, which on the target
+    /// comes into force at a fixed phase of the slow period whatever time tier 2 took (`super::Drive`,
+    /// "Hand-off timing").
+    pub apply_from: u32,
 }
 
 /// How tier 1 builds and runs the commutation (the power-disabled objects, read by tier 2 at switch-on).
@@ -129,6 +142,9 @@ impl Default for Settings {
 /// Tier 1 -> tier 2 at every slow-tick boundary (every tenth period): what tier 1 measured and decided.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Tier1Report {
+    /// The number of the period after the reporting one (tier 1's periods since start, wrapping): what a
+    /// [`SetPoint::apply_from`] counts in.
+    pub period: u32,
     /// The [`SetPoint::version`] tier 1 has applied.
     pub setpoint_version: u32,
     /// The [`Settings::version`] tier 1 has applied.
@@ -166,6 +182,7 @@ pub struct Tier1Report {
 impl Default for Tier1Report {
     fn default() -> Self {
         Self {
+            period: 0,
             setpoint_version: 0,
             settings_version: 0,
             power_sequence: 0,
@@ -270,13 +287,16 @@ impl SetPoint {
     }
 }
 
-impl Words<3> for SetPoint {
-    fn to_words(&self) -> [u32; 3] {
-        [self.version, self.power_word(), self.i_q.to_bits().cast_unsigned()]
+/// Words of a [`SetPoint`].
+pub const SETPOINT_WORDS: usize = 4;
+
+impl Words<SETPOINT_WORDS> for SetPoint {
+    fn to_words(&self) -> [u32; SETPOINT_WORDS] {
+        [self.version, self.power_word(), self.i_q.to_bits().cast_unsigned(), self.apply_from]
     }
 
-    fn from_words(words: &[u32; 3]) -> Self {
-        let [version, power, i_q] = *words;
+    fn from_words(words: &[u32; SETPOINT_WORDS]) -> Self {
+        let [version, power, i_q, apply_from] = *words;
         let level = match byte(power, 0) {
             1 => PowerLevel::SwitchedOn,
             2 => PowerLevel::OperationEnabled,
@@ -292,6 +312,7 @@ impl Words<3> for SetPoint {
                 sequence: byte(power, 3),
             },
             i_q: Amps::from_bits(i_q.cast_signed()),
+            apply_from,
         }
     }
 }
@@ -520,7 +541,7 @@ fn stage_from_byte(value: u8) -> CommutationStage {
 }
 
 /// Words of a [`Tier1Report`].
-pub const REPORT_WORDS: usize = 3 + 2 + 2 * SIGNAL_WORDS + 4 + 1 + 2 * (2 * DIGITAL_INPUTS + 1) + 3 + 3;
+pub const REPORT_WORDS: usize = 4 + 2 + 2 * SIGNAL_WORDS + 4 + 1 + 2 * (2 * DIGITAL_INPUTS + 1) + 3 + 3;
 
 impl Words<REPORT_WORDS> for Tier1Report {
     #[inline(never)]
@@ -532,7 +553,12 @@ impl Words<REPORT_WORDS> for Tier1Report {
             | u32::from(self.index_offset.is_some()) << 10
             | stage_byte(self.stage) << 16;
         let [head, payload] = power_words(self.power);
-        put.word(self.setpoint_version).word(self.settings_version).word(flags).word(head).word(payload);
+        put.word(self.period)
+            .word(self.setpoint_version)
+            .word(self.settings_version)
+            .word(flags)
+            .word(head)
+            .word(payload);
         put_signals(&mut put, &self.signals);
         put_signals(&mut put, &self.trip_sample);
         put.int(self.encoder_position)
@@ -556,6 +582,7 @@ impl Words<REPORT_WORDS> for Tier1Report {
     #[inline(never)]
     fn from_words(words: &[u32; REPORT_WORDS]) -> Self {
         let mut take = Take::new(words);
+        let period = take.word();
         let setpoint_version = take.word();
         let settings_version = take.word();
         let flags = take.word();
@@ -577,6 +604,7 @@ impl Words<REPORT_WORDS> for Tier1Report {
         let offsets = ShuntOffsets { q8: core::array::from_fn(|_| take.int()) };
         let bit = |n: u32| flags >> n & 1 == 1;
         Self {
+            period,
             setpoint_version,
             settings_version,
             power_sequence: byte(flags, 0),
@@ -620,7 +648,7 @@ mod tests {
 
     #[test]
     fn zero_words_decode_to_the_safe_blocks() {
-        assert_eq!(SetPoint::from_words(&[0; 3]), SetPoint::default());
+        assert_eq!(SetPoint::from_words(&[0; SETPOINT_WORDS]), SetPoint::default());
         let settings = Settings::from_words(&[0; 15]);
         assert_eq!(settings.commutation.method, CommutationMethod::Hall);
         assert_eq!(settings.version, 0);
@@ -635,11 +663,13 @@ mod tests {
             version: u32::MAX,
             power: PowerRequest { level: PowerLevel::OperationEnabled, switch_on: 255, fault_reset: 3, sequence: 9 },
             i_q: Amps::from_bits(-123_456),
+            apply_from: u32::MAX,
         });
         round_trip(SetPoint {
             version: 1,
             power: PowerRequest { level: PowerLevel::SwitchedOn, ..PowerRequest::default() },
             i_q: Amps::ZERO,
+            apply_from: 17,
         });
     }
 
@@ -716,6 +746,7 @@ mod tests {
     fn a_full_report_survives_its_words() {
         let edge = |n: i32| EdgeLatch { count: u16::try_from(n).unwrap_or(0), position: -n * 1000 };
         round_trip(Tier1Report {
+            period: 0xFFFF_FFF0,
             setpoint_version: 5,
             settings_version: 6,
             power_sequence: 200,

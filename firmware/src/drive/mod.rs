@@ -35,13 +35,24 @@
 //! # Tiers own their state (`docs/design/tier-ownership.md`)
 //! [`Drive`] is tier 2's: the dictionary, the axis, the supervision, the parameter conversion. What tier 1 owns
 //! is [`tier1::Tier1State`] (power-stage state, calibration, commutation, current controller, limits in force,
-//! latches and sums, trip sample, divider), and only tier 1 touches it. They exchange blocks
+//! latches and sums, trip sample, divider, period count), and only tier 1 touches it. They exchange blocks
 //! ([`blocks`]): the drive keeps a [`SetPoint`] (power request, q-current reference already converted) and the
 //! [`Settings`] (limits, gains, calibration, commutation) and moves their versions on when it changes them;
 //! whoever runs the tiers hands the changed blocks to tier 1 ([`Drive::take_setpoint`], [`Drive::take_settings`])
 //! and tier 1's [`Tier1Report`] back to the drive at every slow-tick boundary ([`Drive::receive_report`]).
 //! The power-stage requests are therefore predictions until tier 1 acknowledges them: [`Drive::state`] is the
 //! reported state, or the one a request not yet acted on will lead to.
+//!
+//! # Hand-off timing
+//! A set-point changed by a request, a set-point event or a forced off applies from the first period after its
+//! publication ([`SetPoint::apply_from`] is a period already begun). What the tier-2 steps decide for the loops
+//! ([`Drive::background`] and [`Drive::slow_tick`] with the loops' demand in force) applies from a fixed period
+//! instead: [`blocks::LOOP_SETPOINT_DELAY_PERIODS`] periods after the one following the report's period, that is the
+//! middle of the slow period. On the target tier 2 publishes it anywhere from the raising period to a few periods
+//! later (how long the background step, the slow tick and a tier-3 section holding the lock take); the fixed
+//! period hides that spread from the loops, and the host simulation, which runs tier 2 at once, applies it in
+//! the same period as the target. Off requests and the CST torque (the master's value, not a loop's output) are
+//! not held back.
 
 pub mod blocks;
 pub mod calibration;
@@ -331,8 +342,19 @@ impl Drive {
         self.setpoint_changed();
     }
 
+    /// The set-point changed: a new version, applying from the period already begun (see "Hand-off timing").
     fn setpoint_changed(&mut self) {
         self.setpoint.version = self.setpoint.version.wrapping_add(1);
+        self.setpoint.apply_from = self.report.period;
+    }
+
+    /// After a tier-2 step that began at set-point version `before`: a change the loops decided applies from the
+    /// fixed period of the slow period (module documentation, "Hand-off timing").
+    fn hold_loop_setpoint(&mut self, before: u32) {
+        let loops = self.source == DemandSource::Internal && self.setpoint.power.level != PowerLevel::Off;
+        if self.setpoint.version != before && loops {
+            self.setpoint.apply_from = self.report.period.wrapping_add(blocks::LOOP_SETPOINT_DELAY_PERIODS);
+        }
     }
 
     /// Settings changed by `change`: their version moves on if anything differs.
@@ -380,6 +402,7 @@ impl Drive {
     /// before each [`Self::slow_tick`] (its cost is reported separately: it compares the raw values every time,
     /// and converts, with 64- and 128-bit arithmetic, only what changed).
     pub fn background(&mut self) {
+        let before = self.setpoint.version;
         self.refresh_parameters();
         self.publish_actual_values();
         self.axis.refresh(&mut self.dictionary);
@@ -404,6 +427,7 @@ impl Drive {
         // which does not fit the slow tick's budget (`control::trajectory` generator, "When a command takes
         // effect").
         self.axis.prepare_motion();
+        self.hold_loop_setpoint(before);
     }
 
     /// The demand scale with the current limits of the protections in force (I2t and thermal derating): the
@@ -518,6 +542,7 @@ impl Drive {
     /// with the parameters [`Self::background`] converted. Called after every
     /// [`crate::hal::power::SLOW_TICK_DIVIDER`]-th fast tick (see [`FastTick::slow_tick_due`]).
     pub fn slow_tick(&mut self) {
+        let before = self.setpoint.version;
         self.update_averages();
         // A fault reports what the tripping tick measured, not what came after.
         let power = self.state();
@@ -550,6 +575,7 @@ impl Drive {
         };
         let out = self.axis.step(&input, &mut self.dictionary);
         self.apply(&out);
+        self.hold_loop_setpoint(before);
     }
 
     /// Carries out the axis's requests on the power stage. Requests are acted on when they change; outside

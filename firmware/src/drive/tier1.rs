@@ -1,6 +1,6 @@
 //! Tier 1's state and its 25 kHz step: what the current loop owns (power-stage state, offset calibration,
 //! commutation, current controller, trip limits in force, position latches and sums, the trip sample, the
-//! slow-tick divider) and the fast tick over it ([`Tier1State::fast_tick`]).
+//! slow-tick divider, the period count) and the fast tick over it ([`Tier1State::fast_tick`]).
 //!
 //! Only tier 1 touches it. Tier 2 reaches it through blocks (`super::blocks`): tier 1 applies the [`Settings`]
 //! and the [`SetPoint`] tier 2 published last ([`Tier1State::apply_settings`], [`Tier1State::apply_setpoint`]) at
@@ -8,7 +8,7 @@
 //! Tier 1 is the authority on its own state: it acts on a request when it reads it, from the state it is in
 //! then (a request that no longer fits, such as a switch-on after a trip, is dropped, and the report says why).
 
-use super::blocks::{PowerLevel, SetPoint, Settings, Tier1Report};
+use super::blocks::{PowerLevel, SetPoint, Settings, Tier1Report, SETPOINT_WORDS};
 use super::calibration::{Calibration, CalibrationConfig, CalibrationStatus, CALIBRATION_COMMAND};
 use super::commutation::Commutation;
 use super::hall_position::HallPosition;
@@ -30,6 +30,8 @@ use crate::sensors::latch::PinLatches;
 pub struct Tier1State {
     state: PowerState,
     divider: u32,
+    /// Periods run since start (wrapping): the clock of [`SetPoint::apply_from`].
+    period: u32,
     /// The last set-point applied: its q reference is the current loop's.
     setpoint: SetPoint,
     /// The last sample's break input (whether a trip's cause persists).
@@ -63,6 +65,7 @@ impl Tier1State {
         let mut t1 = Self {
             state: PowerState::Off,
             divider: SLOW_TICK_DIVIDER,
+            period: 0,
             setpoint: SetPoint::default(),
             last_break_input: false,
             limits: Limits::new(settings.output_limit_ma),
@@ -145,17 +148,27 @@ impl Tier1State {
         self.setpoint = *setpoint;
     }
 
+    /// Whether a set-point that applies from period `apply_from` ([`SetPoint::apply_from`]) applies in the period
+    /// about to run. Periods compare modulo 2^32, so a block from the last 2^31 periods counts as begun.
+    #[inline]
+    #[must_use]
+    pub const fn setpoint_due(&self, apply_from: u32) -> bool {
+        self.period.wrapping_sub(apply_from).cast_signed() >= 0
+    }
+
     /// [`Self::apply_setpoint`] from the block's words (`super::blocks::SetPoint`'s `Words`): the version and the
     /// q reference are taken as they are, and the power request is decoded only when its word changed (every
-    /// slow tick brings a new reference; a power request comes seldom).
+    /// slow tick brings a new reference; a power request comes seldom). The caller checked
+    /// [`Self::setpoint_due`].
     #[inline]
-    pub fn apply_setpoint_words(&mut self, words: &[u32; 3]) {
-        let [version, power, i_q] = *words;
+    pub fn apply_setpoint_words(&mut self, words: &[u32; SETPOINT_WORDS]) {
+        let [version, power, i_q, apply_from] = *words;
         if power == self.setpoint.power_word() {
             self.setpoint.version = version;
             self.setpoint.i_q = Amps::from_bits(i_q.cast_signed());
+            self.setpoint.apply_from = apply_from;
         } else {
-            self.apply_setpoint(&<SetPoint as crate::handoff::Words<3>>::from_words(words));
+            self.apply_setpoint(&<SetPoint as crate::handoff::Words<SETPOINT_WORDS>>::from_words(words));
         }
     }
 
@@ -163,6 +176,7 @@ impl Tier1State {
     #[must_use]
     pub fn report(&self) -> Tier1Report {
         Tier1Report {
+            period: self.period,
             setpoint_version: self.setpoint.version,
             settings_version: self.settings.version,
             power_sequence: self.setpoint.power.sequence,
@@ -189,6 +203,7 @@ impl Tier1State {
         // Counts down: one subtraction and one compare with zero.
         let slow_tick_due = self.divider <= 1;
         self.divider = if slow_tick_due { SLOW_TICK_DIVIDER } else { self.divider.wrapping_sub(1) };
+        self.period = self.period.wrapping_add(1);
         FastTick { pwm: self.fast_step(m, slow_tick_due), slow_tick_due }
     }
 

@@ -87,8 +87,12 @@ pub fn fast_tick(
     }
     if super::tier1::SETPOINT.epoch() != *setpoint_epoch {
         let setpoint = super::tier1::SETPOINT.read_words();
-        *setpoint_epoch = setpoint.epoch;
-        t1.apply_setpoint_words(&setpoint.block);
+        // A block for a later period stays unread (its epoch not taken) until that period: read again then.
+        let [.., apply_from] = setpoint.block;
+        if t1.setpoint_due(apply_from) {
+            *setpoint_epoch = setpoint.epoch;
+            t1.apply_setpoint_words(&setpoint.block);
+        }
     }
     t1.fast_tick(m)
 }

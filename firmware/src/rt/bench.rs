@@ -609,7 +609,9 @@ pub async fn bench() {
     print(format_args!("insn.tier2_total_max={}\n", timed.tier2_total_max));
     print(format_args!(
         "source.setpoint_periods_late_max=rt::tier2::slow_loop: periods started between the raise of a slow tick and \
-         the publication of its set-point, during the timer-driven part (0: the next period applies it)\n"
+         the publication of its set-point, during the timer-driven part (0: published before the next period \
+         starts); what the loops decide applies from the period LOOP_SETPOINT_DELAY_PERIODS after that one, so this \
+         must not exceed it\n"
     ));
     print(format_args!("count.setpoint_periods_late_max={}\n", timed.setpoint_periods_late_max));
     print(format_args!(

@@ -22,7 +22,7 @@ use super::figures::{count, record_max};
 use crate::board::counter;
 use crate::board::interrupt::Interrupt;
 use crate::board::PowerStage;
-use crate::drive::blocks::{SetPoint, Settings, Tier1Report, REPORT_WORDS};
+use crate::drive::blocks::{SetPoint, Settings, Tier1Report, REPORT_WORDS, SETPOINT_WORDS};
 #[cfg(not(feature = "qemu"))]
 use crate::hal::power::PWM_FREQUENCY_HZ;
 use crate::handoff::{Command, Report};
@@ -38,7 +38,7 @@ pub static FAST_TICKS: AtomicU32 = AtomicU32::new(0);
 /// Latched when a fast tick exceeded `FAST_TICK_BUDGET`. Writer: tier 1 (sets only).
 pub static OVERRUN: AtomicBool = AtomicBool::new(false);
 /// The set-point the tier-2 drive published last. Writer: `tier2::with_drive` (the drive's lock); reader: tier 1.
-pub static SETPOINT: Command<SetPoint, 3> = Command::new();
+pub static SETPOINT: Command<SetPoint, SETPOINT_WORDS> = Command::new();
 /// The settings the tier-2 drive published last. Writer: `tier2::with_drive`; reader: tier 1.
 pub static SETTINGS: Command<Settings, 15> = Command::new();
 /// Tier 1's report of the last slow-tick boundary. Writer: tier 1; reader: tier 2.

@@ -7,7 +7,8 @@
 //! priority (`rt::critical`). It keeps out everything of that priority and below, and never tier 1. When a section ends, the blocks the drive changed go to tier 1
 //! (`tier1::SETTINGS`, `tier1::SETPOINT`): every publication happens inside the lock, so the double buffers have
 //! one writer at a time, and a request made in a section (a class-d forced off included) reaches tier 1 in the
-//! first period that starts after it.
+//! first period that starts after it; what the loops decide in the slow tick, from the fixed period the
+//! set-point names (`crate::drive::Drive`, "Hand-off timing").
 
 use core::cell::UnsafeCell;
 use core::mem::MaybeUninit;
@@ -37,8 +38,9 @@ pub static SLOW_MISSED: AtomicU32 = AtomicU32::new(0);
 /// free-run cycle (counter units). Writer: tier 2.
 pub static TIER2_TOTAL_MAX: AtomicU32 = AtomicU32::new(0);
 /// Largest number of periods that started between the raise of a slow tick and the end of its slow tick (the
-/// set-point published): 0 means the period after the one that raised it already applies the slow tick's
-/// set-point, the timing the host simulation assumes. Writer: tier 2.
+/// set-point published): 0 means it was published before the next period began. What the loops decided applies
+/// from a fixed period (`crate::drive::blocks::LOOP_SETPOINT_DELAY_PERIODS`), the same on the host, so this must
+/// not exceed that delay (the QEMU test holds it to it). Writer: tier 2.
 pub static SETPOINT_PERIODS_LATE_MAX: AtomicU32 = AtomicU32::new(0);
 /// Reports that could not be read whole ([`crate::handoff::Torn`]: tier 2 was held off for a whole slow period in
 /// the middle of its copy); the drive then keeps the previous one. Writer: tier 2.

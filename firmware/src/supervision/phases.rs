@@ -50,8 +50,9 @@
 //! # The fault
 //! No other fault of `crate::fault::table` describes an open motor phase: 0x2330 (the phase-current sum) is a
 //! sensing or earth fault, 0x7121 (motor blocked) a mechanical one. The detection raises [`PHASE_OPEN_FAULT`]
-//! (0x7120 "motor", class d), with the open phase (1 = A, 2 = B, 3 = C; 0 = not identified, check 2) as the
-//! snapshot's detail.
+//! (0x7120 "motor", class d), with the open phase (1 = A, 2 = B, 3 = C) as the snapshot's detail: check 2 names
+//! the phase check 1 suspects from a first unbalanced window, or else the one that carries no current while the
+//! other two do, and gives 0 (not identified) when nothing flows.
 
 use super::SupervisionInputs;
 use crate::control::angle::ElectricalAngle;
@@ -156,7 +157,10 @@ impl PhaseSupervision {
             faults.raise(PHASE_OPEN_FAULT, inputs.snapshot(detail), inputs.now);
         }
         if self.deficit(inputs) {
-            faults.raise(PHASE_OPEN_FAULT, inputs.snapshot(0), inputs.now);
+            // The phase check 1 suspects from a first unbalanced window, else the one without current now.
+            let phase = self.suspect.map(|(phase, _)| phase).or_else(|| self.silent_phase(inputs));
+            let detail = phase.map_or(0, |p| i32::try_from(p).unwrap_or(-1).saturating_add(1));
+            faults.raise(PHASE_OPEN_FAULT, inputs.snapshot(detail), inputs.now);
         }
     }
 
@@ -231,6 +235,20 @@ impl PhaseSupervision {
             return true;
         }
         false
+    }
+}
+
+impl PhaseSupervision {
+    /// At rest with one phase open, the other two carry the same current in opposite directions and the open one
+    /// none: the phase (0 = A) whose current is under a quarter of the largest, when the largest is above an
+    /// eighth of the floor (well over the measurement noise); `None` when nothing flows.
+    fn silent_phase(&self, inputs: &SupervisionInputs) -> Option<usize> {
+        let i = inputs.i_abc;
+        let magnitudes = [i.a, i.b, i.c].map(|x| x.to_bits().unsigned_abs());
+        let largest = magnitudes.iter().copied().max().unwrap_or(0);
+        let (phase, smallest) = magnitudes.iter().copied().enumerate().min_by_key(|&(_, m)| m)?;
+        let flowing = largest >= (self.floor.to_bits().unsigned_abs() >> 3);
+        (flowing && smallest.saturating_mul(4) < largest).then_some(phase)
     }
 }
 
@@ -400,6 +418,35 @@ mod tests {
             ..base()
         };
         assert_eq!(run(&mut s, 1000, stuck), Some(u32::from(DEFICIT_TICKS) - 1));
+    }
+
+    /// Check 2 names the phase without current at rest (the other two carry the same current in opposite
+    /// directions), and 0 when no phase carries anything measurable (under an eighth of the 640 mA floor).
+    #[test]
+    fn deficit_names_the_silent_phase() {
+        for (abc, detail) in [
+            ([1.2, -1.2, 0.0], 3),
+            ([0.0, 0.9, -0.9], 1),
+            ([0.5, 0.01, -0.5], 2),
+            ([0.05, -0.05, 0.0], 0),
+            ([0.0, 0.0, 0.0], 0),
+        ] {
+            let mut s = supervision();
+            let mut faults = FaultManager::new();
+            for n in 0..u32::from(DEFICIT_TICKS) {
+                let inputs = SupervisionInputs {
+                    now: Ticks(n),
+                    i_abc: Abc::new(amps(abc[0]), amps(abc[1]), amps(abc[2])),
+                    i_ref: Dq::new(Amps::ZERO, amps(5.0)),
+                    i_dq: Dq::new(Amps::ZERO, amps(0.3)),
+                    saturated: true,
+                    ..base()
+                };
+                s.step(&inputs, &mut faults);
+            }
+            let a = faults.active().find(|a| a.id == PHASE_OPEN_FAULT).expect("raised");
+            assert_eq!(a.snapshot.detail, detail, "{abc:?}");
+        }
     }
 
     #[test]

@@ -414,8 +414,9 @@ pub fn cases() -> Vec<Case> {
             F::MotorBlocked,
             "rotor locked in CSV",
             S::RunningCsv,
-            // The stall time 0.5 s plus the slow tick.
-            12_600,
+            // The stall time 0.5 s from the moment the velocity loop's demand reaches 90 % of the current limit,
+            // which takes it up to 20 ms on the locked rotor (P on the 300 rpm error, then the integral).
+            13_000,
             |b| b.sim.plant.lock_rotor(true),
             |b| b.sim.plant.lock_rotor(false),
         ),

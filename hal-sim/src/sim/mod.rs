@@ -6,9 +6,10 @@
 //! simulates one PWM period and returns its centre sample; tier 1 ([`Tier1State`]) takes the blocks the drive
 //! changed and computes the command for the next period; when it reports a slow tick due, its report goes to the
 //! drive and the drive's background step and slow tick run before the next period. The hand-offs have the
-//! target's timing (`docs/design/tier-ownership.md`, section 5): a block the drive changed in slow tick k, or in a
-//! call between two steps (tier 3 on the target), is first seen by the next period's fast tick; the report the slow
-//! tick reads is the one of the period that raised it.
+//! target's timing (`docs/design/tier-ownership.md`, section 5): a block the drive changed in a call between two
+//! steps (tier 3 on the target) is first seen by the next period's fast tick, a set-point the loops decided in slow
+//! tick k from the period it names (`firmware::drive::Drive`, "Hand-off timing"), as on the target; the report the
+//! slow tick reads is the one of the period that raised it.
 
 pub mod canopen;
 pub mod ethercat;
@@ -17,9 +18,10 @@ pub mod trace;
 pub mod update;
 
 use firmware::cia402::State;
+use firmware::drive::blocks::SetPoint;
 use firmware::drive::tier1::Tier1State;
 use firmware::drive::{Drive, DriveConfig};
-use firmware::hal::power::{Measurements, PwmCommand};
+use firmware::hal::power::{Measurements, PwmCommand, SLOW_TICK_DIVIDER};
 use firmware::od::generated::handles as h;
 use firmware::power_state::{CommutationStage, DriveError, PowerState};
 
@@ -57,6 +59,9 @@ pub struct Simulation {
     pub drive: Drive,
     /// Tier 1's state: only [`Self::step`] changes it.
     tier1: Tier1State,
+    /// The set-point the drive published last and tier 1 has not yet applied (it applies from a later period:
+    /// `SetPoint::apply_from`), as the target's double buffer holds it.
+    published: Option<SetPoint>,
     cmd: PwmCommand,
     measurements: Measurements,
     ticks: u64,
@@ -69,6 +74,7 @@ impl Simulation {
         Self {
             plant: Plant::new(params, seed),
             tier1: Tier1State::new(drive.settings()),
+            published: None,
             drive,
             cmd: PwmCommand::OFF,
             measurements: Measurements::default(),
@@ -90,7 +96,11 @@ impl Simulation {
             self.tier1.apply_settings(&settings);
         }
         if let Some(setpoint) = self.drive.take_setpoint() {
+            self.published = Some(setpoint);
+        }
+        if let Some(setpoint) = self.published.filter(|s| self.tier1.setpoint_due(s.apply_from)) {
             self.tier1.apply_setpoint(&setpoint);
+            self.published = None;
         }
         let tick = self.tier1.fast_tick(&m);
         if tick.slow_tick_due {
@@ -156,6 +166,7 @@ impl Simulation {
     /// Replaces the drive, as a reset does on the board: tier 1 starts afresh with the new drive's settings.
     pub fn replace_drive(&mut self, drive: Drive) {
         self.tier1 = Tier1State::new(drive.settings());
+        self.published = None;
         self.drive = drive;
     }
 
@@ -269,9 +280,12 @@ impl Simulation {
         let b = self.run_until_state(State::SwitchedOn, 3_000, "switched on (offset calibration)")?;
         self.set_controlword(0x000F);
         let c = self.run_until_state(State::OperationEnabled, 100, "operation enabled")?;
-        // The slow tick that reached the state switched the power stage on: the next period drives the motor.
-        self.step();
-        Ok(a.saturating_add(b).saturating_add(c).saturating_add(1))
+        // The slow tick that reached the state asked tier 1 to enable: it does so in the period the set-point
+        // names (the loops' hand-off period), which then drives the motor.
+        let d = self
+            .run_until(u64::from(SLOW_TICK_DIVIDER), |s| s.tier1.state() == PowerState::OperationEnabled)
+            .ok_or(SimError::Timeout("tier 1 enabled"))?;
+        Ok(a.saturating_add(b).saturating_add(c).saturating_add(d))
     }
 
     /// Commissioning on a free shaft: switch on (calibration), enable, drive `amps` of q current until the

@@ -202,3 +202,44 @@ fn a_target_torque_reaches_the_current_loop_within_one_slow_tick_and_one_period(
     sim.drive.setpoint_received();
     assert_eq!(sim.run_until(5, |s| s.tier1().setpoint().i_q != before), Some(1), "a set-point event: next period");
 }
+
+/// The hand-off timing of the loops' set-point (issue 16, host timing = target timing): what the velocity loop
+/// decides in a slow tick names the period `LOOP_SETPOINT_DELAY_PERIODS` (4) after the one following the raise
+/// (`SetPoint::apply_from`), and tier 1 takes it in exactly that period, not one earlier, in every one of 50 slow
+/// ticks of a CSV acceleration (each brings a new q reference). A request made between two periods (tier 3 on the
+/// target), here a shutdown, acts in the very next period.
+#[test]
+fn a_loop_setpoint_applies_in_the_middle_of_the_slow_period_and_a_request_at_once() {
+    use firmware::drive::blocks::LOOP_SETPOINT_DELAY_PERIODS as DELAY;
+    let mut sim = hal_sim::scenarios::motion::prepare_motion(1, 9).expect("enabled in CSV");
+    sim.drive.dictionary_mut().set(h::INTERPOLATION_TIME_PERIOD_VALUE, 0);
+    sim.drive.dictionary_mut().set(h::TARGET_VELOCITY, 1000);
+    let mut checked = 0;
+    while checked < 50 {
+        let before = sim.drive.report().period;
+        sim.setpoint_received();
+        sim.step();
+        if sim.drive.report().period == before {
+            continue;
+        }
+        // A slow tick ran in this step: the report is of the period after the raising one.
+        let raised = sim.drive.report().period;
+        let wanted = *sim.drive.setpoint();
+        if wanted.version == sim.tier1().setpoint().version {
+            continue;
+        }
+        assert_eq!(wanted.apply_from, raised.wrapping_add(DELAY), "the period named");
+        for k in 0..DELAY {
+            sim.step();
+            assert_ne!(sim.tier1().setpoint().version, wanted.version, "taken {k} periods after the raise's next");
+        }
+        sim.step();
+        assert_eq!(*sim.tier1().setpoint(), wanted, "taken in the period named");
+        checked += 1;
+    }
+    assert_eq!(sim.tier1().state(), PowerState::OperationEnabled);
+    sim.drive.shutdown();
+    sim.step();
+    assert_eq!(sim.tier1().state(), PowerState::Off, "a request acts in the next period");
+    assert!(!sim.command().enabled);
+}

