@@ -29,7 +29,7 @@
 //! [`crate::canopen::NodeEvent::Reset`] with a bit rate, tier 3 calls [`BxCan::set_bit_rate`].
 
 use super::reg::{base, rcc, Gpio, Reg};
-use crate::canopen::frame::{BitRate, CanBus, CanFrame, TxBusy, MAX_ID};
+use crate::canopen::frame::{BitRate, BusState, BusStatus, CanBus, CanFrame, TxBusy, MAX_ID};
 use crate::hal::can::{bit_timing, BitTiming};
 
 /// CAN1 (RM0090 memory map: 0x4000_6400).
@@ -288,5 +288,18 @@ impl CanBus for BxCan {
 
     fn bit_rate(&self) -> BitRate {
         self.rate
+    }
+
+    /// From CAN_ESR (BOFF, EPVF, TEC) and the driver's overrun count.
+    fn status(&self) -> BusStatus {
+        let e = self.errors();
+        let state = if e.bus_off {
+            BusState::BusOff
+        } else if e.passive {
+            BusState::ErrorPassive
+        } else {
+            BusState::ErrorActive
+        };
+        BusStatus { state, transmit_errors: e.transmit, rx_overruns: e.rx_overruns }
     }
 }

@@ -151,6 +151,32 @@ pub trait CanBus {
     fn receive(&mut self) -> Option<CanFrame>;
     /// The bit rate the controller runs at.
     fn bit_rate(&self) -> BitRate;
+    /// The controller's fault-confinement state and lost frames now.
+    fn status(&self) -> BusStatus;
+}
+
+/// A CAN controller's fault-confinement state (ISO 11898-1 §12.1.4).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum BusState {
+    /// Both error counters at most 127: the controller takes part in error signalling.
+    #[default]
+    ErrorActive,
+    /// An error counter above 127: the controller signals errors only passively.
+    ErrorPassive,
+    /// The transmit error counter above 255: the controller is off the bus until it has seen 128 x 11 recessive
+    /// bits (automatic recovery).
+    BusOff,
+}
+
+/// What the CAN controller reports to the node ([`CanBus::status`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct BusStatus {
+    /// The fault-confinement state.
+    pub state: BusState,
+    /// The transmit error counter.
+    pub transmit_errors: u8,
+    /// Received frames lost since start-up because the receive FIFO was full (wrapping).
+    pub rx_overruns: u32,
 }
 
 #[cfg(test)]

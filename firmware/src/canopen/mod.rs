@@ -65,7 +65,7 @@ pub mod sync;
 use heapless::Deque;
 
 use self::emcy::EmcyProducer;
-use self::frame::{BitRate, CanBus, CanFrame};
+use self::frame::{BitRate, BusState, BusStatus, CanBus, CanFrame};
 use self::heartbeat::{Heartbeat, HeartbeatEvent};
 use self::nmt::{Nmt, NmtCommand, NmtState, ResetKind, Service};
 use self::pdo::{FrameSink, Pdos};
@@ -151,6 +151,8 @@ pub struct CanopenNode {
     ignored: u32,
     /// The power-on reset has been carried out.
     powered_on: bool,
+    /// What the CAN controller reported last ([`CanopenNode::observe_bus`]).
+    bus: BusStatus,
 }
 
 impl CanopenNode {
@@ -173,6 +175,7 @@ impl CanopenNode {
             last_state: NmtState::Initialisation,
             ignored: 0,
             powered_on: false,
+            bus: BusStatus::default(),
         }
     }
 
@@ -231,6 +234,7 @@ impl CanopenNode {
         app: &mut A,
         now_us: u64,
     ) -> Option<NodeEvent> {
+        self.observe_bus(bus.status(), drive);
         for _ in 0..RX_PER_POLL {
             let Some(frame) = bus.receive() else {
                 break;
@@ -248,6 +252,35 @@ impl CanopenNode {
             self.outbox.queue.pop_front();
         }
         event
+    }
+
+    /// The CAN controller's state, as tier 3 reads it before each poll: error passive (0x8120) and bus-off
+    /// (0x81FD) are reported to the drive as communication losses when the controller enters them and as restored
+    /// when it leaves them (the controller rejoins the bus on its own after bus-off: ISO 11898-1 §12.1.4.2, the
+    /// automatic bus-off management of `board::can`), and frames the receive FIFO lost as an overrun (0x8110,
+    /// with the number lost). The reaction is 0x6007's, as for every communication fault; the faults stay
+    /// until a fault reset once the cause is gone (IDX 7.2.26, 7.2.28, 7.2.36). Their EMCYs wait in the queue
+    /// while the controller is off the bus and leave when it is back.
+    pub fn observe_bus<D: FieldbusDevice + ?Sized>(&mut self, status: BusStatus, drive: &mut D) {
+        let last = core::mem::replace(&mut self.bus, status);
+        let passive = |s: &BusStatus| s.state == BusState::ErrorPassive;
+        let off = |s: &BusStatus| s.state == BusState::BusOff;
+        if off(&last) && !off(&status) {
+            drive.communication_restored(LinkLoss::CanBusOff);
+        }
+        if passive(&last) && !passive(&status) {
+            drive.communication_restored(LinkLoss::CanErrorPassive { transmit_errors: status.transmit_errors });
+        }
+        if passive(&status) && !passive(&last) {
+            drive.communication_lost(LinkLoss::CanErrorPassive { transmit_errors: status.transmit_errors });
+        }
+        if off(&status) && !off(&last) {
+            drive.communication_lost(LinkLoss::CanBusOff);
+        }
+        let lost = status.rx_overruns.wrapping_sub(last.rx_overruns);
+        if lost > 0 {
+            drive.communication_lost(LinkLoss::CanRxOverrun { lost });
+        }
     }
 
     /// One received frame (see the module documentation for which tier calls it for which frame).

@@ -210,10 +210,16 @@ pub enum FaultId {
     EmcyOverflow = 28,
     /// A motor phase carries no current while the others do (a broken motor lead or winding).
     MotorPhaseOpen = 29,
+    /// The CAN controller is error passive.
+    CanErrorPassive = 30,
+    /// The CAN controller is bus-off.
+    CanBusOff = 31,
+    /// Received CAN frames were lost (the controller's receive FIFO overflowed).
+    CanRxOverrun = 32,
 }
 
 /// Number of rows in [`FAULT_TABLE`].
-pub const FAULT_COUNT: usize = 30;
+pub const FAULT_COUNT: usize = 33;
 
 /// One row of the fault table.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -273,6 +279,9 @@ impl FaultId {
         Self::InternalSoftware,
         Self::EmcyOverflow,
         Self::MotorPhaseOpen,
+        Self::CanErrorPassive,
+        Self::CanBusOff,
+        Self::CanRxOverrun,
     ];
 
     /// The stable fault number (the table row; EMCY manufacturer byte 3).
@@ -671,5 +680,38 @@ pub static FAULT_TABLE: [FaultInfo; FAULT_COUNT] = [
         S::Detail,
         "Motor phase open",
         "[BG] CiA 402 0x7120 motor; no IDX code (IDX L7138-L7152 name winding faults only as over-current causes)",
+    ),
+    row(
+        FaultId::CanErrorPassive,
+        0x8120,
+        REG_GENERIC | REG_COMMUNICATION,
+        A,
+        Level,
+        Tier::Background,
+        S::Detail,
+        "CAN passive mode error",
+        "IDX L7073, L7332",
+    ),
+    row(
+        FaultId::CanBusOff,
+        0x81FD,
+        REG_GENERIC | REG_COMMUNICATION,
+        A,
+        Level,
+        Tier::Background,
+        S::Detail,
+        "CAN bus turned off",
+        "IDX L7081, L7396",
+    ),
+    row(
+        FaultId::CanRxOverrun,
+        0x8110,
+        REG_GENERIC | REG_COMMUNICATION,
+        A,
+        Event,
+        Tier::Background,
+        S::Detail,
+        "CAN overrun error (object lost)",
+        "IDX L7071, L7316",
     ),
 ];

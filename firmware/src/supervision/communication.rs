@@ -44,6 +44,20 @@ pub enum LinkLoss {
         /// Bytes received.
         received: u8,
     },
+    /// The CAN controller is error passive (an error counter above 127, ISO 11898-1 §12.1.4): it no longer
+    /// signals errors it sees, typically a wrong bit rate elsewhere or a bus without termination.
+    CanErrorPassive {
+        /// The transmit error counter when it went passive.
+        transmit_errors: u8,
+    },
+    /// The CAN controller is bus-off (transmit error counter above 255): it neither sends nor receives until it
+    /// has seen 128 x 11 recessive bits (it rejoins on its own).
+    CanBusOff,
+    /// Received frames were lost because the controller's receive FIFO was full.
+    CanRxOverrun {
+        /// Frames lost since the last report.
+        lost: u32,
+    },
 }
 
 impl LinkLoss {
@@ -57,6 +71,9 @@ impl LinkLoss {
             Self::EthercatSyncError => FaultId::EthercatSyncError,
             Self::PdoLength { .. } => FaultId::PdoLength,
             Self::CanSyncLength { .. } => FaultId::CanSyncLength,
+            Self::CanErrorPassive { .. } => FaultId::CanErrorPassive,
+            Self::CanBusOff => FaultId::CanBusOff,
+            Self::CanRxOverrun { .. } => FaultId::CanRxOverrun,
         }
     }
 
@@ -68,7 +85,9 @@ impl LinkLoss {
             Self::HeartbeatLost { node } => i32::from(node),
             Self::PdoLength { received } => i32::from(received),
             Self::CanSyncLength { received } => i32::from(received),
-            Self::RxPdoTimeout | Self::EthercatWatchdog | Self::EthercatSyncError => 0,
+            Self::CanErrorPassive { transmit_errors } => i32::from(transmit_errors),
+            Self::CanRxOverrun { lost } => i32::try_from(lost).unwrap_or(i32::MAX),
+            Self::RxPdoTimeout | Self::EthercatWatchdog | Self::EthercatSyncError | Self::CanBusOff => 0,
         }
     }
 }

@@ -46,7 +46,7 @@ use firmware::boot::fallback::FallbackNode;
 use firmware::boot::loader::Outcome;
 use firmware::boot::program::{Interface, Request};
 use firmware::boot::tables::{APPLICATION_TABLE, BOOTLOADER_TABLE};
-use firmware::canopen::frame::CanFrame;
+use firmware::canopen::frame::{BusState, BusStatus, CanFrame};
 use firmware::canopen::nmt::{NmtState, ResetKind};
 use firmware::canopen::{CanopenNode, NodeEvent};
 use firmware::cia402::State;
@@ -180,6 +180,10 @@ pub struct CanDrive {
     outbox: Vec<CanFrame>,
     /// Frames the fallback services answered or sent since power-on (boot-ups, answers, timeouts).
     fallback_frames: u64,
+    /// What the drive's CAN controller reports (an injected error state): the node reads it before every slow
+    /// step, as tier 3 does; while it is bus-off the drive neither receives nor sends (its frames wait in the
+    /// node's queue).
+    pub controller: BusStatus,
 }
 
 impl CanDrive {
@@ -206,6 +210,7 @@ impl CanDrive {
             fallback: None,
             outbox: Vec::new(),
             fallback_frames: 0,
+            controller: BusStatus::default(),
         };
         d.enter_fallback_if_no_image(id);
         d
@@ -290,6 +295,10 @@ impl CanDrive {
     /// One PWM period of the application: the frames that arrived, the plant and drive, and every slow tick the
     /// node's tier 3.
     fn application_period(&mut self, now_us: u64, slow: bool) {
+        let bus_off = self.controller.state == BusState::BusOff;
+        if bus_off {
+            self.inbox.clear();
+        }
         while let Some(frame) = self.inbox.pop_front() {
             let on = self.sim.drive.power_stage_enabled();
             let mut app =
@@ -302,13 +311,14 @@ impl CanDrive {
         }
         // The SYNC path queued its TPDOs; the target's background (tier 3) hands them to the controller's
         // transmit mailboxes within microseconds, not at the next slow tick.
-        while let Some(frame) = self.node.transmit() {
+        while let Some(frame) = if bus_off { None } else { self.node.transmit() } {
             self.outbox.push(frame);
         }
         self.sim.step();
         if !slow {
             return;
         }
+        self.node.observe_bus(self.controller, &mut self.sim.drive);
         let on = self.sim.drive.power_stage_enabled();
         let mut app =
             DriveObjects::new(&mut self.store, on).with_program_control(self.program.port(Interface::Canopen, on));
@@ -332,7 +342,7 @@ impl CanDrive {
                 }
             }
         }
-        while let Some(frame) = self.node.transmit() {
+        while let Some(frame) = if bus_off { None } else { self.node.transmit() } {
             self.outbox.push(frame);
         }
         let dict = self.sim.drive.dictionary();
@@ -413,6 +423,11 @@ impl CanopenRunner {
     /// The drive with node-ID `id`.
     pub fn drive(&self, id: u8) -> Option<&CanDrive> {
         self.drives.get(usize::from(id).checked_sub(1)?)
+    }
+
+    /// The drive with node-ID `id`, to inject a fault into (its controller's error state, its plant).
+    pub fn drive_mut(&mut self, id: u8) -> Option<&mut CanDrive> {
+        self.drives.get_mut(usize::from(id).checked_sub(1)?)
     }
 
     /// Queues a frame from the master now (it crosses the bus as time runs).

@@ -3,5 +3,6 @@
 //!
 //! One test binary for the area; each module is one of its test files.
 
+mod bus_errors;
 mod fuzz;
 mod node;
