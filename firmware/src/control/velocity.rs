@@ -141,7 +141,10 @@ impl ScaledGain {
     /// The gain `product(num) / product(den)` in output LSB per input LSB, rounded to 31 significant bits. A zero or
     /// overflowing denominator gives [`Self::ZERO`]; a gain of 2^31 or more, or a numerator beyond 2^128,
     /// saturates at 2^31 - 1. For conversions only (it divides in 128 bits, up to 63 times).
+    /// Never inlined: a conversion runs seldom, and inlined at each constant call site its 63-step search in
+    /// 128-bit arithmetic was unrolled into every copy.
     #[must_use]
+    #[inline(never)]
     pub fn from_ratio(num: &[u128], den: &[u128]) -> Self {
         let Some(d) = den.iter().try_fold(1u128, |acc, &x| acc.checked_mul(x)) else {
             return Self::ZERO;
