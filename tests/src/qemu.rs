@@ -308,6 +308,23 @@ pub fn image_size(elf: &Path) -> Option<ImageSize> {
     Some(ImageSize { text: fields.next()?.ok()?, data: fields.next()?.ok()?, bss: fields.next()?.ok()? })
 }
 
+/// The board's image variants whose size is gated (issue 17): name, and the features of `firmware` they are built
+/// with (the board images, not the QEMU one: no `qemu` feature).
+pub const IMAGE_VARIANTS: [(&str, &[&str]); 3] =
+    [("can", &[]), ("ethercat", &["ethercat"]), ("ethercat_defmt", &["ethercat", "defmt"])];
+
+/// Builds each of [`IMAGE_VARIANTS`] in the release profile and returns its name and text size (code, read-only
+/// data, vector table), or `None` for the sizes if no size tool is installed.
+pub fn variant_text_sizes() -> Result<Vec<(&'static str, Option<u64>)>, Error> {
+    IMAGE_VARIANTS
+        .iter()
+        .map(|&(name, features)| {
+            let elf = build_target_bins(&[IMAGE_BIN], features)?;
+            Ok((name, elf.first().and_then(|e| image_size(e)).map(|s| s.text)))
+        })
+        .collect()
+}
+
 /// The bootloader binary (issue 7): links at 0x0800_0000, verifies slot A and starts it (package `bootloader`,
 /// `bootloader/src/main.rs`).
 pub const BOOTLOADER_BIN: &str = "bootloader";

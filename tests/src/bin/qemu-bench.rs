@@ -23,6 +23,18 @@ fn main() -> ExitCode {
         Some(size) => println!("size.text={}\nsize.data={}\nsize.bss={}", size.text, size.data, size.bss),
         None => eprintln!("qemu-bench: no llvm-size (rustup component add llvm-tools) or arm-none-eabi-size"),
     }
+    // The board images' text (issue 17: gated by tests/tests/qemu.rs).
+    match qemu::variant_text_sizes() {
+        Ok(sizes) => {
+            for (name, text) in sizes {
+                match text {
+                    Some(text) => println!("size.text.{name}={text}"),
+                    None => eprintln!("qemu-bench: no size tool for size.text.{name}"),
+                }
+            }
+        }
+        Err(e) => eprintln!("qemu-bench: image variants: {e}"),
+    }
     eprint!("{}", run.stderr);
     // `insn.boot_verify` (issue 7): the bootloader's header, CRC and signature check of this image, signed with the
     // development key and started by the bootloader in QEMU; the bench image cannot hold a signed copy of itself.
