@@ -217,17 +217,28 @@ impl<const Q: usize> FaultManager<Q> {
         }
     }
 
-    /// Recomputes what the per-step queries return (once per change, not per query).
+    /// Recomputes what the per-step queries return (once per change, not per query). One pass over the slots:
+    /// a chain of iterators per field was unrolled over every slot six times (5.5 KB of flash).
     fn update_summary(&mut self) {
-        let present = self.active().any(|a| a.cause_present && a.id.info().reaction.machine_class().is_some());
-        let summary = Summary {
-            any_fault: self.active().next().is_some(),
-            warning: self.warnings().next().is_some(),
-            connection_lost: self.active().any(|a| a.id.info().reaction == ReactionClass::AbortConnection),
-            cause_present: present,
-            error_code: self.compute_error_code(),
-            error_register: self.active().fold(0, |acc, a| acc | a.id.info().register),
-        };
+        let mut summary = Summary::default();
+        // The fault 0x603F shows: (severity, order, code) of the most severe, the earliest among equals.
+        let mut shown: Option<(u8, u32, u16)> = None;
+        for a in self.slots.iter().flatten() {
+            let info = a.id.info();
+            if info.reaction.is_warning() {
+                summary.warning = true;
+                continue;
+            }
+            summary.any_fault = true;
+            summary.connection_lost |= info.reaction == ReactionClass::AbortConnection;
+            summary.cause_present |= a.cause_present && info.reaction.machine_class().is_some();
+            summary.error_register |= info.register;
+            let severity = info.reaction.severity();
+            if shown.is_none_or(|(s, order, _)| severity > s || (severity == s && a.order < order)) {
+                shown = Some((severity, a.order, info.code));
+            }
+        }
+        summary.error_code = shown.map_or(0, |(_, _, code)| code);
         if summary.error_code != self.summary.error_code || summary.error_register != self.summary.error_register {
             self.unpublished = true;
         }
@@ -309,17 +320,6 @@ impl<const Q: usize> FaultManager<Q> {
     /// 0x603F: the code of the most severe active fault, the earliest among equals; 0 when none.
     pub fn error_code(&self) -> u16 {
         self.summary.error_code
-    }
-
-    fn compute_error_code(&self) -> u16 {
-        self.active()
-            .max_by(|x, y| {
-                let sx = x.id.info().reaction.severity();
-                let sy = y.id.info().reaction.severity();
-                // Higher severity wins; among equals the smaller order (earlier) wins.
-                sx.cmp(&sy).then(y.order.cmp(&x.order))
-            })
-            .map_or(0, |a| a.id.info().code)
     }
 
     /// The state machine's fault input for this step: the most severe class raised since the previous call (an
