@@ -153,14 +153,12 @@ impl PhaseSupervision {
             return;
         }
         if let Some(phase) = self.balance(inputs) {
-            let detail = i32::try_from(phase).unwrap_or(0).saturating_add(1);
-            faults.raise(PHASE_OPEN_FAULT, inputs.snapshot(detail), inputs.now);
+            faults.raise(PHASE_OPEN_FAULT, inputs.snapshot(phase_detail(Some(phase))), inputs.now);
         }
         if self.deficit(inputs) {
             // The phase check 1 suspects from a first unbalanced window, else the one without current now.
             let phase = self.suspect.map(|(phase, _)| phase).or_else(|| self.silent_phase(inputs));
-            let detail = phase.map_or(0, |p| i32::try_from(p).unwrap_or(-1).saturating_add(1));
-            faults.raise(PHASE_OPEN_FAULT, inputs.snapshot(detail), inputs.now);
+            faults.raise(PHASE_OPEN_FAULT, inputs.snapshot(phase_detail(phase)), inputs.now);
         }
     }
 
@@ -250,6 +248,11 @@ impl PhaseSupervision {
         let flowing = largest >= (self.floor.to_bits().unsigned_abs() >> 3);
         (flowing && smallest.saturating_mul(4) < largest).then_some(phase)
     }
+}
+
+/// The snapshot's detail for an open phase (0 = A): 1 = A, 2 = B, 3 = C; 0 when not identified.
+fn phase_detail(phase: Option<usize>) -> i32 {
+    phase.map_or(0, |p| i32::try_from(p).unwrap_or(-1).saturating_add(1))
 }
 
 /// The phase (0 = A) whose mean square is under 1/[`UNBALANCE_RATIO`] of the largest, if the largest is above

@@ -5,7 +5,7 @@
 //! communication bits, IDX 7.2), the fault number in byte 3 and the detail in bytes 4..7.
 
 use firmware::canopen::frame::{BusState, BusStatus, CanFrame};
-use firmware::fault::FaultId;
+use firmware::fault::{EmcyMessage, FaultId};
 use hal_sim::can::bus::Delivery;
 use hal_sim::sim::canopen::{CanClock, CanopenConfig, CanopenRunner};
 
@@ -26,16 +26,18 @@ fn set_controller(r: &mut CanopenRunner, state: BusState, transmit_errors: u8, r
     r.drive_mut(NODE).expect("node 1").controller = BusStatus { state, transmit_errors, rx_overruns };
 }
 
-/// The EMCYs among `frames` as (code, error register, fault number, detail).
-fn emcys(frames: &[Delivery]) -> Vec<(u16, u8, u8, i32)> {
+/// The EMCYs among `frames`.
+fn emcys(frames: &[Delivery]) -> Vec<EmcyMessage> {
     frames
         .iter()
         .filter(|d| d.frame.id() == EMCY)
-        .map(|d| {
-            let b = d.frame.data();
-            (u16::from_le_bytes([b[0], b[1]]), b[2], b[3], i32::from_le_bytes([b[4], b[5], b[6], b[7]]))
-        })
+        .map(|d| EmcyMessage::parse(d.frame.data()).expect("8 bytes"))
         .collect()
+}
+
+/// The EMCY of fault `id` with the communication error register (0x11) and `detail` in bytes 4..7.
+fn expected(id: FaultId, detail: i32) -> EmcyMessage {
+    EmcyMessage::fault(id, 0x11, detail)
 }
 
 fn heartbeats(frames: &[Delivery]) -> usize {
@@ -49,8 +51,8 @@ fn error_passive_sends_emcy_0x8120() {
     let mut r = booted();
     set_controller(&mut r, BusState::ErrorPassive, 130, 0);
     let frames = r.run_for(20_000_000);
-    let number = FaultId::CanErrorPassive.number();
-    assert_eq!(emcys(&frames), vec![(0x8120, 0x11, number, 130)]);
+    assert_eq!(emcys(&frames), vec![expected(FaultId::CanErrorPassive, 130)]);
+    assert_eq!(FaultId::CanErrorPassive.info().code, 0x8120);
     assert!(heartbeats(&frames) >= 1, "an error-passive node still sends");
     set_controller(&mut r, BusState::ErrorActive, 90, 0);
     let frames = r.run_for(20_000_000);
@@ -67,7 +69,8 @@ fn bus_off_holds_the_emcy_0x81fd_until_the_controller_is_back() {
     assert_eq!(silent.iter().filter(|d| d.frame.id() & 0x7F == u16::from(NODE)).count(), 0, "{silent:?}");
     set_controller(&mut r, BusState::ErrorActive, 0, 0);
     let back = r.run_for(30_000_000);
-    assert_eq!(emcys(&back), vec![(0x81FD, 0x11, FaultId::CanBusOff.number(), 0)]);
+    assert_eq!(emcys(&back), vec![expected(FaultId::CanBusOff, 0)]);
+    assert_eq!(FaultId::CanBusOff.info().code, 0x81FD);
     assert!(heartbeats(&back) >= 2, "the heartbeat resumes: {back:?}");
 }
 
@@ -77,7 +80,8 @@ fn receive_overrun_sends_emcy_0x8110_with_the_frames_lost() {
     let mut r = booted();
     set_controller(&mut r, BusState::ErrorActive, 0, 3);
     let frames = r.run_for(20_000_000);
-    assert_eq!(emcys(&frames), vec![(0x8110, 0x11, FaultId::CanRxOverrun.number(), 3)]);
+    assert_eq!(emcys(&frames), vec![expected(FaultId::CanRxOverrun, 3)]);
+    assert_eq!(FaultId::CanRxOverrun.info().code, 0x8110);
     let frames = r.run_for(20_000_000);
     assert_eq!(emcys(&frames), vec![], "the same count is not reported twice");
 }

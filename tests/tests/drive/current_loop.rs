@@ -215,7 +215,11 @@ fn a_loop_setpoint_applies_in_the_middle_of_the_slow_period_and_a_request_at_onc
     sim.drive.dictionary_mut().set(h::INTERPOLATION_TIME_PERIOD_VALUE, 0);
     sim.drive.dictionary_mut().set(h::TARGET_VELOCITY, 1000);
     let mut checked = 0;
-    while checked < 50 {
+    // 50 slow ticks with a new set-point are well inside 1,000 slow ticks of an acceleration to 1,000 rpm.
+    for _ in 0..10_000 {
+        if checked == 50 {
+            break;
+        }
         let before = sim.drive.report().period;
         sim.setpoint_received();
         sim.step();
@@ -237,6 +241,7 @@ fn a_loop_setpoint_applies_in_the_middle_of_the_slow_period_and_a_request_at_onc
         assert_eq!(*sim.tier1().setpoint(), wanted, "taken in the period named");
         checked += 1;
     }
+    assert_eq!(checked, 50, "slow ticks with a new loop set-point");
     assert_eq!(sim.tier1().state(), PowerState::OperationEnabled);
     sim.drive.shutdown();
     sim.step();
