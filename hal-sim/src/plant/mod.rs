@@ -88,30 +88,44 @@
 //! matrix exponentials. Angles inside a segment are advanced by a rotation instead of new `sin_cos` calls. The
 //! thermal nodes (time constants of 20 s and more) take one Euler step per period. No allocation in `step`: one
 //! simulated second costs about 0.05 s of CPU in release builds.
+//!
+//! # Code layout
+//!
+//! This file holds the plant's state, the period loop ([`Plant::step`]) and the public accessors and hooks. The
+//! rest is split by job: `coeffs` (the constants of one period), `switching` and `freewheel` (one integration
+//! segment with the legs switching, and with all switches off), `electrical` (the transforms, back-EMF and RK4
+//! step both use), `mechanics` (torque, friction, stiction, load), `thermal` (the temperature nodes) and
+//! `sampling` (the encoder after each segment, the sample at the period centre); the public modules [`inverter`],
+//! [`sensors`], [`faults`], [`io`] and [`rng`] hold the leg patterns, the sensor functions, the injected faults, the
+//! digital I/O and the noise source.
 
+mod coeffs;
+mod electrical;
 pub mod faults;
+mod freewheel;
 pub mod inverter;
 pub mod io;
+mod mechanics;
 mod params;
 pub mod rng;
+mod sampling;
 pub mod sensors;
+mod switching;
+mod thermal;
 
 pub use io::{BrakeParams, InputSource, InputWiring, IoParams};
 pub use params::PlantParams;
 
 use core::f64::consts::PI;
 
-use firmware::hal::power::{AdcSamples, FeedbackSample, Measurements, PwmCommand, PWM_FREQUENCY_HZ};
+use firmware::hal::power::{Measurements, PwmCommand, PWM_FREQUENCY_HZ};
 
-use inverter::{LegPattern, LegState};
+use coeffs::Coeffs;
+use inverter::LegPattern;
 use rng::Rng;
 
 /// Length of one PWM period (and of one call of [`Plant::step`]), in s.
 pub const PERIOD_S: f64 = 1.0 / PWM_FREQUENCY_HZ as f64;
-
-const SQRT3: f64 = 1.732_050_807_568_877_2;
-/// Currents below this are treated as zero by the diode-bridge model, in A.
-const ZERO_CURRENT_A: f64 = 1e-12;
 
 /// How the shaft moves.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -189,149 +203,6 @@ pub struct PeriodAverages {
 /// A load-torque profile: `f(time_s, theta_m_rad, omega_m_rad_s) -> N m`, evaluated at the start of every
 /// integration segment.
 pub type LoadProfile = Box<dyn FnMut(f64, f64, f64) -> f64 + Send>;
-
-/// Coefficients of one leg on one segment: pole voltage `a V_bus + b`, bus-current share `c i`.
-#[derive(Clone, Copy, Debug, Default)]
-struct LegDrive {
-    a: f64,
-    b: f64,
-    c: f64,
-}
-
-/// Classical fourth-order Runge-Kutta step.
-#[inline(always)]
-fn rk4<const N: usize>(s: &[f64; N], h: f64, f: impl Fn(&[f64; N]) -> [f64; N]) -> [f64; N] {
-    let add = |x: &[f64; N], k: &[f64; N], w: f64| -> [f64; N] { core::array::from_fn(|i| x[i] + w * k[i]) };
-    let k1 = f(s);
-    let k2 = f(&add(s, &k1, 0.5 * h));
-    let k3 = f(&add(s, &k2, 0.5 * h));
-    let k4 = f(&add(s, &k3, h));
-    core::array::from_fn(|i| s[i] + h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]))
-}
-
-/// Inverse Park then inverse (amplitude-invariant) Clarke.
-#[inline(always)]
-fn dq_to_abc(i_d: f64, i_q: f64, sin: f64, cos: f64) -> [f64; 3] {
-    let alpha = i_d * cos - i_q * sin;
-    let beta = i_d * sin + i_q * cos;
-    [alpha, -0.5 * alpha + 0.5 * SQRT3 * beta, -0.5 * alpha - 0.5 * SQRT3 * beta]
-}
-
-/// Amplitude-invariant Clarke then Park (the zero sequence drops out).
-#[inline(always)]
-fn abc_to_dq(x: [f64; 3], sin: f64, cos: f64) -> [f64; 2] {
-    let alpha = (2.0 * x[0] - x[1] - x[2]) / 3.0;
-    let beta = (x[1] - x[2]) / SQRT3;
-    [alpha * cos + beta * sin, -alpha * sin + beta * cos]
-}
-
-/// Back-EMF of the three phases: `-w_e psi sin(theta_e - k 120 deg)`.
-#[inline(always)]
-fn back_emf(omega_e: f64, psi: f64, sin: f64, cos: f64) -> [f64; 3] {
-    // sin(x - 120) = -sin/2 - cos sqrt3/2; sin(x + 120) = -sin/2 + cos sqrt3/2.
-    let k = -omega_e * psi;
-    [k * sin, k * (-0.5 * sin - 0.5 * SQRT3 * cos), k * (-0.5 * sin + 0.5 * SQRT3 * cos)]
-}
-
-/// Terminal voltage of the disconnected motor phase `x` ([`faults::PlantFaults::phase_open`]) given the terminal
-/// voltages `u` of the other two and the back-EMFs `e`: the phase carries no current, so its terminal is its
-/// back-EMF above the star point, and the star point is where the two connected phases, which carry equal and
-/// opposite currents through equal inductances, put it: the mean of their `u - e`. Substituted into the dq model
-/// (whose star point is the mean of the three terminals, the zero sequence dropping out) this gives `di_x/dt = 0`
-/// exactly for `Ld = Lq` (the reference motor); with saliency the projection after each segment removes the rest.
-#[inline(always)]
-fn open_phase_terminal(u: [f64; 3], e: [f64; 3], x: usize) -> f64 {
-    let (y, z) = ((x + 1) % 3, (x + 2) % 3);
-    e[x] + 0.5 * ((u[y] - e[y]) + (u[z] - e[z]))
-}
-
-/// sin and cos of `theta0 + delta` from those of `theta0`: a rotation by a short Taylor series for the small angle
-/// steps inside one segment (truncation error below 1e-15 for |delta| < 0.02 rad), the library functions otherwise.
-#[inline(always)]
-fn sin_cos_after(sin0: f64, cos0: f64, theta0: f64, delta: f64) -> (f64, f64) {
-    if delta.abs() < 0.02 {
-        let d2 = delta * delta;
-        let s = delta * (1.0 - d2 / 6.0 * (1.0 - d2 / 20.0));
-        let c = 1.0 - d2 / 2.0 * (1.0 - d2 / 12.0 * (1.0 - d2 / 30.0));
-        (sin0 * c + cos0 * s, cos0 * c - sin0 * s)
-    } else {
-        (theta0 + delta).sin_cos()
-    }
-}
-
-fn sign(x: f64) -> f64 {
-    if x > 0.0 {
-        1.0
-    } else if x < 0.0 {
-        -1.0
-    } else {
-        0.0
-    }
-}
-
-/// Per-segment mechanical mode, decided at the segment start (stiction needs the sign of the breakaway).
-#[derive(Clone, Copy, Debug)]
-enum SegMech {
-    /// Angle and speed frozen (locked, or stuck by static friction).
-    Frozen,
-    /// Constant speed.
-    Driven(f64),
-    /// Free, with the friction sign for the segment (the sign of the speed at its start, or of the breakaway torque
-    /// at rest).
-    Free { zero_speed_friction_sign: f64 },
-}
-
-/// Constants of one period, copied out of the parameters so the integrator borrows nothing.
-#[derive(Clone, Copy, Debug)]
-struct Coeffs {
-    p: f64,
-    psi: f64,
-    ld: f64,
-    lq: f64,
-    r: f64,
-    r_switch: f64,
-    v_diode: f64,
-    j: f64,
-    b_visc: f64,
-    t_coulomb: f64,
-    v_source: f64,
-    r_source: f64,
-    source_sinks: bool,
-    c_bus: f64,
-}
-
-impl Coeffs {
-    #[inline(always)]
-    fn source_current(&self, v_bus: f64) -> f64 {
-        let i = (self.v_source - v_bus) / self.r_source;
-        if self.source_sinks {
-            i
-        } else {
-            i.max(0.0)
-        }
-    }
-
-    #[inline(always)]
-    fn torque(&self, i_d: f64, i_q: f64) -> f64 {
-        1.5 * self.p * (self.psi * i_q + (self.ld - self.lq) * i_d * i_q)
-    }
-
-    /// Mechanical derivatives (d omega, d theta).
-    #[inline(always)]
-    fn mech(&self, mode: SegMech, torque: f64, load: f64, omega: f64) -> (f64, f64) {
-        match mode {
-            SegMech::Frozen => (0.0, 0.0),
-            SegMech::Driven(w) => (0.0, w),
-            SegMech::Free { zero_speed_friction_sign } => {
-                // One friction sign for the whole segment (the speed's at its start): re-evaluating it at the RK4
-                // stages lets the stages straddling zero cancel, so a speed below `T_c h / J` would creep on
-                // instead of stopping (0.14 rad/s with an engaged brake); a sign change is clamped afterwards.
-                let s = zero_speed_friction_sign;
-                ((torque - load - self.b_visc * omega - self.t_coulomb * s) / self.j, omega)
-            }
-        }
-    }
-}
 
 /// The simulated plant: PMSM, mechanics, inverter, DC bus, thermal nodes and sensors. See the module docs.
 pub struct Plant {
@@ -480,30 +351,13 @@ impl Plant {
                 end_levels[x] = Some(level);
             }
         }
-
-        // Breakpoints: every switching instant of the three legs, the sample instant and the period end, sorted.
-        let mut breaks = [0.0f64; 3 * LegPattern::MAX_PIECES + 2];
-        let mut n_breaks = 0;
-        for b in [sample_t, period_s] {
-            breaks[n_breaks] = b;
-            n_breaks += 1;
-        }
-        if enabled {
-            for pattern in &patterns {
-                for &b in pattern.boundaries() {
-                    breaks[n_breaks] = b;
-                    n_breaks += 1;
-                }
-            }
-        }
-        let breaks = &mut breaks[..n_breaks];
-        breaks.sort_unstable_by(f64::total_cmp);
+        let (breaks, n_breaks) = breakpoints(&patterns, enabled, sample_t, period_s);
 
         let mut acc = PeriodAverages::default();
         let mut sampled = false;
         let mut measurements = self.last_measurements;
         let mut t = 0.0;
-        for &b in breaks.iter() {
+        for &b in breaks[..n_breaks].iter() {
             let span = b - t;
             if span > 1e-13 {
                 // Split the interval into equal segments no longer than the maximum step.
@@ -513,16 +367,7 @@ impl Plant {
                 while j < n {
                     let t0 = t + j * h;
                     let t1 = if j + 1.0 >= n { b } else { t0 + h };
-                    self.update_load(t0);
-                    if enabled && !self.break_latched {
-                        let i = self.segment_switching(&k, &patterns, t0, t1, &mut acc);
-                        if i.iter().any(|x| x.abs() > self.params.break_current_a) {
-                            self.break_latched = true;
-                        }
-                    } else {
-                        self.segment_freewheel(&k, t1 - t0, &mut acc);
-                    }
-                    self.update_encoder();
+                    self.integrate_segment(&k, &patterns, enabled, t0, t1, &mut acc);
                     j += 1.0;
                 }
                 t = b;
@@ -535,15 +380,7 @@ impl Plant {
         }
 
         // Period bookkeeping: averages, thermal nodes, leg levels.
-        for v in acc.pole_voltage_v.iter_mut() {
-            *v /= period_s;
-        }
-        let mean = (acc.pole_voltage_v[0] + acc.pole_voltage_v[1] + acc.pole_voltage_v[2]) / 3.0;
-        acc.phase_voltage_v = acc.pole_voltage_v.map(|v| v - mean);
-        acc.dq_voltage_v = acc.dq_voltage_v.map(|v| v / period_s);
-        acc.bus_voltage_v /= period_s;
-        acc.bus_current_a /= period_s;
-        acc.copper_loss_w /= period_s;
+        let acc = PeriodAverages::from_integrals(acc, period_s);
         // Conduction loss of the switches: every phase current flows through one switch (or diode) at a time.
         let switch_loss_w = acc.copper_loss_w * k.r_switch / (k.r - k.r_switch).max(1e-12);
         self.update_thermal(acc.copper_loss_w, switch_loss_w, period_s);
@@ -555,536 +392,28 @@ impl Plant {
         measurements
     }
 
-    fn coeffs(&self) -> Coeffs {
-        let p = &self.params;
-        Coeffs {
-            p: f64::from(p.pole_pairs),
-            psi: p.flux_linkage_wb,
-            ld: p.ld_h,
-            lq: p.lq_h,
-            r: self.phase_resistance() + p.switch_resistance_ohm,
-            r_switch: p.switch_resistance_ohm,
-            v_diode: p.diode_drop_v,
-            j: p.total_inertia_kg_m2(),
-            b_visc: p.viscous_friction_nm_s_rad,
-            t_coulomb: p.coulomb_friction_nm + self.io.brake_friction_nm(&p.io),
-            v_source: p.source_voltage_v,
-            r_source: p.source_resistance_ohm,
-            source_sinks: p.source_sinks_current,
-            c_bus: p.bus_capacitance_f,
-        }
-    }
-
-    fn phase_resistance(&self) -> f64 {
-        let p = &self.params;
-        p.phase_resistance_ohm * (1.0 + p.copper_temp_coeff_per_k * (self.t_winding - p.resistance_reference_temp_c))
-    }
-
-    fn update_load(&mut self, t_in_period: f64) {
-        let time = self.time_s() + t_in_period;
-        let extra = match self.load_profile.as_mut() {
-            Some(f) => f(time, self.theta_m, self.omega_m),
-            None => 0.0,
-        };
-        self.last_load_nm = self.load_torque_nm + extra;
-    }
-
-    /// Mechanical mode of the next segment (stiction decided from the torques at its start).
-    fn seg_mech(&self, k: &Coeffs) -> SegMech {
-        match self.mechanics {
-            Mechanics::Locked => SegMech::Frozen,
-            Mechanics::Driven { speed_rad_s } => SegMech::Driven(speed_rad_s),
-            Mechanics::Free => {
-                if self.omega_m != 0.0 {
-                    SegMech::Free { zero_speed_friction_sign: sign(self.omega_m) }
-                } else {
-                    let drive = k.torque(self.i_d, self.i_q) - self.last_load_nm;
-                    if drive.abs() <= k.t_coulomb {
-                        SegMech::Frozen
-                    } else {
-                        SegMech::Free { zero_speed_friction_sign: sign(drive) }
-                    }
-                }
-            }
-        }
-    }
-
-    /// After a free segment: a speed that changed sign stops at zero (friction cannot reverse the motion).
-    fn clamp_speed(&mut self, mode: SegMech, omega_before: f64) {
-        if let SegMech::Free { zero_speed_friction_sign } = mode {
-            let reference = if omega_before != 0.0 { sign(omega_before) } else { zero_speed_friction_sign };
-            if self.omega_m * reference < 0.0 {
-                self.omega_m = 0.0;
-            }
-        }
-    }
-
-    fn i_abc(&self) -> [f64; 3] {
-        let (s, c) = (f64::from(self.params.pole_pairs) * self.theta_m).sin_cos();
-        dq_to_abc(self.i_d, self.i_q, s, c)
-    }
-
-    /// One RK4 segment `[t0, t1)` with the outputs switching; returns the currents out of the three legs at its end
-    /// (the phase currents, plus a short's share, [`inverter::OutputShort`]): what the over-current comparator sees.
-    ///
-    /// A disconnected phase ([`faults::PlantFaults::phase_open`]) is a leg whose motor terminal floats at
-    /// [`open_phase_terminal`], recomputed at every RK4 stage, draws nothing from the bus, and ends every segment at
-    /// exactly zero current (the projection below, as for a diode that stopped conducting). The current a phase
-    /// carried when it was opened is cut at once (the arc of a real break lasts microseconds; its energy is dropped).
-    fn segment_switching(
+    /// One integration segment `[t0, t1)` of the period: the load torque at its start, then the switching model
+    /// (tripping the over-current break if a leg current exceeds it) or, with the outputs off or the break
+    /// tripped, the diode bridge; then the encoder follows the shaft.
+    fn integrate_segment(
         &mut self,
         k: &Coeffs,
         patterns: &[LegPattern; 3],
+        enabled: bool,
         t0: f64,
         t1: f64,
         acc: &mut PeriodAverages,
-    ) -> [f64; 3] {
-        let h = t1 - t0;
-        let mid = 0.5 * (t0 + t1);
-        let th0 = k.p * self.theta_m;
-        let (sn0, cs0) = th0.sin_cos();
-        let i0 = dq_to_abc(self.i_d, self.i_q, sn0, cs0);
-        let upper_diode = LegDrive { a: 1.0, b: k.v_diode, c: 1.0 };
-        let lower_diode = LegDrive { a: 0.0, b: -k.v_diode, c: 0.0 };
-        let mut legs = [LegDrive::default(); 3];
-        let mut off = [false; 3];
-        let mut floating = [false; 3];
-        for x in 0..3 {
-            let state = patterns[x].state_at(mid);
-            off[x] = state == LegState::Off;
-            legs[x] = match state {
-                LegState::High => LegDrive { a: 1.0, b: 0.0, c: 1.0 },
-                LegState::Low => LegDrive { a: 0.0, b: 0.0, c: 0.0 },
-                LegState::Off if i0[x] < -ZERO_CURRENT_A => upper_diode,
-                LegState::Off if i0[x] > ZERO_CURRENT_A => lower_diode,
-                LegState::Off => {
-                    floating[x] = true;
-                    LegDrive::default()
-                }
-            };
-        }
-        // Injected faults: a disconnected phase is taken out of the neutral of the floating legs below.
-        let open = self.faults.phase_open.filter(|&x| x < 3);
-        if let Some(x) = open {
-            floating[x] = true;
-        }
-        let short = inverter::OutputShort::new(self.faults.phase_short, k.r_switch);
-        if floating.iter().any(|f| *f) {
-            // A leg in dead time with no current floats: its terminal follows the motor (back-EMF plus the neutral
-            // set by the driven legs) so that its current stays zero, unless that would pass a rail, where its
-            // diode starts to conduct. Back-EMF frozen over the segment (at most the 0.5 us dead time).
-            let e0 = back_emf(k.p * self.omega_m, k.psi, sn0, cs0);
-            let n_fixed = floating.iter().filter(|f| !**f).count();
-            let (mut a_n, mut b_n) = (0.5, 0.0);
-            if n_fixed > 0 {
-                (a_n, b_n) = (0.0, 0.0);
-                for x in (0..3).filter(|&x| !floating[x]) {
-                    a_n += legs[x].a / n_fixed as f64;
-                    b_n += (legs[x].b - e0[x]) / n_fixed as f64;
-                }
+    ) {
+        self.update_load(t0);
+        if enabled && !self.break_latched {
+            let i = self.segment_switching(k, patterns, t0, t1, acc);
+            if i.iter().any(|x| x.abs() > self.params.break_current_a) {
+                self.break_latched = true;
             }
-            for x in 0..3 {
-                if !floating[x] {
-                    continue;
-                }
-                let leg = LegDrive { a: a_n, b: e0[x] + b_n, c: 0.0 };
-                let u = leg.a * self.v_bus + leg.b;
-                if u > self.v_bus + k.v_diode {
-                    legs[x] = upper_diode;
-                    floating[x] = false;
-                } else if u < -k.v_diode {
-                    legs[x] = lower_diode;
-                    floating[x] = false;
-                } else {
-                    legs[x] = leg;
-                }
-            }
-        }
-        // The inverter's poles (what the averages and a short see); the motor terminal of an open phase is
-        // computed in the stages.
-        let inverter_legs = legs;
-        if let Some(x) = open {
-            legs[x] = LegDrive::default();
-        }
-        let mode = self.seg_mech(k);
-        let load = self.last_load_nm;
-        let omega_before = self.omega_m;
-        let s0 = [self.i_d, self.i_q, self.omega_m, self.theta_m, self.v_bus];
-        let s1 = rk4(&s0, h, |s: &[f64; 5]| {
-            let [i_d, i_q, omega, theta, v] = *s;
-            let (sn, cs) = sin_cos_after(sn0, cs0, th0, k.p * theta - th0);
-            let mut u = [legs[0].a * v + legs[0].b, legs[1].a * v + legs[1].b, legs[2].a * v + legs[2].b];
-            if let Some(x) = open {
-                u[x] = open_phase_terminal(u, back_emf(k.p * omega, k.psi, sn, cs), x);
-            }
-            let [v_d, v_q] = abc_to_dq(u, sn, cs);
-            let omega_e = k.p * omega;
-            let di_d = (v_d - k.r * i_d + omega_e * k.lq * i_q) / k.ld;
-            let di_q = (v_q - k.r * i_q - omega_e * (k.ld * i_d + k.psi)) / k.lq;
-            let i = dq_to_abc(i_d, i_q, sn, cs);
-            let mut i_dc = legs[0].c * i[0] + legs[1].c * i[1] + legs[2].c * i[2];
-            if let Some(short) = short {
-                // The short's current leaves through the high switch of the leg at the higher pole.
-                let poles = inverter_legs.map(|l| l.a * v + l.b);
-                let s = short.leg_currents(poles);
-                i_dc += inverter_legs[0].c * s[0] + inverter_legs[1].c * s[1] + inverter_legs[2].c * s[2];
-            }
-            let dv = (k.source_current(v) - i_dc) / k.c_bus;
-            let (dw, dth) = k.mech(mode, k.torque(i_d, i_q), load, omega);
-            [di_d, di_q, dw, dth, dv]
-        });
-        [self.i_d, self.i_q, self.omega_m, self.theta_m, self.v_bus] = s1;
-        self.clamp_speed(mode, omega_before);
-        let (sn1, cs1) = sin_cos_after(sn0, cs0, th0, k.p * s1[3] - th0);
-        let mut i1 = dq_to_abc(self.i_d, self.i_q, sn1, cs1);
-
-        // Diodes block reverse current: a leg in dead time whose current reached zero (or that floated) ends the
-        // segment at exactly zero current; the current vector is projected onto the plane i_x = 0 (two such
-        // phases leave no current at all).
-        let mut stopped = [false; 3];
-        for x in 0..3 {
-            // The diode conducting in dead time carries a negative current (upper) or a positive one (lower).
-            let diode_sign = if legs[x].c != 0.0 { -1.0 } else { 1.0 };
-            stopped[x] = off[x] && (floating[x] || i1[x] * diode_sign <= 0.0);
-        }
-        if let Some(x) = open {
-            stopped[x] = true;
-        }
-        match stopped.iter().filter(|s| **s).count() {
-            0 => {}
-            1 => {
-                let x = stopped.iter().position(|s| *s).unwrap_or(0);
-                let ix = i1[x];
-                for (y, iy) in i1.iter_mut().enumerate() {
-                    *iy += if y == x { -ix } else { 0.5 * ix };
-                }
-                [self.i_d, self.i_q] = abc_to_dq(i1, sn1, cs1);
-            }
-            _ => {
-                i1 = [0.0; 3];
-                self.i_d = 0.0;
-                self.i_q = 0.0;
-            }
-        }
-
-        // Averages (trapezoidal in the bus voltage and currents).
-        let v_mid = 0.5 * (s0[4] + s1[4]);
-        let mut poles = [0.0; 3];
-        for x in 0..3 {
-            let i_mid = 0.5 * (i0[x] + i1[x]);
-            poles[x] = inverter_legs[x].a * v_mid + inverter_legs[x].b - k.r_switch * i_mid;
-            acc.pole_voltage_v[x] += poles[x] * h;
-            acc.bus_current_a += legs[x].c * i_mid * h;
-        }
-        let mut legs_i = i1;
-        if let Some(short) = short {
-            let s_mid = short.leg_currents(inverter_legs.map(|l| l.a * v_mid + l.b));
-            let s_end = short.leg_currents(inverter_legs.map(|l| l.a * self.v_bus + l.b));
-            for x in 0..3 {
-                acc.bus_current_a += inverter_legs[x].c * s_mid[x] * h;
-                legs_i[x] += s_end[x];
-            }
-        }
-        let (sn, cs) = sin_cos_after(sn0, cs0, th0, k.p * 0.5 * (s0[3] + s1[3]) - th0);
-        let vdq = abc_to_dq(poles, sn, cs);
-        acc.dq_voltage_v[0] += vdq[0] * h;
-        acc.dq_voltage_v[1] += vdq[1] * h;
-        acc.bus_voltage_v += v_mid * h;
-        let i_sq = 0.5 * (s0[0] * s0[0] + s0[1] * s0[1] + s1[0] * s1[0] + s1[1] * s1[1]);
-        acc.copper_loss_w += 1.5 * (k.r - k.r_switch) * i_sq * h;
-        legs_i
-    }
-
-    /// One RK4 segment of length `h` with all switches off: the diode-bridge model (see the module docs).
-    fn segment_freewheel(&mut self, k: &Coeffs, h: f64, acc: &mut PeriodAverages) {
-        let l = 0.5 * (k.ld + k.lq);
-        let th0 = k.p * self.theta_m;
-        let (sn, cs) = th0.sin_cos();
-        let mut i = dq_to_abc(self.i_d, self.i_q, sn, cs);
-        for x in i.iter_mut() {
-            if x.abs() < ZERO_CURRENT_A {
-                *x = 0.0;
-            }
-        }
-        // A disconnected phase ([`faults::PlantFaults::phase_open`]) never conducts; a current it still carried when
-        // it was opened is cut at once (as in `segment_switching`).
-        let disconnected = self.faults.phase_open.filter(|&x| x < 3);
-        if let Some(x) = disconnected {
-            let ix = i[x];
-            if ix != 0.0 {
-                for (y, iy) in i.iter_mut().enumerate() {
-                    *iy += if y == x { -ix } else { 0.5 * ix };
-                }
-            }
-        }
-        let e = back_emf(k.p * self.omega_m, k.psi, sn, cs);
-        let v = self.v_bus;
-        // Conduction: per phase, None (open) or Some(upper?) for the diode carrying its current.
-        let mut conducting: [Option<bool>; 3] = i.map(|x| if x != 0.0 { Some(x < 0.0) } else { None });
-        let rail = |upper: bool| if upper { v + k.v_diode } else { -k.v_diode };
-        let count = |c: &[Option<bool>; 3]| c.iter().filter(|x| x.is_some()).count();
-        if count(&conducting) < 2 {
-            conducting = [None; 3];
-            i = [0.0; 3];
-            let first = usize::from(disconnected == Some(0));
-            let (mut hi, mut lo) = (first, first);
-            for x in (first + 1..3).filter(|&x| Some(x) != disconnected) {
-                if e[x] > e[hi] {
-                    hi = x;
-                }
-                if e[x] < e[lo] {
-                    lo = x;
-                }
-            }
-            if e[hi] - e[lo] > v + 2.0 * k.v_diode {
-                conducting[hi] = Some(true);
-                conducting[lo] = Some(false);
-            }
-        }
-        if count(&conducting) == 2 {
-            let mut v_n = 0.0;
-            let mut open = 0;
-            for x in 0..3 {
-                match conducting[x] {
-                    Some(up) => v_n += 0.5 * (rail(up) - e[x]),
-                    None => open = x,
-                }
-            }
-            let v_open = e[open] + v_n;
-            if Some(open) != disconnected {
-                if v_open > v + k.v_diode {
-                    conducting[open] = Some(true);
-                } else if v_open < -k.v_diode {
-                    conducting[open] = Some(false);
-                }
-            }
-        }
-        let n_on = count(&conducting);
-        let mask = conducting.map(|c| if c.is_some() { 1.0 } else { 0.0 });
-        let drive = conducting.map(|c| match c {
-            Some(true) => LegDrive { a: 1.0, b: k.v_diode, c: 1.0 },
-            Some(false) => LegDrive { a: 0.0, b: -k.v_diode, c: 0.0 },
-            None => LegDrive::default(),
-        });
-        let inv_n = if n_on > 0 { 1.0 / n_on as f64 } else { 0.0 };
-        let mode = self.seg_mech(k);
-        let load = self.last_load_nm;
-        let omega_before = self.omega_m;
-        // Neutral voltage of a state: mean over the conducting phases of (pole - R i - e).
-        let neutral = |s: &[f64; 6], e: &[f64; 3]| -> f64 {
-            let mut sum = 0.0;
-            for x in 0..3 {
-                sum += mask[x] * (drive[x].a * s[5] + drive[x].b - k.r * s[x] - e[x]);
-            }
-            sum * inv_n
-        };
-        let s0 = [i[0], i[1], i[2], self.omega_m, self.theta_m, v];
-        let s1 = rk4(&s0, h, |s: &[f64; 6]| {
-            let (sn, cs) = sin_cos_after(sn, cs, th0, k.p * s[4] - th0);
-            let e = back_emf(k.p * s[3], k.psi, sn, cs);
-            let v_n = neutral(s, &e);
-            let mut d = [0.0; 6];
-            let mut i_dc = 0.0;
-            for x in 0..3 {
-                d[x] = mask[x] * (drive[x].a * s[5] + drive[x].b - k.r * s[x] - e[x] - v_n) / l;
-                i_dc += mask[x] * drive[x].c * s[x];
-            }
-            let [i_d, i_q] = abc_to_dq([s[0], s[1], s[2]], sn, cs);
-            let (dw, dth) = k.mech(mode, k.torque(i_d, i_q), load, s[3]);
-            d[3] = dw;
-            d[4] = dth;
-            d[5] = (k.source_current(s[5]) - i_dc) / k.c_bus;
-            d
-        });
-        // Diodes block reverse current: a conducting phase whose current reached or crossed zero stops.
-        let mut i1 = [s1[0], s1[1], s1[2]];
-        for x in 0..3 {
-            if let Some(up) = conducting[x] {
-                let expected = if up { -1.0 } else { 1.0 };
-                if i1[x] * expected <= ZERO_CURRENT_A {
-                    i1[x] = 0.0;
-                }
-            } else {
-                i1[x] = 0.0;
-            }
-        }
-        let nonzero = i1.iter().filter(|x| **x != 0.0).count();
-        if nonzero < 2 {
-            i1 = [0.0; 3];
         } else {
-            let mean = (i1[0] + i1[1] + i1[2]) / nonzero as f64;
-            for x in i1.iter_mut() {
-                if *x != 0.0 {
-                    *x -= mean;
-                }
-            }
+            self.segment_freewheel(k, t1 - t0, acc);
         }
-        self.omega_m = s1[3];
-        self.theta_m = s1[4];
-        self.v_bus = s1[5];
-        self.clamp_speed(mode, omega_before);
-        let (sn1, cs1) = sin_cos_after(sn, cs, th0, k.p * self.theta_m - th0);
-        [self.i_d, self.i_q] = abc_to_dq(i1, sn1, cs1);
-
-        // Averages at the segment midpoint (open phases float at e + v_n; all open: neutral at mid-bus).
-        let (sn_mid, cs_mid) = sin_cos_after(sn, cs, th0, k.p * 0.5 * (s0[4] + s1[4]) - th0);
-        let e_mid = back_emf(k.p * 0.5 * (s0[3] + s1[3]), k.psi, sn_mid, cs_mid);
-        let v_mid = 0.5 * (v + self.v_bus);
-        let mut s_mid = [0.0; 6];
-        for x in 0..6 {
-            s_mid[x] = 0.5 * (s0[x] + if x < 3 { i1[x] } else { s1[x] });
-        }
-        let v_n = if n_on >= 2 { neutral(&s_mid, &e_mid) } else { 0.5 * v_mid };
-        let mut poles = [0.0; 3];
-        for x in 0..3 {
-            poles[x] = if conducting[x].is_some() {
-                drive[x].a * v_mid + drive[x].b - k.r_switch * s_mid[x]
-            } else {
-                e_mid[x] + v_n
-            };
-            acc.pole_voltage_v[x] += poles[x] * h;
-            acc.bus_current_a += drive[x].c * mask[x] * s_mid[x] * h;
-        }
-        let vdq = abc_to_dq(poles, sn_mid, cs_mid);
-        acc.dq_voltage_v[0] += vdq[0] * h;
-        acc.dq_voltage_v[1] += vdq[1] * h;
-        acc.bus_voltage_v += v_mid * h;
-        let i_sq = (s_mid[0] * s_mid[0] + s_mid[1] * s_mid[1] + s_mid[2] * s_mid[2]) * (2.0 / 3.0);
-        acc.copper_loss_w += 1.5 * (k.r - k.r_switch) * i_sq * h;
-    }
-
-    fn update_thermal(&mut self, copper_loss_w: f64, switch_loss_w: f64, dt: f64) {
-        let p = &self.params;
-        let r_wh = p.winding_to_housing_k_per_w;
-        let r_ha = p.housing_to_ambient_k_per_w;
-        let c_w = p.winding_time_constant_s / r_wh;
-        let c_h = p.housing_time_constant_s / r_ha;
-        let flow_wh = (self.t_winding - self.t_housing) / r_wh;
-        let flow_ha = (self.t_housing - p.ambient_c) / r_ha;
-        self.t_winding += dt * (copper_loss_w - flow_wh) / c_w;
-        self.t_housing += dt * (flow_wh - flow_ha) / c_h;
-        let r_ps = p.power_stage_to_ambient_k_per_w;
-        let c_ps = p.power_stage_time_constant_s / r_ps;
-        self.t_power_stage += dt * (switch_loss_w - (self.t_power_stage - p.ambient_c) / r_ps) / c_ps;
-    }
-
-    /// Follow the encoder after a segment: latch the counter if the index state was entered.
-    ///
-    /// Injected sensor faults change only what the counter shows, never the shaft: with the A/B lines broken the
-    /// counter holds its value while the shaft turns (the motion goes into `encoder_error`) and the index, which
-    /// needs the A/B state, is not latched either; with the index line broken no pulse reaches the latch. The
-    /// latched value is the counter's at the index, spurious counts included.
-    fn update_encoder(&mut self) {
-        let count = self.count_now();
-        if self.faults.encoder_wire_break {
-            self.encoder_error -= count - self.last_count;
-        } else if let Some(n) =
-            sensors::index_entry(self.last_count, count, self.params.encoder_counts_per_rev, self.params.index_count)
-        {
-            if !self.faults.index_lost {
-                self.pending_index = Some(sensors::counter_register(n + self.encoder_error));
-            }
-        }
-        self.last_count = count;
-    }
-
-    /// A noise burst ([`faults::EncoderNoise`]) adds its spurious counts once per period, at the sample, until it
-    /// has lasted its periods.
-    fn apply_encoder_noise(&mut self) {
-        if let Some(noise) = self.faults.encoder_noise.as_mut() {
-            if noise.periods_left > 0 {
-                self.encoder_error += i64::from(noise.counts_per_period);
-                noise.periods_left -= 1;
-            }
-            if noise.periods_left == 0 {
-                self.faults.encoder_noise = None;
-            }
-        }
-    }
-
-    /// The encoder count the rotor's true angle gives now, in the plant's coordinates (where the limit and home
-    /// switches are placed), without the injected sensor faults.
-    pub fn true_encoder_count(&self) -> i64 {
-        self.count_now()
-    }
-
-    fn count_now(&self) -> i64 {
-        sensors::encoder_count(self.theta_m, self.params.encoder_counts_per_rev, self.params.encoder_offset_counts)
-    }
-
-    fn shunt_currents(&self, patterns: &[LegPattern; 3], switching: bool, t: f64) -> [f64; 3] {
-        let mut i = self.i_abc();
-        // A short between two outputs ([`inverter::OutputShort`]) adds its current to what the two legs carry
-        // (zero at the centre while both low switches are on).
-        let short = inverter::OutputShort::new(self.faults.phase_short, self.params.switch_resistance_ohm);
-        if let Some(short) = short.filter(|_| switching) {
-            let p = &self.params;
-            let poles =
-                core::array::from_fn(|x| patterns[x].state_at(t).pole_voltage(i[x], self.v_bus, p.diode_drop_v));
-            let s = short.leg_currents(poles);
-            for x in 0..3 {
-                i[x] += s[x];
-            }
-        }
-        core::array::from_fn(|x| {
-            let low_conducts = if switching {
-                match patterns[x].state_at(t) {
-                    LegState::Low => true,
-                    LegState::Off => i[x] > 0.0,
-                    LegState::High => false,
-                }
-            } else {
-                i[x] > 0.0
-            };
-            if low_conducts {
-                i[x]
-            } else {
-                0.0
-            }
-        })
-    }
-
-    fn sample(&mut self, patterns: &[LegPattern; 3], switching: bool, sample_t: f64, t: f64) -> Measurements {
-        self.apply_encoder_noise();
-        let shunt = self.shunt_currents(patterns, switching, sample_t);
-        let p = &self.params;
-        let mut phase_currents = [0u16; 3];
-        for x in 0..3 {
-            let noise = self.rng.gaussian() * p.shunt_noise_lsb_rms;
-            let lsb = sensors::ADC_MID_SCALE + p.shunt_offset_lsb[x] + p.shunt_gain_lsb_per_a[x] * shunt[x] + noise;
-            phase_currents[x] = sensors::adc_code(lsb);
-        }
-        let bus_noise = self.rng.gaussian() * p.bus_noise_lsb_rms;
-        let bus_voltage = sensors::adc_code(p.bus_gain_lsb_per_v * self.v_bus + bus_noise);
-        let temp_noise = self.rng.gaussian() * p.temp_noise_lsb_rms;
-        let full_scale = f64::from(firmware::hal::power::ADC_FULL_SCALE);
-        let sensor_v = p.temp_sensor_v_at_0c + p.temp_sensor_v_per_k * self.t_power_stage;
-        let temperature = sensors::adc_code(sensor_v / p.adc_reference_v * full_scale + temp_noise);
-        let motor_noise = self.motor_sensor_rng.gaussian() * p.temp_noise_lsb_rms;
-        let motor_v = p.temp_sensor_v_at_0c + p.temp_sensor_v_per_k * self.t_winding;
-        let motor_temperature = match self.faults.motor_temperature_code_stuck {
-            Some(code) => code,
-            None => sensors::adc_code(motor_v / p.adc_reference_v * full_scale + motor_noise),
-        };
-        // A stuck Hall sensor or a broken Hall cable reads its fixed state whatever the rotor does.
-        let hall = match self.faults.hall_stuck {
-            Some(stuck) => stuck,
-            None => sensors::hall_state(f64::from(p.pole_pairs) * self.theta_m, p.hall_offset_rad),
-        };
-        let feedback = FeedbackSample {
-            encoder_count: sensors::counter_register(self.last_count + self.encoder_error),
-            index_latch: self.pending_index.take(),
-            hall,
-            digital_inputs: self.io.input_levels(&p.io, self.last_count),
-        };
-        let mut state = self.state_at(t);
-        state.shunt_currents_a = shunt;
-        self.at_sample = state;
-        Measurements {
-            adc: AdcSamples { phase_currents, bus_voltage, temperature, motor_temperature },
-            feedback,
-            break_input: self.break_latched,
-        }
+        self.update_encoder();
     }
 
     fn state_at(&self, t_in_period: f64) -> PlantState {
@@ -1135,6 +464,12 @@ impl Plant {
     /// The measurements returned by the last call of [`Plant::step`].
     pub fn last_measurements(&self) -> Measurements {
         self.last_measurements
+    }
+
+    /// The encoder count the rotor's true angle gives now, in the plant's coordinates (where the limit and home
+    /// switches are placed), without the injected sensor faults.
+    pub fn true_encoder_count(&self) -> i64 {
+        self.count_now()
     }
 
     // ---- Hooks: mechanics and load ----
@@ -1226,116 +561,48 @@ impl Plant {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
+/// Most instants that cut one period: every piece end of the three legs, the sample instant and the period end.
+const MAX_BREAKPOINTS: usize = 3 * LegPattern::MAX_PIECES + 2;
 
-    #[test]
-    fn transforms_round_trip() {
-        let (s, c) = 0.7f64.sin_cos();
-        let abc = dq_to_abc(1.5, -2.0, s, c);
-        assert!((abc[0] + abc[1] + abc[2]).abs() < 1e-12);
-        let dq = abc_to_dq(abc, s, c);
-        assert!((dq[0] - 1.5).abs() < 1e-12 && (dq[1] + 2.0).abs() < 1e-12);
-        // Back-EMF lies on the q axis with amplitude w_e psi.
-        let e = back_emf(100.0, 0.01, s, c);
-        let edq = abc_to_dq(e, s, c);
-        assert!(edq[0].abs() < 1e-12 && (edq[1] - 1.0).abs() < 1e-12);
+/// Breakpoints of the period, sorted: every switching instant of the three legs (while the outputs are enabled),
+/// the sample instant and the period end. The first `n` entries of the returned `(array, n)` are the breakpoints.
+fn breakpoints(
+    patterns: &[LegPattern; 3],
+    enabled: bool,
+    sample_t: f64,
+    period_s: f64,
+) -> ([f64; MAX_BREAKPOINTS], usize) {
+    let mut breaks = [0.0f64; MAX_BREAKPOINTS];
+    let mut n_breaks = 0;
+    for b in [sample_t, period_s] {
+        breaks[n_breaks] = b;
+        n_breaks += 1;
     }
+    if enabled {
+        for pattern in patterns {
+            for &b in pattern.boundaries() {
+                breaks[n_breaks] = b;
+                n_breaks += 1;
+            }
+        }
+    }
+    breaks[..n_breaks].sort_unstable_by(f64::total_cmp);
+    (breaks, n_breaks)
 }
 
-/// The injected encoder and Hall faults ([`faults::PlantFaults`]) change what the sensors report, exactly, and
-/// nothing else: the shaft is driven at a fixed speed by the dynamometer with the outputs off, so the true count
-/// is known at every period.
-#[cfg(test)]
-mod sensor_fault_tests {
-    use super::*;
-
-    /// Radians per encoder count of the reference encoder.
-    const RAD_PER_COUNT: f64 = 2.0 * PI / 4096.0;
-
-    /// The reference plant, shaft at `start_counts + 0.5` counts, driven at `counts_per_period` counts per period.
-    fn driven(start_counts: f64, counts_per_period: f64) -> Plant {
-        let mut p = Plant::new(PlantParams::reference(), 1);
-        let speed = counts_per_period * RAD_PER_COUNT / PERIOD_S;
-        p.set_rotor_state((start_counts + 0.5) * RAD_PER_COUNT, speed);
-        p.set_mechanics(Mechanics::Driven { speed_rad_s: speed });
-        p
-    }
-
-    /// Runs `n` periods with the outputs off; the measurements of each.
-    fn run(p: &mut Plant, n: usize) -> Vec<Measurements> {
-        (0..n).map(|_| p.step(&PwmCommand::OFF)).collect()
-    }
-
-    /// The true count at the last sample.
-    fn true_count(p: &Plant) -> i64 {
-        sensors::encoder_count(p.state_at_sample().theta_m_rad, 4096, 0)
-    }
-
-    #[test]
-    fn wire_break_freezes_the_counter_and_the_index() {
-        let mut p = driven(-100.0, 2.0);
-        let before = run(&mut p, 10);
-        assert_eq!(before[9].feedback.encoder_count.wrapping_sub(before[0].feedback.encoder_count), 18);
-        p.faults_mut().encoder_wire_break = true;
-        // 100 periods = 200 counts: the shaft passes the index at count 0 on the way. The counter stops where the
-        // break found it, at the end of the last healthy period: one count (half a period) after its last sample.
-        let broken = run(&mut p, 100);
-        let frozen = broken[0].feedback.encoder_count;
-        assert_eq!(frozen.wrapping_sub(before[9].feedback.encoder_count), 1);
-        assert!(true_count(&p) > 50, "the shaft has passed the index: {}", true_count(&p));
-        assert!(broken.iter().all(|m| m.feedback.encoder_count == frozen), "the counter holds its value");
-        assert!(broken.iter().all(|m| m.feedback.index_latch.is_none()), "no index without the A/B lines");
-        // Repaired: the counter moves on from where it stopped, by the shaft's motion from then on.
-        p.faults_mut().encoder_wire_break = false;
-        let t0 = sensors::encoder_count(p.state().theta_m_rad, 4096, 0); // at the end of the last broken period
-        let after = run(&mut p, 10);
-        let moved = after[9].feedback.encoder_count.wrapping_sub(frozen);
-        assert_eq!(i64::from(moved), true_count(&p) - t0);
-    }
-
-    #[test]
-    fn noise_burst_adds_its_counts_and_displaces_the_index() {
-        let mut p = driven(-300.0, 0.0);
-        let c0 = run(&mut p, 1)[0].feedback.encoder_count;
-        p.faults_mut().encoder_noise = Some(faults::EncoderNoise { counts_per_period: 3, periods_left: 5 });
-        let burst = run(&mut p, 8);
-        let seen: Vec<i16> = burst.iter().map(|m| m.feedback.encoder_count.wrapping_sub(c0) as i16).collect();
-        assert_eq!(seen, [3, 6, 9, 12, 15, 15, 15, 15], "3 counts per period for 5 periods, then none");
-        assert_eq!(p.faults().encoder_noise, None, "the burst is over");
-        // Now turning: the index (true count 0) is latched at the counter's value there, 15 counts beyond.
-        let speed = 2.0 * RAD_PER_COUNT / PERIOD_S;
-        p.set_mechanics(Mechanics::Driven { speed_rad_s: speed });
-        let latches: Vec<u16> = run(&mut p, 200).iter().filter_map(|m| m.feedback.index_latch).collect();
-        assert_eq!(latches, [15]);
-    }
-
-    #[test]
-    fn lost_index_latches_nothing_until_repaired() {
-        let mut p = driven(-100.0, 2.0);
-        p.faults_mut().index_lost = true;
-        // 2.5 turns: the index is passed twice.
-        let lost = run(&mut p, 5120);
-        assert!(lost.iter().all(|m| m.feedback.index_latch.is_none()));
-        let counts = lost.last().map(|m| m.feedback.encoder_count).unwrap_or(0);
-        assert_eq!(i64::from(counts), true_count(&p) & 0xFFFF, "the counter itself is unaffected");
-        p.faults_mut().index_lost = false;
-        let latches: Vec<u16> = run(&mut p, 2048).iter().filter_map(|m| m.feedback.index_latch).collect();
-        assert_eq!(latches, [3 * 4096], "the next index, at three turns");
-    }
-
-    #[test]
-    fn stuck_halls_read_their_state() {
-        let mut p = driven(0.0, 2.0);
-        for stuck in [0b000, 0b111, 0b101] {
-            p.faults_mut().hall_stuck = Some(stuck);
-            // 300 periods = 600 counts = 369 degrees electrical: every true state passes.
-            assert!(run(&mut p, 300).iter().all(|m| m.feedback.hall == stuck), "stuck at {stuck:03b}");
+impl PeriodAverages {
+    /// The averages from the integrals over a period of `period_s` the segments accumulated (the phase voltages,
+    /// which the segments leave at zero, from the averaged pole voltages).
+    fn from_integrals(mut acc: Self, period_s: f64) -> Self {
+        for v in acc.pole_voltage_v.iter_mut() {
+            *v /= period_s;
         }
-        p.faults_mut().hall_stuck = None;
-        let m = run(&mut p, 1)[0];
-        let truth = sensors::hall_state(7.0 * p.state_at_sample().theta_m_rad, 0.0);
-        assert_eq!(m.feedback.hall, truth);
+        let mean = (acc.pole_voltage_v[0] + acc.pole_voltage_v[1] + acc.pole_voltage_v[2]) / 3.0;
+        acc.phase_voltage_v = acc.pole_voltage_v.map(|v| v - mean);
+        acc.dq_voltage_v = acc.dq_voltage_v.map(|v| v / period_s);
+        acc.bus_voltage_v /= period_s;
+        acc.bus_current_a /= period_s;
+        acc.copper_loss_w /= period_s;
+        acc
     }
 }
