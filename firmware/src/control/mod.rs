@@ -6,6 +6,9 @@
 //! (convention 10). Formats: currents and voltages `I16F16` ([`frames`]), sin/cos `I2F30` ([`trig`]), angles a
 //! wrapping `u32` turn ([`angle`]), PI gains `I8F24` and `I1F31` ([`pi`]).
 //!
+//! - [`units`]: every unit newtype (`Amps`, `Volts`, `ElectricalAngle`, `AngleDelta`, `Increments`, `IncPerTick`,
+//!   `IncPerTick2`, `Velocity`, `Acceleration`), defined by one macro, and the conversions between units; the
+//!   modules below re-export the ones they work with.
 //! - [`angle`]: `ElectricalAngle`, a wrapping fraction of a turn.
 //! - [`trig`]: table sin/cos with interpolation.
 //! - [`frames`]: `Amps`, `Volts`, `Abc`, `AlphaBeta`, `Dq`.
@@ -27,6 +30,7 @@ pub mod svpwm;
 pub mod trajectory;
 pub mod transforms;
 pub mod trig;
+pub mod units;
 pub mod velocity;
 pub mod velocity_estimate;
 pub mod wide;

@@ -30,11 +30,12 @@
 //!
 //! # Positions (convention 4 of `shared/design/ARCHITECTURE.md`)
 //! Positions are [`Increments`], a wrapping `i32`, like the CiA 402 position objects (0x6062/0x6064/0x607A,
-//! INTEGER32). The error `theta_ref.wrapping_sub(theta)` is exact whenever the true distance is below 2^31
-//! increments (524,288 revolutions at 4096 inc/rev), including across the +-2^31 wrap of both values; a plain
-//! `i64` would not remove the wrap (the dictionary values are 32-bit) and costs twice the registers. The error is
-//! then clamped to +-2^24 increments (4096 revolutions, far beyond any following-error window, 0x6065) before
-//! the gains, so the products stay within 2^55.
+//! INTEGER32); the type is defined with the other units in [`super::units`] and re-exported here. The error
+//! `theta_ref.wrapping_sub(theta)` is exact whenever the true distance is below 2^31 increments (524,288
+//! revolutions at 4096 inc/rev), including across the +-2^31 wrap of both values; a plain `i64` would not remove
+//! the wrap (the dictionary values are 32-bit) and costs twice the registers. The error is then clamped to +-2^24
+//! increments (4096 revolutions, far beyond any following-error window, 0x6065) before the gains, so the products
+//! stay within 2^55.
 //!
 //! # Gains (IDX 0x30A1; EPOS4 display units 1000 times larger, S1 L702-712, L730-739)
 //! - 0x30A1:01 P [uA/rad] (S2 L4458-4470), 0x30A1:02 I [uA/(rad*s)] (S2 L4472-4484),
@@ -44,24 +45,14 @@
 //! Cost per step: [`PositionController::step`] compiles to 264 Thumb-2 instructions for thumbv7em (release,
 //! no loops, no calls, no division); [`CascadePositionController::step`] to 212.
 
+pub use super::units::Increments;
+
 use super::frames::Amps;
 use super::velocity::{
     back_calculation, clamp_term, gain_current_per_acceleration, gain_current_per_velocity, limit_q32, q32_to_amps,
     sat_i32, tracking_gain, IncPerTick, IncPerTick2, ScaledGain, VelocityController, SLOW_TICK_HZ, TWO_PI_Q32,
 };
 use super::velocity_estimate::LowPass;
-
-/// A position in increments of the main sensor: an exact, wrapping `i32` (CiA 402 INTEGER32 positions).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub struct Increments(pub i32);
-
-impl Increments {
-    /// The wrapping difference `self - other`: exact while the true distance is below 2^31 increments.
-    #[must_use]
-    pub const fn wrapping_sub(self, other: Self) -> i32 {
-        self.0.wrapping_sub(other.0)
-    }
-}
 
 /// The D filter cut-off of EPOS4's position PID, 390.61 rad/s (S1 L756), in mrad/s.
 pub const D_FILTER_CUTOFF_MILLIRAD_PER_S: u32 = 390_610;

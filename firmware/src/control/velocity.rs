@@ -22,6 +22,7 @@
 //! [`VelocityGains::with_tracking_gain`] sets another Kb.
 //!
 //! # Representation (convention 4 of `shared/design/ARCHITECTURE.md`)
+//! The unit types are defined in [`super::units`]; [`IncPerTick`] and [`IncPerTick2`] are re-exported here.
 //! - Positions: [`super::position::Increments`], an exact wrapping `i32` count of the main sensor.
 //! - Velocity: [`IncPerTick`], increments per slow tick (400 us) as `I16F16`. The count difference of one tick is
 //!   the sensor's natural velocity, so the estimate needs no scaling, and integrating it back to a position is an
@@ -47,7 +48,7 @@
 //! Cost per step: [`VelocityController::step`] compiles to 174 Thumb-2 instructions for thumbv7em (release,
 //! no loops, no calls, no division), so at most 174 executed.
 
-use fixed::types::I16F16;
+pub use super::units::{IncPerTick, IncPerTick2};
 
 use super::frames::Amps;
 use crate::hal::power::{PWM_FREQUENCY_HZ, SLOW_TICK_DIVIDER};
@@ -57,66 +58,6 @@ pub const SLOW_TICK_HZ: u32 = PWM_FREQUENCY_HZ / SLOW_TICK_DIVIDER;
 
 /// 2 pi in Q32, rounded: 26,986,075,409 / 2^32 = 6.283185307 (relative error 2e-12).
 pub(crate) const TWO_PI_Q32: u128 = 26_986_075_409;
-
-/// A velocity in increments of the position sensor per slow tick (400 us), `I16F16`.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub struct IncPerTick(pub I16F16);
-
-/// An acceleration in increments of the position sensor per slow tick squared, `I16F16`.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub struct IncPerTick2(pub I16F16);
-
-impl IncPerTick {
-    /// Zero velocity.
-    pub const ZERO: Self = Self(I16F16::ZERO);
-
-    /// From the raw `I16F16` bits (units of 2^-16 inc/tick).
-    #[must_use]
-    pub const fn from_bits(bits: i32) -> Self {
-        Self(I16F16::from_bits(bits))
-    }
-
-    /// The raw `I16F16` bits (units of 2^-16 inc/tick).
-    #[must_use]
-    pub const fn to_bits(self) -> i32 {
-        self.0.to_bits()
-    }
-
-    /// From increments per second, rounded to nearest, saturating. Not for the slow tick (one division).
-    #[must_use]
-    pub fn from_inc_per_s(inc_per_s: i32) -> Self {
-        let scaled = i64::from(inc_per_s).wrapping_mul(65_536); // |.| < 2^47
-        let f = i64::from(SLOW_TICK_HZ);
-        let half_f = i64::from(SLOW_TICK_HZ >> 1);
-        let half = if scaled < 0 { half_f.wrapping_neg() } else { half_f };
-        Self::from_bits(sat_i32(scaled.wrapping_add(half).checked_div(f).unwrap_or(0)))
-    }
-
-    /// To increments per second, rounded to nearest.
-    #[must_use]
-    pub fn to_inc_per_s(self) -> i32 {
-        // |bits * 2500| < 2^43; the quotient fits an i32 for |v| < 32768 inc/tick (82 M inc/s).
-        let scaled = i64::from(self.to_bits()).wrapping_mul(i64::from(SLOW_TICK_HZ));
-        sat_i32(scaled.wrapping_add(1 << 15) >> 16)
-    }
-}
-
-impl IncPerTick2 {
-    /// Zero acceleration.
-    pub const ZERO: Self = Self(I16F16::ZERO);
-
-    /// From the raw `I16F16` bits (units of 2^-16 inc/tick^2).
-    #[must_use]
-    pub const fn from_bits(bits: i32) -> Self {
-        Self(I16F16::from_bits(bits))
-    }
-
-    /// The raw `I16F16` bits (units of 2^-16 inc/tick^2).
-    #[must_use]
-    pub const fn to_bits(self) -> i32 {
-        self.0.to_bits()
-    }
-}
 
 /// Saturates an `i64` to the `i32` range.
 #[inline(always)]

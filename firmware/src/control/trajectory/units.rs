@@ -1,112 +1,25 @@
 //! The profile modes' motion quantities and their conversion from the dictionary's units: [`Velocity`] (Q32
-//! inc/tick), [`Acceleration`] (Q40 inc/tick²) and [`MotionScale`] (rpm and rpm/s for a sensor resolution).
+//! inc/tick) and [`Acceleration`] (Q40 inc/tick²), defined with the other units in [`crate::control::units`] and
+//! re-exported here, and [`MotionScale`] (rpm and rpm/s for a sensor resolution).
+
+pub use crate::control::units::{Acceleration, Velocity};
 
 use super::SLOW_TICK_HZ;
-use crate::control::wide::{div_round_u, div_shl, mul_shr, round_shr, sat_i32, sat_i64};
+use crate::control::wide::{div_round_u, mul_shr, round_shr, sat_i64};
 
 /// rpm -> inc/tick: 60 s/min * 2500 ticks/s.
 const RPM_TICKS: u128 = 60 * SLOW_TICK_HZ as u128;
 /// rpm/s -> inc/tick²: 60 s/min * 2500² ticks²/s².
 const RPM_PER_S_TICKS2: u128 = 60 * (SLOW_TICK_HZ as u128) * (SLOW_TICK_HZ as u128);
 
-/// A velocity in increments per slow tick (400 us), Q32 (units of 2^-32 inc/tick).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub struct Velocity(pub i64);
-
-/// An acceleration in increments per slow tick squared, Q40 (units of 2^-40 inc/tick²).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub struct Acceleration(pub i64);
-
+// The planner's 128-bit view of the raw bits (the conversions are in `control::units`).
 impl Velocity {
-    /// Zero velocity.
-    pub const ZERO: Self = Self(0);
-    /// Fraction bits of the representation.
-    pub const FRAC_BITS: u32 = 32;
-
-    /// From the raw Q32 bits (2^-32 inc/tick).
-    #[must_use]
-    pub const fn from_bits(bits: i64) -> Self {
-        Self(bits)
-    }
-
-    /// The raw Q32 bits (2^-32 inc/tick).
-    #[must_use]
-    pub const fn to_bits(self) -> i64 {
-        self.0
-    }
-
-    /// From whole increments per slow tick.
-    #[must_use]
-    pub const fn from_inc_per_tick(inc_per_tick: i32) -> Self {
-        // |inc| < 2^31: the Q32 value stays below 2^63.
-        Self((inc_per_tick as i64) << 32)
-    }
-
-    /// From increments per second, rounded toward zero, saturating. Divides: not for the slow tick.
-    #[must_use]
-    pub fn from_inc_per_s(inc_per_s: i64) -> Self {
-        Self(sat_i64(div_shl(i128::from(inc_per_s), i128::from(SLOW_TICK_HZ), 32)))
-    }
-
-    /// To increments per second, rounded to nearest.
-    #[must_use]
-    pub fn to_inc_per_s(self) -> i64 {
-        // |bits * 2500| < 2^75: no wrap in i128.
-        sat_i64(round_shr(i128::from(self.0).wrapping_mul(i128::from(SLOW_TICK_HZ)), 32))
-    }
-
-    /// Increments per tick in Q16 (`I16F16` bits, the format of `control::velocity`), rounded, saturating.
-    #[must_use]
-    pub fn to_inc_per_tick_q16(self) -> i32 {
-        sat_i32(round_shr(i128::from(self.0), 16))
-    }
-
     pub(super) fn wide(self) -> i128 {
         i128::from(self.0)
     }
 }
 
 impl Acceleration {
-    /// Zero acceleration.
-    pub const ZERO: Self = Self(0);
-    /// Fraction bits of the representation.
-    pub const FRAC_BITS: u32 = 40;
-    /// The largest representable acceleration (about 8.4e6 inc/tick²): "no limit".
-    pub const MAX: Self = Self(i64::MAX);
-
-    /// From the raw Q40 bits (2^-40 inc/tick²).
-    #[must_use]
-    pub const fn from_bits(bits: i64) -> Self {
-        Self(bits)
-    }
-
-    /// The raw Q40 bits (2^-40 inc/tick²).
-    #[must_use]
-    pub const fn to_bits(self) -> i64 {
-        self.0
-    }
-
-    /// From increments per second squared, rounded toward zero, saturating. Divides: not for the slow tick.
-    #[must_use]
-    pub fn from_inc_per_s2(inc_per_s2: i64) -> Self {
-        let ticks2 = i128::from(SLOW_TICK_HZ).wrapping_mul(i128::from(SLOW_TICK_HZ));
-        Self(sat_i64(div_shl(i128::from(inc_per_s2), ticks2, 40)))
-    }
-
-    /// To increments per second squared, rounded to nearest.
-    #[must_use]
-    pub fn to_inc_per_s2(self) -> i64 {
-        // |bits| * 2500² < 2^86: no wrap in i128.
-        let ticks2 = i128::from(SLOW_TICK_HZ).wrapping_mul(i128::from(SLOW_TICK_HZ));
-        sat_i64(round_shr(i128::from(self.0).wrapping_mul(ticks2), 40))
-    }
-
-    /// Increments per tick² in Q16 (`I16F16` bits, the format of `control::velocity`), rounded, saturating.
-    #[must_use]
-    pub fn to_inc_per_tick2_q16(self) -> i32 {
-        sat_i32(round_shr(i128::from(self.0), 24))
-    }
-
     pub(super) fn wide(self) -> i128 {
         i128::from(self.0)
     }
