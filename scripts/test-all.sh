@@ -33,7 +33,7 @@ step "clippy (host, all targets, warnings denied)"
 cargo clippy --workspace --all-targets -- -D warnings
 
 step "clippy (thumbv7em-none-eabihf: drive and bootloader, with defmt, QEMU image, EtherCAT on SPI)"
-cargo clippy -p firmware -p bootloader --target thumbv7em-none-eabihf --lib --bins -- -D warnings
+cargo clippy -p firmware -p drive-control -p bootloader --target thumbv7em-none-eabihf --lib --bins -- -D warnings
 cargo clippy -p firmware -p bootloader --target thumbv7em-none-eabihf --lib --bins --features defmt -- -D warnings
 cargo clippy -p firmware -p bootloader --target thumbv7em-none-eabihf --lib --bins --features qemu -- -D warnings
 cargo clippy -p firmware --target thumbv7em-none-eabihf --lib --bins --features ethercat -- -D warnings

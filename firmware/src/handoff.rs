@@ -100,13 +100,22 @@ impl<B: Words<N>, const N: usize> Command<B, N> {
     /// only when they changed.
     #[must_use]
     pub fn read_words(&self) -> Stamped<[u32; N]> {
-        let epoch = self.epoch.load(Ordering::Acquire);
-        let front = slot_of(&self.slots, epoch);
+        let front = self.front();
         let mut words = [0u32; N];
-        for (word, cell) in words.iter_mut().zip(front) {
+        for (word, cell) in words.iter_mut().zip(front.block) {
             *word = cell.load(Ordering::Relaxed);
         }
-        Stamped { epoch, block: words }
+        Stamped { epoch: front.epoch, block: words }
+    }
+
+    /// The cells of the last published block and its epoch, for a reader that loads the words itself: tier 1 loads
+    /// the word that says when the block applies first and the others only when it does, written out rather than
+    /// in a loop (`rt::app::fast_tick`). The cells hold that block while the reader runs (the writer, of lower
+    /// priority, fills the other slot).
+    #[must_use]
+    pub fn front(&self) -> Stamped<&[AtomicU32; N]> {
+        let epoch = self.epoch.load(Ordering::Acquire);
+        Stamped { epoch, block: slot_of(&self.slots, epoch) }
     }
 
     /// The epoch of the last publication, without the block (for a reader that only checks for news).

@@ -22,7 +22,8 @@ pub mod boot;
 pub mod canopen;
 pub mod cia402;
 pub mod comm;
-pub mod control;
+/// The control math: the `drive-control` crate (built for speed while this crate is built for size).
+pub use drive_control as control;
 pub mod drive;
 pub mod ecat;
 pub mod fault;

@@ -73,7 +73,9 @@ impl OutputConfig {
     /// Whether an output drives the holding brake (function 24).
     #[must_use]
     pub fn brake_present(&self) -> bool {
-        self.functions.contains(&function::HOLDING_BRAKE)
+        // Two compares: `contains` stays a loop in a crate optimised for size, and every slow tick asks.
+        let [first, second] = self.functions;
+        first == function::HOLDING_BRAKE || second == function::HOLDING_BRAKE
     }
 }
 

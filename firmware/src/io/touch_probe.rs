@@ -114,7 +114,14 @@ struct Seen {
 
 impl Seen {
     fn of(pins: &PinLatches) -> Self {
-        Self { rising: pins.rising.map(|l| l.count), falling: pins.falling.map(|l| l.count), index: pins.index.count }
+        // Written out: a slow-tick path, and `map` stays a loop in a crate optimised for size.
+        let [r0, r1, r2, r3] = pins.rising;
+        let [f0, f1, f2, f3] = pins.falling;
+        Self {
+            rising: [r0.count, r1.count, r2.count, r3.count],
+            falling: [f0.count, f1.count, f2.count, f3.count],
+            index: pins.index.count,
+        }
     }
 }
 
@@ -253,38 +260,13 @@ impl TouchProbes {
         let seen = if self.primed { self.seen } else { now };
         self.primed = true;
         self.seen = now;
-        let function = d.get(h::TOUCH_PROBE_FUNCTION).to_le_bytes();
-        let objects = [d.get(h::TOUCH_PROBE_1_SOURCE), d.get(h::TOUCH_PROBE_2_SOURCE)];
-        for (p, (probe, (&bits, &object))) in
-            self.probes.iter_mut().zip(function.iter().zip(objects.iter())).enumerate()
-        {
-            let bits = bits & 0b0011_1111;
-            let (positive, negative) = match ProbeSource::select(p, bits, inputs, object) {
-                ProbeSource::Input(i) => {
-                    let edges = |latches: &[crate::sensors::latch::EdgeLatch; DIGITAL_INPUTS],
-                                 seen: &[u16; DIGITAL_INPUTS]| match (
-                        latches.get(i),
-                        seen.get(i),
-                    ) {
-                        (Some(l), Some(&s)) => NewEdges { count: l.count.wrapping_sub(s), position: l.position },
-                        _ => NewEdges::default(),
-                    };
-                    let rising = edges(&pins.rising, &seen.rising);
-                    let falling = edges(&pins.falling, &seen.falling);
-                    if inputs.active_low(i) {
-                        (falling, rising)
-                    } else {
-                        (rising, falling)
-                    }
-                }
-                ProbeSource::Index => (
-                    NewEdges { count: pins.index.count.wrapping_sub(seen.index), position: pins.index.position },
-                    NewEdges::default(),
-                ),
-                ProbeSource::None => (NewEdges::default(), NewEdges::default()),
-            };
-            probe.step(bits, positive, negative, position_offset);
-        }
+        let [function_1, function_2] = d.get(h::TOUCH_PROBE_FUNCTION).to_le_bytes();
+        let (source_1, source_2) = (d.get(h::TOUCH_PROBE_1_SOURCE), d.get(h::TOUCH_PROBE_2_SOURCE));
+        // Each probe written out rather than a loop over zipped arrays: a slow-tick path in a crate optimised for
+        // size, where such loops stay rolled with their bookkeeping.
+        let [probe_1, probe_2] = &mut self.probes;
+        step_probe(probe_1, 0, function_1, source_1, &ProbeInputs { pins, seen: &seen, inputs, position_offset });
+        step_probe(probe_2, 1, function_2, source_2, &ProbeInputs { pins, seen: &seen, inputs, position_offset });
         self.publish(d);
     }
 
@@ -321,6 +303,47 @@ impl TouchProbes {
         d.set(h::TOUCH_PROBE_2_POSITIVE_COUNTER, p2.positive_counter);
         d.set(h::TOUCH_PROBE_2_NEGATIVE_COUNTER, p2.negative_counter);
     }
+}
+
+/// What every probe's step reads: the tier-1 latches, the counts seen at the previous slow tick, the input
+/// configuration and the offset into 0x6064 coordinates.
+struct ProbeInputs<'a> {
+    pins: &'a PinLatches,
+    seen: &'a Seen,
+    inputs: &'a InputConfig,
+    position_offset: i32,
+}
+
+/// One probe's slow tick: the new edges of its source (0x60B8 byte `function`, 0x60D0 sub-index `source`) since the
+/// previous tick, handed to the probe.
+fn step_probe(probe: &mut Probe, p: usize, function: u8, source: i16, at: &ProbeInputs<'_>) {
+    let ProbeInputs { pins, seen, inputs, position_offset } = *at;
+    let bits = function & 0b0011_1111;
+    let (positive, negative) = match ProbeSource::select(p, bits, inputs, source) {
+        ProbeSource::Input(i) => {
+            let edges =
+                |latches: &[crate::sensors::latch::EdgeLatch; DIGITAL_INPUTS], seen: &[u16; DIGITAL_INPUTS]| match (
+                    latches.get(i),
+                    seen.get(i),
+                ) {
+                    (Some(l), Some(&s)) => NewEdges { count: l.count.wrapping_sub(s), position: l.position },
+                    _ => NewEdges::default(),
+                };
+            let rising = edges(&pins.rising, &seen.rising);
+            let falling = edges(&pins.falling, &seen.falling);
+            if inputs.active_low(i) {
+                (falling, rising)
+            } else {
+                (rising, falling)
+            }
+        }
+        ProbeSource::Index => (
+            NewEdges { count: pins.index.count.wrapping_sub(seen.index), position: pins.index.position },
+            NewEdges::default(),
+        ),
+        ProbeSource::None => (NewEdges::default(), NewEdges::default()),
+    };
+    probe.step(bits, positive, negative, position_offset);
 }
 
 #[cfg(test)]

@@ -13,6 +13,8 @@
 //! erases and programs only through [`sdo_write`] (0x1010 "save", 0x1011 "load"): inside `tier2::with_drive`, with
 //! the power stage disabled and no request pending that would switch it on (see `board::flash` for why).
 
+use core::sync::atomic::Ordering;
+
 use crate::board::flash::ParamFlash;
 use crate::drive::objects::BootReport;
 use crate::drive::tier1::Tier1State;
@@ -86,12 +88,16 @@ pub fn fast_tick(
         t1.apply_settings(&settings.block);
     }
     if super::tier1::SETPOINT.epoch() != *setpoint_epoch {
-        let setpoint = super::tier1::SETPOINT.read_words();
-        // A block for a later period stays unread (its epoch not taken) until that period: read again then.
-        let [.., apply_from] = setpoint.block;
+        let setpoint = super::tier1::SETPOINT.front();
+        // The words of `SetPoint::to_words`. A block for a later period stays unread (its epoch not taken) until
+        // that period: read again then.
+        let [version, power, i_q, apply_from] = setpoint.block;
+        let apply_from = apply_from.load(Ordering::Relaxed);
         if t1.setpoint_due(apply_from) {
             *setpoint_epoch = setpoint.epoch;
-            t1.apply_setpoint_words(&setpoint.block);
+            let (version, power, i_q) =
+                (version.load(Ordering::Relaxed), power.load(Ordering::Relaxed), i_q.load(Ordering::Relaxed));
+            t1.apply_setpoint_words(&[version, power, i_q, apply_from]);
         }
     }
     t1.fast_tick(m)

@@ -83,15 +83,26 @@ impl PinLatches {
         if previous == UNSAMPLED {
             return;
         }
-        // Only the inputs that changed: usually one. A fixed four-step loop (unrolled by the compiler).
+        // One test per input, written out (tier 1; a loop over the inputs would stay rolled in this crate, which
+        // is optimised for size).
         let changed = levels ^ previous;
-        for (bit, (rise, fall)) in self.rising.iter_mut().zip(self.falling.iter_mut()).enumerate() {
-            let mask = 1u8 << bit;
-            if changed & mask != 0 {
-                let latch = if levels & mask != 0 { rise } else { fall };
-                latch.count = latch.count.wrapping_add(1);
-                latch.position = position;
-            }
+        self.latch_input(0, changed, levels, position);
+        self.latch_input(1, changed, levels, position);
+        self.latch_input(2, changed, levels, position);
+        self.latch_input(3, changed, levels, position);
+    }
+
+    /// Latches `position` at input `bit`'s edge if it `changed` (the new `levels` tell the direction).
+    #[inline(always)]
+    fn latch_input(&mut self, bit: usize, changed: u8, levels: u8, position: i32) {
+        let mask = 1u8 << bit;
+        if changed & mask == 0 {
+            return;
+        }
+        let edges = if levels & mask != 0 { &mut self.rising } else { &mut self.falling };
+        if let Some(latch) = edges.get_mut(bit) {
+            latch.count = latch.count.wrapping_add(1);
+            latch.position = position;
         }
     }
 

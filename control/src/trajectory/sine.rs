@@ -23,7 +23,7 @@ const SIN_TAYLOR_Q60: [i64; 7] = [
     192_153_584_101_141_163,
 ];
 
-use crate::control::wide::mul_shr;
+use crate::wide::mul_shr;
 
 /// sin(pi w) for `w` in Q62 within [0, 1] (clamped), in Q60 (>= 0). Exactly 0 at w = 0 and w = 1.
 pub(super) fn sin_pi_q60(w: i128) -> i64 {

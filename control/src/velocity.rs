@@ -51,7 +51,7 @@
 pub use super::units::{IncPerTick, IncPerTick2};
 
 use super::frames::Amps;
-use crate::hal::power::{PWM_FREQUENCY_HZ, SLOW_TICK_DIVIDER};
+use crate::power::{PWM_FREQUENCY_HZ, SLOW_TICK_DIVIDER};
 
 /// Sampling frequency of the velocity and position loops in Hz: 2500 (EPOS4 Ts = 0.4 ms, S1 L520, L702).
 pub const SLOW_TICK_HZ: u32 = PWM_FREQUENCY_HZ / SLOW_TICK_DIVIDER;
@@ -61,7 +61,7 @@ pub(crate) const TWO_PI_Q32: u128 = 26_986_075_409;
 
 /// Saturates an `i64` to the `i32` range.
 #[inline(always)]
-pub(crate) fn sat_i32(x: i64) -> i32 {
+pub fn sat_i32(x: i64) -> i32 {
     // Constant bounds in order: clamp cannot panic.
     x.clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
 }

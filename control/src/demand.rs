@@ -14,7 +14,7 @@
 //! Arithmetic: the scales are computed with divisions when the parameters change ([`DemandScale::from_od`], slow
 //! tick); the fast tick uses one 32x32->64 multiply and a shift per conversion.
 
-use crate::control::frames::Amps;
+use crate::frames::Amps;
 
 /// Scales and limits of the torque path, derived from the motor data.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -18,7 +18,7 @@ use super::plan::{
 };
 use super::units::{Acceleration, Velocity};
 use super::ONE_Q32;
-use crate::control::wide::isqrt;
+use crate::wide::isqrt;
 
 /// A plan counts as complete this close (Q32 ticks, 2^-20 tick = 0.4 ns) before its analytic end, so that a
 /// duration that is a whole number of ticks up to the rounding of the parameters takes exactly that many ticks.

@@ -1,11 +1,11 @@
 //! The profile modes' motion quantities and their conversion from the dictionary's units: [`Velocity`] (Q32
-//! inc/tick) and [`Acceleration`] (Q40 inc/tick²), defined with the other units in [`crate::control::units`] and
+//! inc/tick) and [`Acceleration`] (Q40 inc/tick²), defined with the other units in [`crate::units`] and
 //! re-exported here, and [`MotionScale`] (rpm and rpm/s for a sensor resolution).
 
-pub use crate::control::units::{Acceleration, Velocity};
+pub use crate::units::{Acceleration, Velocity};
 
 use super::SLOW_TICK_HZ;
-use crate::control::wide::{div_round_u, mul_shr, round_shr, sat_i64};
+use crate::wide::{div_round_u, mul_shr, round_shr, sat_i64};
 
 /// rpm -> inc/tick: 60 s/min * 2500 ticks/s.
 const RPM_TICKS: u128 = 60 * SLOW_TICK_HZ as u128;

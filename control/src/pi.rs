@@ -32,7 +32,7 @@ use fixed::types::{I16F16, I1F31, I8F24};
 
 use super::frames::{Amps, Volts};
 use super::transforms::mul_hi;
-use crate::hal::power::PWM_FREQUENCY_HZ;
+use crate::power::PWM_FREQUENCY_HZ;
 
 /// Error clamp, `I16F16` bits: +-64 A (2^22), four times the reference shunt range.
 const ERROR_LIMIT_BITS: i32 = 1 << 22;

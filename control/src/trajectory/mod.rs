@@ -80,7 +80,7 @@ pub use params::{ProfileError, ProfileObjects, ProfileParams, ProfileType};
 pub use plan::Setpoint;
 pub use units::{Acceleration, MotionScale, Velocity};
 
-use crate::hal::power::{PWM_FREQUENCY_HZ, SLOW_TICK_DIVIDER};
+use crate::power::{PWM_FREQUENCY_HZ, SLOW_TICK_DIVIDER};
 
 /// Sampling frequency of the profile generator and the interpolator: the slow tick, 2500 Hz (EPOS4 Ts = 0.4 ms,
 /// `shared/spec/control-and-protection.md` §8).

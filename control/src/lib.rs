@@ -1,4 +1,6 @@
-//! Pure control math in fixed point: frames, angles, transforms, controllers, modulation.
+//! Pure control math in fixed point: frames, angles, transforms, controllers, modulation, and the data contract
+//! of the power stage ([`power`]). The firmware re-exports this crate as `firmware::control` (and [`power`] as
+//! `firmware::hal::power`).
 //!
 //! Everything here is `no_std`, allocation-free, float-free and panic-free for every input, so that it can run in
 //! the 25 kHz interrupt (tier 1 of `shared/design/ARCHITECTURE.md`) and be property-tested on the host.
@@ -6,6 +8,7 @@
 //! (convention 10). Formats: currents and voltages `I16F16` ([`frames`]), sin/cos `I2F30` ([`trig`]), angles a
 //! wrapping `u32` turn ([`angle`]), PI gains `I8F24` and `I1F31` ([`pi`]).
 //!
+//! - [`power`]: what the power stage and its sensors exchange with the current loop once per PWM period.
 //! - [`units`]: every unit newtype (`Amps`, `Volts`, `ElectricalAngle`, `AngleDelta`, `Increments`, `IncPerTick`,
 //!   `IncPerTick2`, `Velocity`, `Acceleration`), defined by one macro, and the conversions between units; the
 //!   modules below re-export the ones they work with.
@@ -18,6 +21,18 @@
 //! - [`current_loop`]: the whole FOC step, [`current_loop::foc_step`].
 //! - [`wide`]: 128-bit multiply-shift, division and square root on the 32-bit core (the profile generator's).
 
+#![cfg_attr(not(test), no_std)]
+#![cfg_attr(
+    not(test),
+    deny(
+        clippy::unwrap_used,
+        clippy::expect_used,
+        clippy::panic,
+        clippy::indexing_slicing,
+        clippy::arithmetic_side_effects
+    )
+)]
+
 pub mod angle;
 pub mod current_loop;
 pub mod demand;
@@ -26,6 +41,7 @@ pub mod interpolator;
 pub mod observer;
 pub mod pi;
 pub mod position;
+pub mod power;
 pub mod svpwm;
 pub mod trajectory;
 pub mod transforms;

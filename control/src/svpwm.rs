@@ -58,7 +58,7 @@ use fixed::types::I16F16;
 
 use super::frames::{Abc, AlphaBeta, Volts};
 use super::transforms::{mul_hi, mul_hi_round};
-use crate::hal::power::{PWM_FREQUENCY_HZ, PWM_PERIOD_TICKS};
+use crate::power::{PWM_FREQUENCY_HZ, PWM_PERIOD_TICKS};
 
 /// sqrt(3) in Q32 (round(sqrt(3) * 2^32)).
 const SQRT3_Q32: u64 = 7_439_101_574;

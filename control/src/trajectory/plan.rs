@@ -5,7 +5,7 @@ use super::params::{ProfileParams, ProfileType};
 use super::sine::{sin_2pi_q60, sin_pi_q60, INV_2PI2_Q60, INV_2PI_Q60, ONE_Q62};
 use super::units::{Acceleration, Velocity};
 use super::ONE_Q32;
-use crate::control::wide::{div_shl, isqrt, mul_shr, round_shr, sat_i64};
+use crate::wide::{div_shl, isqrt, mul_shr, round_shr, sat_i64};
 
 /// How far (Q32 inc, 2^-8 inc) a start velocity may exceed what can be stopped within the distance before the
 /// planner treats the move as an overshoot (stop and come back) rather than as a rounding residue.
@@ -301,27 +301,32 @@ impl<'a> Builder<'a> {
             self.v = v1;
             return;
         }
-        self.push(Segment::new(self.t, duration, self.p, self.v, v1, rate, self.shape));
+        self.push(duration, v1, rate, self.shape);
     }
 
     /// Holds the current velocity for `duration` (Q32 ticks).
     fn cruise(&mut self, duration: i128) {
         if duration > 0 && self.v != 0 {
-            self.push(Segment::new(self.t, duration, self.p, self.v, self.v, 0, ProfileType::Trapezoidal));
+            self.push(duration, self.v, 0, ProfileType::Trapezoidal);
         }
     }
 
-    fn push(&mut self, seg: Segment) {
-        let end = seg.eval(seg.duration);
-        if let Some(slot) = self.plan.segments.get_mut(self.plan.len) {
-            *slot = seg;
-            self.plan.len = self.plan.len.saturating_add(1);
-            self.t = seg.end();
-            self.p = end.p;
-        }
-        // No free slot cannot happen (at most four segments per plan); the velocity still follows the command and
-        // the residual correction takes the position to the end state.
-        self.v = seg.v1();
+    /// Appends the segment from the builder's state to `v1` over `duration` at the mean rate `rate` (the arguments
+    /// of [`Segment::new`]). It is built in its slot, not moved there: a segment is 144 bytes, and the planning
+    /// slow tick is the slowest of all.
+    fn push(&mut self, duration: i128, v1: i128, rate: i128, shape: ProfileType) {
+        let Some(slot) = self.plan.segments.get_mut(self.plan.len) else {
+            // No free slot cannot happen (at most four segments per plan); the velocity still follows the command
+            // and the residual correction takes the position to the end state.
+            self.v = Segment::new(self.t, duration, self.p, self.v, v1, rate, shape).v1();
+            return;
+        };
+        *slot = Segment::new(self.t, duration, self.p, self.v, v1, rate, shape);
+        let end = slot.eval(slot.duration);
+        self.plan.len = self.plan.len.saturating_add(1);
+        self.t = slot.end();
+        self.p = end.p;
+        self.v = slot.v1();
     }
 
     fn finish(self, kind: PlanKind, end_position: i128, end_velocity: i128, limits: Option<Limits>) {

@@ -31,7 +31,7 @@
 
 use super::position::Increments;
 use super::velocity::{sat_i32, IncPerTick, SLOW_TICK_HZ, TWO_PI_Q32};
-use crate::hal::power::SLOW_TICK_DIVIDER;
+use crate::power::SLOW_TICK_DIVIDER;
 
 /// Input clamp of the filters, `I16F16` bits: +-16384 inc/tick (2^30). The output stays within it (a convex
 /// combination), so `x - y` fits 31 bits and `(x - y) * c` 62 bits.
@@ -132,7 +132,7 @@ impl LowPass {
     }
 }
 
-/// Extends a wrapping 16-bit encoder timer to a wrapping `i32` position (the timer of [`crate::hal::power`]'s
+/// Extends a wrapping 16-bit encoder timer to a wrapping `i32` position (the timer of [`crate::power`]'s
 /// `FeedbackSample::encoder_count`). Exact while the timer moves less than 2^15 counts between two calls.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub struct CounterExtender {

@@ -29,7 +29,7 @@ use super::pi::{PiController, PiGains};
 use super::svpwm::{DutyClamp, Modulator, VoltageLimit};
 use super::transforms::{clarke_x4, rotate_hi_to_alpha_beta, rotate_hi_to_dq};
 use super::trig::sin_cos;
-use crate::hal::power::PwmCommand;
+use crate::power::PwmCommand;
 
 /// Parameters of the current controller.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
