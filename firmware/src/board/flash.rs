@@ -315,6 +315,9 @@ pub(super) fn program_absolute(address: u32, data: &[u8]) -> Result<(), FlashErr
 pub(super) fn erase_absolute(address: u32) -> Result<(), FlashError> {
     let number = sector_number(address).ok_or(FlashError::OutOfBounds)?;
     unlock()?;
+    // The erase stalls every tier for up to 2 s (128 KiB): it gets the watchdog's whole timeout to itself
+    // (`board::watchdog`; a write without effect while the watchdog is not running, as in the bootloader).
+    super::watchdog::feed();
     CR.modify(CR_PSIZE_MASK | CR_PG | CR_SNB_MASK, CR_PSIZE_X32 | CR_SER | (number << CR_SNB_SHIFT));
     CR.modify(0, CR_STRT);
     let completed = wait_idle();

@@ -37,6 +37,7 @@ pub mod interrupt;
 pub mod pwm;
 pub mod reg;
 pub mod sync_timer;
+pub mod watchdog;
 
 #[cfg(feature = "qemu")]
 pub mod period_timer;

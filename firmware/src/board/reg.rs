@@ -46,6 +46,8 @@ pub mod base {
     pub const TIM2: usize = 0x4000_0000;
     /// TIM4 (APB1): the incremental encoder.
     pub const TIM4: usize = 0x4000_0800;
+    /// Independent watchdog (APB1 address space, clocked by the LSI).
+    pub const IWDG: usize = 0x4000_3000;
     /// PWR (APB1).
     pub const PWR: usize = 0x4000_7000;
     /// TIM1 (APB2): the power-stage PWM.
@@ -85,6 +87,21 @@ pub mod rcc {
     pub const APB1ENR: Reg = Reg::at(RCC, 0x40);
     /// APB2 peripheral clock enable.
     pub const APB2ENR: Reg = Reg::at(RCC, 0x44);
+    /// Clock control and status: the LSI and the reset flags (section 7.3.21).
+    pub const CSR: Reg = Reg::at(RCC, 0x74);
+}
+
+/// Independent watchdog registers (RM0090 section 21.4).
+pub mod iwdg {
+    use super::{base::IWDG, Reg};
+    /// Key: 0xCCCC starts, 0xAAAA reloads, 0x5555 unlocks PR and RLR.
+    pub const KR: Reg = Reg::at(IWDG, 0x00);
+    /// Prescaler of the LSI clock.
+    pub const PR: Reg = Reg::at(IWDG, 0x04);
+    /// Reload value (12 bits).
+    pub const RLR: Reg = Reg::at(IWDG, 0x08);
+    /// Status: PVU, RVU (an update of PR or RLR is in progress).
+    pub const SR: Reg = Reg::at(IWDG, 0x0C);
 }
 
 /// Flash interface (RM0090 section 3.9).

@@ -519,6 +519,16 @@ impl Drive {
         self.raise(id, detail);
     }
 
+    /// The cause of the reset this start follows, as the board read it before the tiers ran. A reset by the
+    /// independent watchdog means a tier stopped running in the last run: it is a fault of this start (IDX 7.2.48
+    /// 0xFF02 "Watchdog error": device disabled, reset with the controlword), in the error history and sent as an
+    /// EMCY once the fieldbus is up. Every other cause is a normal start.
+    pub fn report_reset(&mut self, cause: crate::hal::reset::ResetCause) {
+        if cause == crate::hal::reset::ResetCause::IndependentWatchdog {
+            self.raise(FaultId::WatchdogReset, 0);
+        }
+    }
+
     /// Raises `id` with a snapshot of what the drive measures now. A fault of class "d" raised from outside the
     /// tiers' own steps (the runtime, a fieldbus layer) switches the outputs off here and now, not at the next slow
     /// tick: the class means "a secure movement is no longer possible" (IDX L7030). The forced off reaches tier 1

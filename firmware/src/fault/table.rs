@@ -216,10 +216,12 @@ pub enum FaultId {
     CanBusOff = 31,
     /// Received CAN frames were lost (the controller's receive FIFO overflowed).
     CanRxOverrun = 32,
+    /// The independent watchdog reset the device: some tier stopped running (reported at the next start).
+    WatchdogReset = 33,
 }
 
 /// Number of rows in [`FAULT_TABLE`].
-pub const FAULT_COUNT: usize = 33;
+pub const FAULT_COUNT: usize = 34;
 
 /// One row of the fault table.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -282,6 +284,7 @@ impl FaultId {
         Self::CanErrorPassive,
         Self::CanBusOff,
         Self::CanRxOverrun,
+        Self::WatchdogReset,
     ];
 
     /// The stable fault number (the table row; EMCY manufacturer byte 3).
@@ -713,5 +716,16 @@ pub static FAULT_TABLE: [FaultInfo; FAULT_COUNT] = [
         S::Detail,
         "CAN overrun error (object lost)",
         "IDX L7071, L7316",
+    ),
+    row(
+        FaultId::WatchdogReset,
+        0xFF02,
+        REG_GENERIC,
+        D,
+        Event,
+        Tier::Boot,
+        S::Detail,
+        "Watchdog error",
+        "IDX L7093, L7490 (7.2.48): the independent watchdog reset the device; reported at the next start",
     ),
 ];

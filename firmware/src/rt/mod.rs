@@ -30,17 +30,19 @@
 //! | TIM1 registers (duties, MOE)| peripheral                   | tier 1; the panic/fault handlers force MOE off | - |
 //! | parameter flash (FLASH_CR, PARAMS_A/B) | `board::flash::ParamFlash` in `app::Params`, owned | start-up reads it (`app::boot`); then tier 3 only, erasing and programming under the tier-2 lock (`tier2::with_drive`) with the power stage off and no request pending (tier 1 keeps running, stalled by the flash with its outputs off) | start-up, tier 3 |
 //! | update flash (slot A, slot B, BOOT_STATE) | `board::boot::UpdateRegion`s in [`program::BoardProgram`], owned | start-up reads slot A's header and the state log ([`program::start`]); then tier 3 only: the confirmation and the download, under the tier-2 lock (`tier2::with_drive`) with the power stage off | start-up, tier 3 |
+//! | independent watchdog (IWDG_KR), reset flags (RCC_CSR) | `board::watchdog` | start-up reads and clears the flags and starts the watchdog; then tier 3 only feeds it: the supervisor when every tier ran (`supervision::watchdog`), the flash driver before an erase | - |
 //!
 //! Nothing masks tier 1: tiers 2 and 3 share the drive under BASEPRI at tier 2's priority, and tier 1 shares only
 //! the hand-off blocks (atomics, no lock) with them. The libraries' critical sections (embassy, defmt's RTT
 //! logger, semihosting) use the same ceiling once the tiers run ([`critical`]). The QEMU bench shows it
 //! (`insn.tier1_latency_max`, `insn.masked_max`).
 //!
-//! Start-up order: board init (outputs off) -> parameters loaded from flash and the drive built from them
-//! (`app::boot`; defaults in the QEMU image) -> program control for the running image ([`program::start`]; not in
-//! the QEMU image) -> the drive placed for tier 2 and its first blocks published -> tier 2 started (its interrupt
-//! unmasked, slow loop spawned) ->
-//! tier 1 started (ADC interrupt unmasked) -> tier 3 runs forever (owning the parameter store and program control). Logging (defmt, feature `defmt`) happens in
+//! Start-up order: board init (outputs off) -> the reset cause read and cleared (`board::watchdog`) -> parameters
+//! loaded from flash and the drive built from them (`app::boot`; defaults in the QEMU image) -> program control for the
+//! running image ([`program::start`]; not in the QEMU image) -> the drive placed for tier 2 and its first blocks
+//! published -> tier 2 started (its interrupt unmasked, slow loop spawned) -> tier 1 started (ADC interrupt unmasked)
+//! -> the independent watchdog started (not in the QEMU image) -> tier 3 runs forever (owning the parameter store and
+//! program control). Logging (defmt, feature `defmt`) happens in
 //! start-up, tier 2 and tier 3, never in tier 1 ([`log`]).
 
 pub mod app;
@@ -81,6 +83,11 @@ pub fn run() -> ! {
         }
     };
     crate::rt_info!("board up");
+    // Why this start happened, read and cleared before anything else could reset the device again: a reset by
+    // the independent watchdog is a fault of this start (0xFF02, `Drive::report_reset`). QEMU models neither the
+    // RCC's reset flags nor the watchdog.
+    #[cfg(not(feature = "qemu"))]
+    let reset_cause = board::watchdog::take_reset_cause();
     let Some(mut peripherals) = cortex_m::Peripherals::take() else {
         halt("core peripherals already taken");
     };
@@ -107,6 +114,11 @@ pub fn run() -> ! {
     if let Some(_report) = boot.report {
         crate::rt_info!("parameters: {}", defmt::Debug2Format(&_report));
     }
+    #[cfg(not(feature = "qemu"))]
+    {
+        crate::rt_info!("reset cause: {}", defmt::Debug2Format(&reset_cause));
+        boot.drive.report_reset(reset_cause);
+    }
     // Program control for the image that runs (0x1F5x, FoE; its confirmation runs in tier 3). The QEMU image
     // has no flash interface to drive it.
     #[cfg(not(feature = "qemu"))]
@@ -128,6 +140,10 @@ pub fn run() -> ! {
     let _ = tier2::start();
     tier1::start(board.power, tier1_state);
     crate::rt_info!("tiers 1 and 2 running");
+    // The independent watchdog, fed by tier 3 only when every tier ran since the last feed (`tier3`); from here
+    // on a tier that stops resets the device within 2.7 to 7.5 s (`board::watchdog`).
+    #[cfg(not(feature = "qemu"))]
+    board::watchdog::start();
     tier3::run(boot.params, program, can)
 }
 

@@ -70,7 +70,8 @@ fn spawn_tasks(
     }
 }
 
-/// Watches the other tiers: logs their health once a second (2,500 slow ticks), and confirms an image on trial
+/// Watches the other tiers: feeds the independent watchdog when all three ran (`supervision::watchdog`), logs
+/// their health once a second (2,500 slow ticks), and confirms an image on trial
 /// once they have run healthily for a second (`program::confirm_when_healthy`). Holds the parameter store and
 /// program control, which the EtherCAT slave's poll borrows (feature `ethercat`).
 #[cfg(not(feature = "qemu"))]
@@ -85,8 +86,19 @@ async fn supervisor(params: &'static mut Option<app::Params>, program: &'static 
     let mut missed_before = super::tier2::SLOW_MISSED.load(Ordering::Relaxed);
     let mut confirmed = program.is_none();
     let mut ticks_total = 0u64;
+    let mut liveness = crate::supervision::watchdog::TierLiveness::new(
+        super::tier1::FAST_TICKS.load(Ordering::Relaxed),
+        super::tier2::SLOW_TICKS.load(Ordering::Relaxed),
+    );
     loop {
         let new = TICK.wait(&mut seen).await;
+        // Tier 3 runs here; the watchdog is fed only if tiers 1 and 2 ran since the last feed as well.
+        if liveness.all_tiers_ran(
+            super::tier1::FAST_TICKS.load(Ordering::Relaxed),
+            super::tier2::SLOW_TICKS.load(Ordering::Relaxed),
+        ) {
+            crate::board::watchdog::feed();
+        }
         since_report = since_report.wrapping_add(new);
         let missed = super::tier2::SLOW_MISSED.load(Ordering::Relaxed);
         healthy_ticks = if missed != missed_before || super::tier1::OVERRUN.load(Ordering::Relaxed) {

@@ -12,6 +12,7 @@
 //!   displaced, encoder signal loss.
 //! - [`stall`]: motor blocked (stall) supervision in the modes where the loops drive the motor.
 //! - [`phases`]: motor phase open (a phase that carries no current while the others do).
+//! - [`watchdog`]: the rule by which tier 3 feeds the independent watchdog (all three tiers ran).
 //! - [`communication`]: the one interface through which the fieldbus layers report communication loss
 //!   (heartbeat, RxPDO/SYNC timeout, EtherCAT watchdog, ...), and the process-data watchdog they share.
 
@@ -20,6 +21,7 @@ pub mod feedback;
 pub mod phases;
 pub mod stall;
 pub mod thermal;
+pub mod watchdog;
 
 use crate::cia402::{State, Ticks};
 use crate::control::angle::ElectricalAngle;

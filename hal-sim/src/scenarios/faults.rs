@@ -40,6 +40,9 @@ const WATCHDOG_SLOW_TICKS: u32 = 25;
 /// running speed (a coast from 300 rpm leaves the outputs off at 300 rpm).
 const STANDSTILL_AT_OFF_RPM: f64 = 30.0;
 
+/// RCC_CSR as the board reads it after an IWDG reset: IWDGRSTF with PINRSTF (RM0090 7.3.21), LSI on and ready.
+const RCC_CSR_AFTER_IWDG_RESET: u32 = 0x2400_0003;
+
 /// Where a case injects its fault.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Situation {
@@ -53,6 +56,9 @@ pub enum Situation {
     ReadyToSwitchOn,
     /// The drive boots.
     Boot,
+    /// The drive starts after a reset by the independent watchdog (an erased parameter store: nothing else to
+    /// report).
+    WatchdogRestart,
 }
 
 impl Situation {
@@ -62,7 +68,7 @@ impl Situation {
             Self::RunningCsv | Self::ReadyToSwitchOn => Some(9),
             Self::RunningCsp => Some(8),
             Self::LockedTorque => Some(10),
-            Self::Boot => None,
+            Self::Boot | Self::WatchdogRestart => None,
         }
     }
 
@@ -74,6 +80,7 @@ impl Situation {
             Self::LockedTorque => "CST locked",
             Self::ReadyToSwitchOn => "ready",
             Self::Boot => "boot",
+            Self::WatchdogRestart => "restart",
         }
     }
 }
@@ -495,6 +502,14 @@ pub fn cases() -> Vec<Case> {
         ),
         case(F::ParameterStoreCorrupt, "parameter flash filled with garbage", S::Boot, 10, nothing, nothing),
         case(
+            F::WatchdogReset,
+            "start after an IWDG reset (RCC_CSR.IWDGRSTF)",
+            S::WatchdogRestart,
+            10,
+            nothing,
+            nothing,
+        ),
+        case(
             F::InternalSoftware,
             "invariant check failed (firmware)",
             S::RunningCsv,
@@ -580,6 +595,14 @@ fn prepare(situation: Situation, seed: u64) -> Result<Bench, SimError> {
             sim.replace_drive(firmware::drive::Drive::boot(DriveConfig::DEFAULT, &mut store).0);
             Bench::new(sim)
         }
+        Situation::WatchdogRestart => {
+            let mut store = firmware::od::store::ParamStore::new(SimFlash::params());
+            let mut sim = Simulation::reference(seed);
+            let (mut drive, _) = firmware::drive::Drive::boot(DriveConfig::DEFAULT, &mut store);
+            drive.report_reset(firmware::hal::reset::ResetCause::from_rcc_csr(RCC_CSR_AFTER_IWDG_RESET));
+            sim.replace_drive(drive);
+            Bench::new(sim)
+        }
     };
     Ok(bench)
 }
@@ -611,7 +634,7 @@ pub fn run_case(case: &Case, seed: u64) -> Outcome {
             return outcome;
         }
     };
-    if case.situation != Situation::Boot {
+    if !matches!(case.situation, Situation::Boot | Situation::WatchdogRestart) {
         let _ = b.drain_emcy();
     }
     let history_before = history::count(b.sim.drive.dictionary());

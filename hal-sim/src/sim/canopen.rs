@@ -257,6 +257,14 @@ impl CanDrive {
         self.enter_fallback_if_no_image(id);
     }
 
+    /// The independent watchdog resets the microcontroller (a tier stopped running; `board::watchdog` on the
+    /// target): the microcontroller restarts as after program control's reset (bootloader, then the drive and the
+    /// node from scratch), and the new start reports the cause as the board reads it from RCC_CSR (`Drive::report_reset`: fault 0xFF02, sent as an EMCY once the node has booted).
+    pub fn watchdog_reset(&mut self) {
+        self.restart(self.node.node_id());
+        self.sim.drive.report_reset(firmware::hal::reset::ResetCause::IndependentWatchdog);
+    }
+
     /// Acts on program control after a request (issue 7): a stop or start changes the dictionary, a reset
     /// restarts the microcontroller (bootloader, then the drive and the node from scratch).
     fn follow_program(&mut self) {

@@ -6,3 +6,4 @@
 mod bus_errors;
 mod fuzz;
 mod node;
+mod watchdog;

@@ -13,3 +13,4 @@ mod power_stage;
 mod stall_phase;
 mod table;
 mod thermal;
+mod watchdog;
