@@ -317,8 +317,8 @@ impl<'a> Builder<'a> {
     fn push(&mut self, duration: i128, v1: i128, rate: i128, shape: ProfileType) {
         let Some(slot) = self.plan.segments.get_mut(self.plan.len) else {
             // No free slot cannot happen (at most four segments per plan); the velocity still follows the command
-            // and the residual correction takes the position to the end state.
-            self.v = Segment::new(self.t, duration, self.p, self.v, v1, rate, shape).v1();
+            // and the residual correction takes the position to the end state (`Segment::v1`: v0 + (v1 - v0)).
+            self.v = self.v.saturating_add(v1.saturating_sub(self.v));
             return;
         };
         *slot = Segment::new(self.t, duration, self.p, self.v, v1, rate, shape);

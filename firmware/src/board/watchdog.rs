@@ -5,7 +5,7 @@
 //! divided by 64 from [`RELOAD`] = 2,000: 4.0 s nominal, 2.7 s at the fastest LSI, 7.5 s at the slowest. The
 //! shortest must exceed the longest time the core stalls on purpose: a 128 KiB sector erase, up to 2 s at x32
 //! (datasheet t_ERASE128KB), during which no tier runs. Program control's *clear* erases three such sectors in a
-//! row, so the flash driver feeds the watchdog before each erase (`board::boot`), and every erase has the whole
+//! row, so the flash driver feeds the watchdog before each erase (`board::flash`), and every erase has the whole
 //! timeout to itself. Once started the IWDG runs until the next reset (a software reset stops it: the bootloader
 //! runs without it).
 

@@ -72,6 +72,7 @@ use crate::control::pi::PiGains;
 use crate::fault::emcy::InhibitTime;
 use crate::fault::table::FaultId;
 use crate::hal::power::PwmCommand;
+use crate::hal::reset::ResetCause;
 use crate::motion::axis::{Axis, AxisInputs, AxisOutputs, CurrentDemand};
 use crate::od::access::Dictionary;
 use crate::od::generated::handles as h;
@@ -523,8 +524,8 @@ impl Drive {
     /// independent watchdog means a tier stopped running in the last run: it is a fault of this start (IDX 7.2.48
     /// 0xFF02 "Watchdog error": device disabled, reset with the controlword), in the error history and sent as an
     /// EMCY once the fieldbus is up. Every other cause is a normal start.
-    pub fn report_reset(&mut self, cause: crate::hal::reset::ResetCause) {
-        if cause == crate::hal::reset::ResetCause::IndependentWatchdog {
+    pub fn report_reset(&mut self, cause: ResetCause) {
+        if cause == ResetCause::IndependentWatchdog {
             self.raise(FaultId::WatchdogReset, 0);
         }
     }

@@ -92,7 +92,6 @@ impl InputConfig {
 
     /// The lowest-numbered input (0-based) assigned function `code`.
     #[must_use]
-    #[inline(always)]
     pub fn input_with(&self, code: u8) -> Option<usize> {
         // Four compares in a row rather than a search loop: every slow tick asks this several times, and the crate
         // is optimised for size, which keeps such loops rolled.
@@ -152,13 +151,13 @@ pub fn switch_edges(pins: &PinLatches, config: &InputConfig, input: usize, posit
 #[must_use]
 pub fn evaluate(pins: &PinLatches, config: &InputConfig, position_offset: i32) -> InputState {
     let active = config.active_levels(pins.levels);
-    // The four inputs written out (a slow-tick path; the loop stays rolled in a crate optimised for size).
-    let [first, second, third, fourth] = config.functions;
-    let function_if = |mask: u8, code: u8| if active & mask != 0 { function_bit(code) } else { 0 };
-    let functions = function_if(0b0001, first)
-        | function_if(0b0010, second)
-        | function_if(0b0100, third)
-        | function_if(0b1000, fourth);
+    let mut functions = 0u32;
+    for (bit, &code) in config.functions.iter().enumerate() {
+        let mask = u32::try_from(bit).ok().and_then(|b| 1u8.checked_shl(b)).unwrap_or(0);
+        if active & mask != 0 {
+            functions |= function_bit(code);
+        }
+    }
     let edges = |input: Option<usize>| {
         input.map_or_else(SwitchEdges::default, |i| switch_edges(pins, config, i, position_offset))
     };

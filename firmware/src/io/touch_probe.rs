@@ -264,9 +264,10 @@ impl TouchProbes {
         let (source_1, source_2) = (d.get(h::TOUCH_PROBE_1_SOURCE), d.get(h::TOUCH_PROBE_2_SOURCE));
         // Each probe written out rather than a loop over zipped arrays: a slow-tick path in a crate optimised for
         // size, where such loops stay rolled with their bookkeeping.
+        let at = ProbeInputs { pins, seen: &seen, inputs, position_offset };
         let [probe_1, probe_2] = &mut self.probes;
-        step_probe(probe_1, 0, function_1, source_1, &ProbeInputs { pins, seen: &seen, inputs, position_offset });
-        step_probe(probe_2, 1, function_2, source_2, &ProbeInputs { pins, seen: &seen, inputs, position_offset });
+        step_probe(probe_1, 0, function_1, source_1, &at);
+        step_probe(probe_2, 1, function_2, source_2, &at);
         self.publish(d);
     }
 
