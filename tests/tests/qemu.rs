@@ -43,8 +43,10 @@ const ECAT_CYCLE_BUDGET: u64 = 1_500;
 /// and its control math (`drive-control`) for speed. Each budget is the variant's size when it was last lowered,
 /// rounded up to a KiB step with about 1 KB to spare, so that no change grows an image unseen: a feature that needs
 /// more lowers the others first or raises its budget here, with its reason in the commit, up to the ceiling.
-/// Measured at the last change: 179,800, 208,664 and 216,628.
-const TEXT_BUDGETS: [(&str, u64); 3] = [("can", 177 * 1024), ("ethercat", 205 * 1024), ("ethercat_defmt", 213 * 1024)];
+/// Raised by 3 to 4 KiB for the regeneration work (the bus-voltage limiter, the braking chopper with its resistor
+/// model and 13 dictionary entries, the stop ramp that follows the limiter: +3,660 to +4,268 bytes of text + data).
+/// Measured at the last change: 183,732, 213,212 and 221,192.
+const TEXT_BUDGETS: [(&str, u64); 3] = [("can", 180 * 1024), ("ethercat", 209 * 1024), ("ethercat_defmt", 217 * 1024)];
 
 #[test]
 fn board_images_fit_their_text_budgets() {

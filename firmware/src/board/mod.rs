@@ -20,6 +20,7 @@
 //! | CAN RX/TX (transceiver)     | PA11, PA12 (AF9)       | CAN1 (can)                     |
 //! | ESC SPI SEL/CLK/DO/DI       | PA4 (out), PA5..7 (AF5)| SPI1 (esc_spi, `ethercat`)     |
 //! | ESC SPI_IRQ (AL event)      | PB0 (input)            | EXTI0 (esc_spi, `ethercat`)    |
+//! | braking chopper gate        | PB1 (output)           | GPIOB BSRR (chopper)           |
 //!
 //! With the `qemu` feature (QEMU's `netduinoplus2`, which models neither the RCC nor these peripherals) [`init`]
 //! only starts the cost counter, and [`PowerStage`] is fed by a small built-in motor model (`plant`, present only in that build).
@@ -27,6 +28,7 @@
 pub mod adc;
 pub mod boot;
 pub mod can;
+pub mod chopper;
 pub mod clock;
 pub mod counter;
 #[cfg(feature = "ethercat")]
@@ -108,6 +110,7 @@ pub fn init() -> Result<Board, ClockError> {
         // TIM1 first: when the gate pins switch to TIM1 they are already driven to the off level.
         pwm::init();
         init_pins();
+        chopper::init();
         adc::init();
         feedback::init();
         counter::init();

@@ -139,6 +139,10 @@ impl Gpio {
     pub const fn idr(self) -> Reg {
         Reg::at(self.0, 0x10)
     }
+    /// Bit set/reset: writing bit n sets pin n, bit n + 16 resets it (atomic, no read-modify-write).
+    pub const fn bsrr(self) -> Reg {
+        Reg::at(self.0, 0x18)
+    }
     /// Alternate function, pins 0..=7 (4 bits per pin).
     pub const fn afrl(self) -> Reg {
         Reg::at(self.0, 0x20)

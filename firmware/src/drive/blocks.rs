@@ -71,6 +71,9 @@ pub struct SetPoint {
     pub power: PowerRequest,
     /// The q-current reference.
     pub i_q: Amps,
+    /// The d-current reference: zero, or negative while the bus-voltage limiter burns regenerated energy in the
+    /// winding (`super::regeneration`).
+    pub i_d: Amps,
     /// Tier 1's period number ([`Tier1Report::period`]) from which the block applies: a period already begun for
     /// a request to act on at once, a later one for what the loops decided in a slow tick, which on the target
     /// comes into force at a fixed phase of the slow period whatever time tier 2 took (`super::Drive`,
@@ -288,15 +291,21 @@ impl SetPoint {
 }
 
 /// Words of a [`SetPoint`].
-pub const SETPOINT_WORDS: usize = 4;
+pub const SETPOINT_WORDS: usize = 5;
 
 impl Words<SETPOINT_WORDS> for SetPoint {
     fn to_words(&self) -> [u32; SETPOINT_WORDS] {
-        [self.version, self.power_word(), self.i_q.to_bits().cast_unsigned(), self.apply_from]
+        [
+            self.version,
+            self.power_word(),
+            self.i_q.to_bits().cast_unsigned(),
+            self.i_d.to_bits().cast_unsigned(),
+            self.apply_from,
+        ]
     }
 
     fn from_words(words: &[u32; SETPOINT_WORDS]) -> Self {
-        let [version, power, i_q, apply_from] = *words;
+        let [version, power, i_q, i_d, apply_from] = *words;
         let level = match byte(power, 0) {
             1 => PowerLevel::SwitchedOn,
             2 => PowerLevel::OperationEnabled,
@@ -312,6 +321,7 @@ impl Words<SETPOINT_WORDS> for SetPoint {
                 sequence: byte(power, 3),
             },
             i_q: Amps::from_bits(i_q.cast_signed()),
+            i_d: Amps::from_bits(i_d.cast_signed()),
             apply_from,
         }
     }
@@ -663,12 +673,14 @@ mod tests {
             version: u32::MAX,
             power: PowerRequest { level: PowerLevel::OperationEnabled, switch_on: 255, fault_reset: 3, sequence: 9 },
             i_q: Amps::from_bits(-123_456),
+            i_d: Amps::from_bits(-654_321),
             apply_from: u32::MAX,
         });
         round_trip(SetPoint {
             version: 1,
             power: PowerRequest { level: PowerLevel::SwitchedOn, ..PowerRequest::default() },
             i_q: Amps::ZERO,
+            i_d: Amps::ZERO,
             apply_from: 17,
         });
     }

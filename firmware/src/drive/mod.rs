@@ -56,12 +56,14 @@
 
 pub mod blocks;
 pub mod calibration;
+pub mod chopper;
 pub mod commutation;
 pub mod encoder;
 mod fieldbus;
 pub mod hall_position;
 pub mod objects;
 pub mod protection;
+pub mod regeneration;
 pub mod scaling;
 pub mod tier1;
 
@@ -84,8 +86,10 @@ use crate::supervision::{Supervision, SupervisionInputs};
 
 use blocks::{CommutationSettings, PowerLevel, PowerRequest, SetPoint, Settings, Tier1Report};
 use calibration::CalibrationConfig;
+use chopper::BrakingChopper;
 use commutation::{hall_offset_from_od, AlignmentConfig, CommutationMethod};
 use encoder::EncoderConfig;
+use regeneration::BusVoltageLimiter;
 use scaling::ShuntOffsets;
 
 /// Why a power-stage request was refused.
@@ -232,6 +236,10 @@ pub struct Drive {
     thermal_limit: Amps,
     /// The motor data the demand scale was converted from (`None`: not yet).
     motor_source: Option<MotorSource>,
+    /// The DC-bus voltage limiter (0x3202) on the current reference.
+    bus_limiter: BusVoltageLimiter,
+    /// The braking chopper (0x3203).
+    chopper: BrakingChopper,
 }
 
 impl Drive {
@@ -283,6 +291,8 @@ impl Drive {
             thermal_limit: Amps::from_bits(i32::MAX),
             last_power_request: crate::cia402::PowerStage::OFF,
             output_pins: 0,
+            bus_limiter: BusVoltageLimiter::default(),
+            chopper: BrakingChopper::default(),
             dictionary,
         };
         drive.configure_commutation();
@@ -380,8 +390,14 @@ impl Drive {
             }
             DemandSource::Internal => self.internal,
         };
-        if i_q != self.setpoint.i_q {
-            self.setpoint.i_q = i_q;
+        let i = if self.bus_limiter.active() {
+            self.bus_limiter.limit(i_q, self.axis.velocity().to_bits())
+        } else {
+            Dq::new(Amps::ZERO, i_q)
+        };
+        if i.q != self.setpoint.i_q || i.d != self.setpoint.i_d {
+            self.setpoint.i_q = i.q;
+            self.setpoint.i_d = i.d;
             self.setpoint_changed();
         }
     }
@@ -424,11 +440,57 @@ impl Drive {
             self.thermal_limit = supervised.current_limit;
             self.apply_limits();
         }
+        self.run_chopper();
+        self.limit_bus_voltage();
         // Last, so that the plan starts from the parameters just converted: the profile generator's planning,
         // which does not fit the slow tick's budget (`control::trajectory` generator, "When a command takes
         // effect").
         self.axis.prepare_motion();
         self.hold_loop_setpoint(before);
+    }
+
+    /// The braking chopper's step on tier 1's last bus sample: its gate for this slow period
+    /// ([`Self::chopper_gate`]), the resistor model (0x3203:06/07) and its overload warning.
+    fn run_chopper(&mut self) {
+        let v_bus = self.report.signals.v_bus;
+        let step = self.chopper.step(&self.dictionary, v_bus);
+        if step.overload_began || step.overload_ended {
+            self.chopper_overload_changed(step.overload_began);
+        }
+        let d = &mut self.dictionary;
+        d.set(h::CHOPPER_LOAD, self.chopper.load_percent());
+        d.set(h::CHOPPER_STATE, self.chopper.state_bits());
+    }
+
+    /// The resistor's overload protection switched the chopper off (`began`) or let it on again: warning 0x7113
+    /// with the resistor's load, or its cause gone.
+    #[cold]
+    #[inline(never)]
+    fn chopper_overload_changed(&mut self, began: bool) {
+        if began {
+            self.raise(FaultId::ChopperOverload, i32::from(self.chopper.load_percent()));
+        } else {
+            self.axis.faults_mut().clear_cause(FaultId::ChopperOverload);
+        }
+    }
+
+    /// The braking chopper's gate for this slow period: the board drives its output with it after each
+    /// [`Self::background`] (the simulation switches the plant's resistor).
+    #[must_use]
+    pub const fn chopper_gate(&self) -> bool {
+        self.chopper.gate()
+    }
+
+    /// The bus-voltage limiter's step on tier 1's last bus sample; the reference is converted again while it acts
+    /// or when it has just stopped acting.
+    fn limit_bus_voltage(&mut self) {
+        let was_active = self.bus_limiter.active();
+        self.bus_limiter.refresh(&self.dictionary);
+        self.bus_limiter.observe(self.report.signals.v_bus, self.scale.current_limit());
+        if was_active || self.bus_limiter.active() {
+            self.dictionary.set(h::BUS_LIMITER_STATE, self.bus_limiter.state_bits());
+            self.update_demand();
+        }
     }
 
     /// The demand scale with the current limits of the protections in force (I2t and thermal derating): the
@@ -576,6 +638,8 @@ impl Drive {
             encoder_position: if encoder_present { r.encoder_position } else { r.hall_position },
             encoder_window: encoder_present.then_some(r.encoder_window),
             current: s.i_dq.q,
+            winding_current: regeneration::current_magnitude_bound(s.i_dq),
+            braking_limited: self.bus_limiter.braking_limited(),
             current_average_ma: Amps::from_bits(self.i_q_average).to_milliamps(),
             phase_currents_ma: [s.i_abc.a.to_milliamps(), s.i_abc.b.to_milliamps(), s.i_abc.c.to_milliamps()],
             bus_voltage_mv: s.v_bus.to_millivolts(),

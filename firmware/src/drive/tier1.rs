@@ -162,10 +162,11 @@ impl Tier1State {
     /// [`Self::setpoint_due`].
     #[inline]
     pub fn apply_setpoint_words(&mut self, words: &[u32; SETPOINT_WORDS]) {
-        let [version, power, i_q, apply_from] = *words;
+        let [version, power, i_q, i_d, apply_from] = *words;
         if power == self.setpoint.power_word() {
             self.setpoint.version = version;
             self.setpoint.i_q = Amps::from_bits(i_q.cast_signed());
+            self.setpoint.i_d = Amps::from_bits(i_d.cast_signed());
             self.setpoint.apply_from = apply_from;
         } else {
             self.apply_setpoint(&<SetPoint as crate::handoff::Words<SETPOINT_WORDS>>::from_words(words));
@@ -289,7 +290,7 @@ impl Tier1State {
             angle = align.angle;
             Dq::new(align.i_d, align.i_q)
         } else if self.commutation.stage().is_valid() {
-            Dq::new(Amps::ZERO, self.setpoint.i_q)
+            Dq::new(self.setpoint.i_d, self.setpoint.i_q)
         } else {
             // The alignment just finished this tick: the angle is valid from the next one; hold zero current.
             Dq::new(Amps::ZERO, Amps::ZERO)

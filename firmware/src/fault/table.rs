@@ -218,10 +218,12 @@ pub enum FaultId {
     CanRxOverrun = 32,
     /// The independent watchdog reset the device: some tier stopped running (reported at the next start).
     WatchdogReset = 33,
+    /// Warning: the braking resistor's thermal model reached its limit; the chopper is off until it has cooled.
+    ChopperOverload = 34,
 }
 
 /// Number of rows in [`FAULT_TABLE`].
-pub const FAULT_COUNT: usize = 34;
+pub const FAULT_COUNT: usize = 35;
 
 /// One row of the fault table.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -285,6 +287,7 @@ impl FaultId {
         Self::CanBusOff,
         Self::CanRxOverrun,
         Self::WatchdogReset,
+        Self::ChopperOverload,
     ];
 
     /// The stable fault number (the table row; EMCY manufacturer byte 3).
@@ -727,5 +730,15 @@ pub static FAULT_TABLE: [FaultInfo; FAULT_COUNT] = [
         S::Detail,
         "Watchdog error",
         "IDX L7093, L7490 (7.2.48): the independent watchdog reset the device; reported at the next start",
+    ),
+    warning(
+        FaultId::ChopperOverload,
+        0x7113,
+        Level,
+        Tier::Supervision,
+        S::Detail,
+        "Braking chopper overload",
+        "CiA 402 error code 7113h (brake chopper protective circuit); no seed has a chopper; the bus-voltage limiter \
+         0x3202 keeps the bus below the trip while the chopper is off",
     ),
 ];

@@ -60,6 +60,12 @@ pub struct AxisInputs<'a> {
     pub encoder_window: Option<PositionWindow>,
     /// The measured q current of the last fast tick.
     pub current: Amps,
+    /// The bus-voltage limiter held a braking q current back in the last slow tick (`drive::regeneration`): a stop
+    /// ramp the motor cannot follow starts again from the actual motion.
+    pub braking_limited: bool,
+    /// What the winding carries: the magnitude of the measured d/q current, or an upper bound of it (the d current
+    /// is not zero while the bus-voltage limiter brakes with losses: `drive::regeneration`).
+    pub winding_current: Amps,
     /// The averaged q current, mA (0x30D1:01).
     pub current_average_ma: i32,
     /// Phase currents of the last fast tick, mA (fault snapshots).
@@ -142,6 +148,8 @@ pub struct Axis {
     internal_limit: bool,
     referenced: bool,
     standstill: bool,
+    /// [`AxisInputs::braking_limited`] of this step.
+    braking_limited: bool,
     remote: bool,
     drive_fault_seen: bool,
     previous_controlword: Controlword,
@@ -190,6 +198,7 @@ impl Axis {
             internal_limit: false,
             referenced: false,
             standstill: false,
+            braking_limited: false,
             remote: false,
             drive_fault_seen: false,
             previous_controlword: Controlword(0),
@@ -293,7 +302,7 @@ impl Axis {
 
         // 4. Supervision. Motor I2t (EPOS3 S0 L2455-2545): at its limit the current is limited to the nominal
         // current until the level falls below 95 %; a warning (0x3200:01 shows the level).
-        let i2t = self.i2t.step(input.current.to_milliamps(), &self.i2t_config);
+        let i2t = self.i2t.step(input.winding_current.to_milliamps(), &self.i2t_config);
         self.i2t_current_limit_ma = i2t.current_limit_ma;
         if i2t.limit_reached != self.i2t_warning {
             self.i2t_warning = i2t.limit_reached;
@@ -355,6 +364,7 @@ impl Axis {
                 position: input.pins.index.position.wrapping_add(self.offset),
             },
         };
+        self.braking_limited = input.braking_limited;
         let (step, position) = self.motion(out.motion, out.mode.active, cw, &feedback, d);
 
         // 7. Limits and loops.
@@ -587,6 +597,13 @@ impl Axis {
                         status: ModeStatus::default(),
                     };
                     return (Some(step), fb.position);
+                }
+                if self.braking_limited && !self.generator.is_done() {
+                    // The bus-voltage limiter could not give the braking the ramp asks for (no chopper, or not
+                    // enough): the ramp starts again from the actual motion, as a drive's DC-link limiter stretches
+                    // its ramp-down, instead of running ahead into a following error the bus forbids correcting.
+                    self.generator.reset_moving(i64::from(fb.position), fb.velocity);
+                    let _ = self.begin_stop(stop, fb);
                 }
                 let sp = self.generator.step();
                 self.standstill = self.generator.is_done() && standstill;

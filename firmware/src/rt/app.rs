@@ -91,13 +91,17 @@ pub fn fast_tick(
         let setpoint = super::tier1::SETPOINT.front();
         // The words of `SetPoint::to_words`. A block for a later period stays unread (its epoch not taken) until
         // that period: read again then.
-        let [version, power, i_q, apply_from] = setpoint.block;
+        let [version, power, i_q, i_d, apply_from] = setpoint.block;
         let apply_from = apply_from.load(Ordering::Relaxed);
         if t1.setpoint_due(apply_from) {
             *setpoint_epoch = setpoint.epoch;
-            let (version, power, i_q) =
-                (version.load(Ordering::Relaxed), power.load(Ordering::Relaxed), i_q.load(Ordering::Relaxed));
-            t1.apply_setpoint_words(&[version, power, i_q, apply_from]);
+            let (version, power, i_q, i_d) = (
+                version.load(Ordering::Relaxed),
+                power.load(Ordering::Relaxed),
+                i_q.load(Ordering::Relaxed),
+                i_d.load(Ordering::Relaxed),
+            );
+            t1.apply_setpoint_words(&[version, power, i_q, i_d, apply_from]);
         }
     }
     t1.fast_tick(m)
@@ -109,8 +113,10 @@ pub fn slow_tick(drive: &mut Drive) {
     drive.slow_tick();
 }
 
-/// The parameter conversion tier 2 runs before each slow tick (measured separately).
+/// The parameter conversion tier 2 runs before each slow tick (measured separately), and the braking chopper's
+/// gate it decided.
 #[inline(never)]
 pub fn background(drive: &mut Drive) {
     drive.background();
+    crate::board::chopper::set_gate(drive.chopper_gate());
 }

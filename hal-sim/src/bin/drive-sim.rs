@@ -5,7 +5,7 @@
 //! drive-sim spinning     [--seed N] [--default-gains | --gains P,I] [--out DIR]   3,000 rpm, load step
 //! drive-sim csp          [--seed N] [--out DIR]                     CSP 10 rev jerk-limited move at 1 ms
 //! drive-sim csv-sweep    [--seed N] [--out DIR]                     CSV 100 rpm step, velocity-loop bandwidth
-//! drive-sim ppm          [--seed N] [--out DIR]                     PPM trapezoidal and sin² moves, target reached
+//! drive-sim ppm          [--seed N] [--out DIR]                     PPM moves (target reached, up to 5,000 rpm), quick stops against the bus
 //! drive-sim homing       [--seed N] [--out DIR]                     every homing method from both sides
 //! drive-sim fault-matrix [--seed N] [--out DIR] [--only TEXT]       every fault injected, reaction checked
 //! drive-sim duty-cycle   [--seed N] [--out DIR]                     60 s duty cycle: no false trips
@@ -31,8 +31,10 @@ mod canopen;
 
 use hal_sim::esc::pcap::PcapWriter;
 use hal_sim::esc::socket::Direction;
+use hal_sim::plant::PlantParams;
 use hal_sim::scenarios::motion::{self, CspConfig};
 use hal_sim::scenarios::profile::{self, Profile};
+use hal_sim::scenarios::regeneration::{self, ChopperRating};
 use hal_sim::scenarios::{self, Setup, SpinConfig, SpinStepFigures, SWEEP_FREQUENCIES_HZ};
 use hal_sim::scenarios::{duty_cycle, faults, homing};
 use hal_sim::sim::ethercat::{ClockMode, EthercatConfig, EthercatRunner};
@@ -385,27 +387,60 @@ fn csv_sweep(args: &Args, dir: &Path) -> Result<(), String> {
     Ok(())
 }
 
+/// The fast PPM case's distance: 40 revolutions of the reference encoder, enough to reach 5,000 rpm with either
+/// profile type (sin²: 20.8 revolutions to accelerate at 20,000 rpm/s, 13.9 to brake at 30,000 rpm/s).
+const FAST_DISTANCE_INC: i32 = 40 * 4096;
+
+/// The quick stop's deceleration in `drive-sim ppm`: 0x6085 = 150,000 rpm/s, a 33 ms stop from 5,000 rpm at 8.2 A,
+/// whose braking power (up to 145 W on the reference load) is far more than the motor's losses absorb (about 40 W
+/// at the 10 A limit): the limiter alone must stretch it, a chopper need not.
+const QUICK_STOP_RPM_PER_S: u32 = 150_000;
+
+fn print_quick_stop(name: &str, f: &regeneration::QuickStopFigures) {
+    println!(
+        "    {name}: from {:.0} rpm, stopped in {:.1} ms (ramp {:.1} ms), bus {:.2} -> peak {:.2} V, chopper {:.3} J, \
+         loss braking {}, regenerative current reduced {}, winding +{:.2} K, then {:?}",
+        f.from_rpm,
+        f.stop_ms,
+        f.ramp_ms,
+        f.bus_before_v,
+        f.bus_peak_v,
+        f.chopper_energy_j,
+        f.loss_braking_seen,
+        f.regen_reduced_seen,
+        f.winding_rise_k,
+        f.final_state
+    );
+}
+
 fn ppm(args: &Args, dir: &Path) -> Result<(), String> {
     println!(
         "ppm: reference plant (seed {}), CiA 402 PPM, absolute moves from rest, position window 0x6067 = 10 inc",
         args.seed
     );
     let mut worst = i64::MIN;
+    let mut bus_peak = 0.0_f64;
     for (name, profile_type, distance, p) in [
         ("trapezoidal, 5 rev, 1000 rpm, 10000 rpm/s", 0_i16, 20_480, Profile::DEFAULT),
         ("sin², 5 rev, 1000 rpm, 10000 rpm/s", 1, 20_480, Profile::DEFAULT),
-        ("trapezoidal, 10 rev, 2500 rpm, 20000/30000 rpm/s", 0, 40_960, Profile::FAST),
-        ("sin², 10 rev, 2500 rpm, 20000/30000 rpm/s", 1, 40_960, Profile::FAST),
+        ("trapezoidal, 40 rev, 5000 rpm, 20000/30000 rpm/s", 0, FAST_DISTANCE_INC, Profile::FAST),
+        ("sin², 40 rev, 5000 rpm, 20000/30000 rpm/s", 1, FAST_DISTANCE_INC, Profile::FAST),
     ] {
         let (f, trace) = profile::ppm_move(args.seed, profile_type, distance, &p).map_err(|e| e.to_string())?;
         println!("  {name}:");
         println!(
             "    profile {} ticks; bit 10 {} tick(s) after the profile's end (bound <= 2); final error {} inc; peak \
-             following error {} inc",
-            f.analytic_ticks, f.target_reached_delay_ticks, f.final_error_inc, f.following_error_peak_inc
+             following error {} inc; peak speed {:.0} rpm; bus peak {:.2} V",
+            f.analytic_ticks,
+            f.target_reached_delay_ticks,
+            f.final_error_inc,
+            f.following_error_peak_inc,
+            f.peak_speed_rpm,
+            f.bus_peak_v
         );
+        bus_peak = bus_peak.max(f.bus_peak_v);
         worst = worst.max(f.target_reached_delay_ticks);
-        if profile_type == 1 && distance == 40_960 {
+        if profile_type == 1 && distance == FAST_DISTANCE_INC {
             let plot = seconds_plot(
                 &trace,
                 "PPM: sin² move, 10 revolutions",
@@ -416,7 +451,46 @@ fn ppm(args: &Args, dir: &Path) -> Result<(), String> {
         }
     }
     println!();
+    println!(
+        "  quick stop from 5000 rpm (PVM, 0x605A = 6, 0x6085 = {QUICK_STOP_RPM_PER_S} rpm/s: a {:.0} ms ramp), trip at \
+         56 V:",
+        5000.0 / f64::from(QUICK_STOP_RPM_PER_S) * 1000.0
+    );
+    let (limiter, trace) =
+        regeneration::quick_stop(args.seed, PlantParams::reference(), None, true, 5000, QUICK_STOP_RPM_PER_S)
+            .map_err(|e| format!("quick stop, limiter alone: {e}"))?;
+    print_quick_stop("limiter alone (reference plant, no chopper)", &limiter);
+    write(
+        &trace,
+        &seconds_plot(&trace, "Quick stop from 5000 rpm, limiter alone", &[("bus_v", "bus [V]")], "V"),
+        dir,
+        "quick_stop",
+    )?;
+    let (chopper, trace) = regeneration::quick_stop(
+        args.seed,
+        PlantParams::reference_with_chopper(),
+        Some(ChopperRating::REFERENCE),
+        true,
+        5000,
+        QUICK_STOP_RPM_PER_S,
+    )
+    .map_err(|e| format!("quick stop with the chopper: {e}"))?;
+    print_quick_stop("chopper preset (10 ohm, 50 W, 10 s) and limiter", &chopper);
+    write(
+        &trace,
+        &seconds_plot(&trace, "Quick stop from 5000 rpm, chopper and limiter", &[("bus_v", "bus [V]")], "V"),
+        dir,
+        "quick_stop_chopper",
+    )?;
+    bus_peak = bus_peak.max(limiter.bus_peak_v);
+    println!();
     println!("target_reached_delay_ticks={worst}");
+    println!("bus_peak_v={bus_peak:.2}");
+    println!("quick_stop_bus_peak_v={:.2}", limiter.bus_peak_v);
+    println!("quick_stop_ms={:.1}", limiter.stop_ms);
+    println!("quick_stop_chopper_bus_peak_v={:.2}", chopper.bus_peak_v);
+    println!("quick_stop_chopper_ms={:.1}", chopper.stop_ms);
+    println!("chopper_energy_j={:.3}", chopper.chopper_energy_j);
     Ok(())
 }
 

@@ -34,6 +34,8 @@ pub(super) struct Coeffs {
     pub(super) source_sinks: bool,
     /// Bus capacitance, in F.
     pub(super) c_bus: f64,
+    /// Conductance of the braking resistor while the chopper conducts this period, in S (0: off or none).
+    pub(super) g_chopper: f64,
 }
 
 impl Coeffs {
@@ -46,6 +48,13 @@ impl Coeffs {
         } else {
             i.max(0.0)
         }
+    }
+
+    /// Current into the bus capacitor from outside the inverter at bus voltage `v_bus`: the source's, less the
+    /// braking resistor's while the chopper conducts, in A.
+    #[inline(always)]
+    pub(super) fn bus_inflow(&self, v_bus: f64) -> f64 {
+        self.source_current(v_bus) - self.g_chopper * v_bus
     }
 }
 
@@ -68,6 +77,7 @@ impl Plant {
             r_source: p.source_resistance_ohm,
             source_sinks: p.source_sinks_current,
             c_bus: p.bus_capacitance_f,
+            g_chopper: if self.chopper_gate { 1.0 / p.chopper_resistance_ohm } else { 0.0 },
         }
     }
 

@@ -172,7 +172,7 @@ impl<'a> DiodeBridge<'a> {
         let (dw, dth) = k.shaft_derivatives(self.mode, k.torque(i_d, i_q), self.load, s[3]);
         d[3] = dw;
         d[4] = dth;
-        d[5] = (k.source_current(s[5]) - i_dc) / k.c_bus;
+        d[5] = (k.bus_inflow(s[5]) - i_dc) / k.c_bus;
         d
     }
 

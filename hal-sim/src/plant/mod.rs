@@ -239,6 +239,10 @@ pub struct Plant {
     io: io::PlantIo,
     /// Injected failures ([`faults`]).
     faults: faults::PlantFaults,
+    /// The chopper output: the braking resistor conducts (when the plant has one).
+    chopper_gate: bool,
+    /// Energy the braking resistor has taken since the start, in J.
+    chopper_energy_j: f64,
 }
 
 impl core::fmt::Debug for Plant {
@@ -282,6 +286,8 @@ impl Plant {
             last_measurements: Measurements::default(),
             io: io::PlantIo::default(),
             faults: faults::PlantFaults::default(),
+            chopper_gate: false,
+            chopper_energy_j: 0.0,
             params,
         };
         plant.last_count = plant.count_now();
@@ -384,6 +390,8 @@ impl Plant {
         // Conduction loss of the switches: every phase current flows through one switch (or diode) at a time.
         let switch_loss_w = acc.copper_loss_w * k.r_switch / (k.r - k.r_switch).max(1e-12);
         self.update_thermal(acc.copper_loss_w, switch_loss_w, period_s);
+        // The resistor's energy from the period's mean bus voltage (the bus moves by millivolts within a period).
+        self.chopper_energy_j += k.g_chopper * acc.bus_voltage_v * acc.bus_voltage_v * period_s;
         self.averages = acc;
         self.levels = if self.break_latched { [None; 3] } else { end_levels };
         self.io.advance(&self.params.io, period_s);
@@ -527,6 +535,17 @@ impl Plant {
     /// Set the open-circuit voltage of the DC source, in V.
     pub fn set_source_voltage(&mut self, volts: f64) {
         self.params.source_voltage_v = volts;
+    }
+
+    /// The drive's chopper output for the periods from the next on: the braking resistor across the bus while
+    /// `on` (nothing when the plant has none, `PlantParams::chopper_resistance_ohm` infinite).
+    pub fn set_chopper_gate(&mut self, on: bool) {
+        self.chopper_gate = on;
+    }
+
+    /// Energy the braking resistor has taken since the start, in J.
+    pub fn chopper_energy_j(&self) -> f64 {
+        self.chopper_energy_j
     }
 
     /// Force the bus-capacitor voltage, in V.

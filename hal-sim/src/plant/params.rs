@@ -27,6 +27,9 @@ pub struct PlantParams {
     pub source_sinks_current: bool,
     /// Bus capacitance, in F.
     pub bus_capacitance_f: f64,
+    /// Braking resistor switched across the bus by the chopper output, in ohm; `f64::INFINITY`: no chopper fitted
+    /// (the gate then does nothing).
+    pub chopper_resistance_ohm: f64,
 
     // ---- Inverter ----
     /// Dead time inserted at every switching edge (both switches of a leg off), in s.
@@ -141,6 +144,7 @@ impl PlantParams {
     /// |---|---|---|
     /// | DC source, series resistance, bus capacitance | 24 V, 0.05 ohm, 470 uF | ARCHITECTURE "Reference plant" |
     /// | Source sinks current | no (no braking chopper: regeneration raises the bus) | ARCHITECTURE |
+    /// | Braking chopper | none | ARCHITECTURE ([`Self::reference_with_chopper`] adds one) |
     /// | Dead time, switch resistance | 0.5 us, 10 mohm | ARCHITECTURE "Inverter" |
     /// | Body-diode drop | 0.7 V | assumption (typical MOSFET body diode) |
     /// | Break (over-current comparator) | 15 A | assumption: above the 10 A peak, inside the +-16.5 A ADC span |
@@ -171,6 +175,7 @@ impl PlantParams {
             source_resistance_ohm: 0.05,
             source_sinks_current: false,
             bus_capacitance_f: 470.0e-6,
+            chopper_resistance_ohm: f64::INFINITY,
             dead_time_s: 0.5e-6,
             switch_resistance_ohm: 0.010,
             diode_drop_v: 0.7,
@@ -213,6 +218,13 @@ impl PlantParams {
             substeps_per_period: 8,
             io: IoParams::reference(),
         }
+    }
+
+    /// The reference plant with a braking chopper: a 10 ohm resistor across the bus while the drive's chopper
+    /// output conducts (5 A and 250 W at 50 V: a typical 50 W, 10 ohm braking resistor of this power class, whose
+    /// rating the drive knows from 0x3203, not the plant). Everything else is the reference.
+    pub fn reference_with_chopper() -> Self {
+        Self { chopper_resistance_ohm: 10.0, ..Self::reference() }
     }
 
     /// The reference plant with ideal sensors: no ADC noise and no shunt offsets (for tests that check the

@@ -215,7 +215,7 @@ impl SwitchingSegment<'_> {
             let s = short.leg_currents(poles);
             i_dc += inverter_legs[0].c * s[0] + inverter_legs[1].c * s[1] + inverter_legs[2].c * s[2];
         }
-        let dv = (k.source_current(v) - i_dc) / k.c_bus;
+        let dv = (k.bus_inflow(v) - i_dc) / k.c_bus;
         let (dw, dth) = k.shaft_derivatives(self.mode, k.torque(i_d, i_q), self.load, omega);
         [di_d, di_q, dw, dth, dv]
     }

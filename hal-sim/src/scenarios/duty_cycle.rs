@@ -2,7 +2,7 @@
 //! protection armed, the reference sensor noise, and nothing that should trip.
 //!
 //! The master runs CSV with set-points every 1 ms. Every 0.6 s the target velocity steps through 2,000, 0,
-//! -2,000, 0, 1,500, -1,500, 2,000, -500 rpm (the reversals brake at the current limit; a stop from 3,000 rpm at 10 A returns more energy than the 470 uF bus and the winding losses take and trips the bus over-voltage, see `profile::Profile::FAST`) (a step is an acceleration at the current limit: the velocity loop saturates
+//! -2,000, 0, 1,500, -1,500, 2,000, -500 rpm (the reversals brake at the current limit, with the bus-voltage limiter 0x3202 on as by default: it acts only when the bus passes 51 V) (a step is an acceleration at the current limit: the velocity loop saturates
 //! at 0x3001:02 = 10 A for about 10 ms), each deceleration feeds the motor's energy back into the bus (no braking
 //! chopper on the reference supply), and a load torque of up to 30 % of the peak torque is switched on and off
 //! every 1.7 s, out of phase with the velocity steps. The load resists the motion (a machining or conveying

@@ -301,6 +301,23 @@ pub fn cases() -> Vec<Case> {
             |b| b.sim.set_target_torque(0),
         ),
         case(
+            F::ChopperOverload,
+            "52 V supply holds a 10 ohm, 20 W braking resistor on (0x3203, tau 1 s)",
+            S::RunningCsv,
+            // The resistor model's closed form: 268 W into a 20 W rating, tau 1 s: -ln(1 - 20/268) s = 78 ms =
+            // 1,940 periods; 2,500 allowed.
+            2_500,
+            |b| {
+                b.sim.plant.params_mut().chopper_resistance_ohm = 10.0;
+                b.sim.plant.set_source_voltage(52.0);
+                let d = b.sim.drive.dictionary_mut();
+                d.set(h::CHOPPER_RESISTANCE, 10_000);
+                d.set(h::CHOPPER_RATED_POWER, 20_000);
+                d.set(h::CHOPPER_THERMAL_TIME_CONSTANT, 1_000);
+            },
+            |b| b.sim.plant.set_source_voltage(24.0),
+        ),
+        case(
             F::MotorThermalOverload,
             "winding at 130 degC",
             S::RunningCsv,

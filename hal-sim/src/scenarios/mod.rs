@@ -3,7 +3,7 @@
 //! and the other areas) assert on them, so the command line and the tests run the same code.
 //!
 //! This module holds the current-loop scenarios and the start every scenario shares; [`motion`] (CSP, CSV),
-//! [`profile`] (PPM, PVM), [`homing`], [`faults`] (the fault matrix) and [`duty_cycle`] hold the others.
+//! [`profile`] (PPM, PVM), [`regeneration`] (a quick stop from full speed against the bus), [`homing`], [`faults`] (the fault matrix) and [`duty_cycle`] hold the others.
 //!
 //! All scenarios start the same way ([`prepare`]): the reference plant with chosen shunt offsets, the rotor at a
 //! non-special angle, CiA 402 transition 3 (offset calibration) and 4 (enable), then a commissioning run on the
@@ -16,6 +16,7 @@ pub mod faults;
 pub mod homing;
 pub mod motion;
 pub mod profile;
+pub mod regeneration;
 
 use core::f64::consts::PI;
 use std::time::Instant;
@@ -75,7 +76,11 @@ pub fn angle_error_deg(sim: &Simulation) -> f64 {
 /// Builds the simulation, calibrates, enables and commissions (see the module documentation). The shaft is free
 /// and turning slowly at the end; the q reference is zero.
 pub fn prepare(setup: &Setup) -> Result<(Simulation, Prepared), SimError> {
-    let mut params = PlantParams::reference();
+    prepare_plant(PlantParams::reference(), setup)
+}
+
+/// [`prepare`] on the plant `params` (its shunt offsets replaced by the setup's).
+pub fn prepare_plant(mut params: PlantParams, setup: &Setup) -> Result<(Simulation, Prepared), SimError> {
     params.shunt_offset_lsb = setup.offsets_lsb;
     let mut sim = Simulation::new(params, setup.seed, DriveConfig::DEFAULT);
     sim.plant.set_rotor_state(setup.start_angle_rad, 0.0);

@@ -72,11 +72,10 @@ impl Profile {
     /// The dictionary defaults (`firmware/device.toml`): 1,000 rpm, 10,000 rpm/s both ways.
     pub const DEFAULT: Self =
         Self { velocity_rpm: 1000, acceleration_rpm_per_s: 10_000, deceleration_rpm_per_s: 10_000 };
-    /// A fast profile: 2,500 rpm, 20,000 rpm/s up, 30,000 rpm/s down (about the CSP case's peak speed). Not
-    /// faster: the reference bus has no braking chopper, and stopping the reference load from 3,000 rpm returns
-    /// 0.87 J into its 470 uF, which would lift the 24 V bus past the 56 V over-voltage trip (from 2,450 rpm it
-    /// reaches 49.8 V).
-    pub const FAST: Self = Self { velocity_rpm: 2500, acceleration_rpm_per_s: 20_000, deceleration_rpm_per_s: 30_000 };
+    /// A fast profile: the reference motor's 5,000 rpm maximum, 20,000 rpm/s up, 30,000 rpm/s down. Braking from
+    /// it returns 2.4 J, four times what the 470 uF bus holds below the 56 V trip; the drive's bus-voltage limiter
+    /// (`firmware::drive::regeneration`) burns the rest in the winding, so the move keeps its profile.
+    pub const FAST: Self = Self { velocity_rpm: 5000, acceleration_rpm_per_s: 20_000, deceleration_rpm_per_s: 30_000 };
 }
 
 /// One slow tick as the master sees it.
@@ -98,6 +97,8 @@ struct Sample {
     velocity_rpm: i32,
     /// The plant's true speed, rpm.
     speed_rpm: f64,
+    /// The plant's DC-bus voltage, V.
+    bus_v: f64,
 }
 
 impl Sample {
@@ -174,6 +175,7 @@ impl Master {
             demand_rpm: rpm_of(self.sim.drive.axis().setpoint().velocity),
             velocity_rpm: d.get(h::VELOCITY_ACTUAL_VALUE),
             speed_rpm: self.sim.plant.state().speed_rpm,
+            bus_v: self.sim.plant.state().bus_voltage_v,
         };
         self.samples.push(s);
         self.tick += 1;
@@ -217,6 +219,7 @@ impl Master {
             demand_rpm: 0.0,
             velocity_rpm: 0,
             speed_rpm: 0.0,
+            bus_v: 0.0,
         })
     }
 
@@ -355,6 +358,9 @@ pub struct PpmFigures {
     pub following_error_peak_inc: i32,
     /// Largest |plant speed| during the move, rpm.
     pub peak_speed_rpm: f64,
+    /// Highest DC-bus voltage of the plant from the acknowledge to the end of the record, V (sampled once per slow
+    /// tick).
+    pub bus_peak_v: f64,
 }
 
 /// One absolute PPM move of `distance` increments from rest on the reference plant (0x6060 = 1), with 0x6086 =
@@ -422,6 +428,7 @@ fn ppm_move_inner(
         settled_error_max_inc: hold.iter().map(|s| s.actual.wrapping_sub(target).abs()).max().unwrap_or(0),
         following_error_peak_inc: m.since(ack).map(|s| s.following_error.abs()).max().unwrap_or(0),
         peak_speed_rpm: m.since(ack).map(|s| s.speed_rpm.abs()).fold(0.0, f64::max),
+        bus_peak_v: m.since(ack).map(|s| s.bus_v).fold(0.0, f64::max),
     };
     Ok((figures, m.trace()))
 }

@@ -108,6 +108,7 @@ impl Simulation {
             self.drive.background();
             self.drive.slow_tick();
             self.plant.set_digital_outputs(self.drive.output_pins());
+            self.plant.set_chopper_gate(self.drive.chopper_gate());
         }
         self.cmd = tick.pwm;
         self.measurements = m;

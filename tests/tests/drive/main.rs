@@ -8,3 +8,4 @@ mod commutation;
 mod current_loop;
 mod io;
 mod parameters;
+mod regeneration;
