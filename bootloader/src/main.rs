@@ -65,7 +65,7 @@ mod target {
     impl Fallback {
         /// The reason as one number for the QEMU report (`boot.fallback=`): 1xx no valid image (`ImageError`:
         /// 100 truncated, 101 trailing data, 102 bad magic, 103 format version, 104 malformed header, 105 wrong
-        /// hardware, 106 load address, 107 oversized, 108 CRC, 109 signature, 110 flash), 2xx unusable vector
+        /// hardware, 106 load address, 107 oversized, 108 CRC, 109 signature, 110 flash, 111 security version), 2xx unusable vector
         /// table (200 stack pointer, 201 reset vector, 202 flash), 3xx update state (300 log full, 301 layout,
         /// 302 flash regions taken). Numbers, not `Debug` text: the formatting code would not fit the 32 KiB.
         #[cfg_attr(not(feature = "qemu"), allow(dead_code))]
@@ -83,6 +83,7 @@ mod target {
                     ImageError::Crc { .. } => 108,
                     ImageError::BadSignature => 109,
                     ImageError::Flash(_) => 110,
+                    ImageError::Rollback { .. } => 111,
                 },
                 Fallback::Start(StartError::StackPointer(_)) => 200,
                 Fallback::Start(StartError::ResetVector(_)) => 201,

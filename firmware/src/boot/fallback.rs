@@ -362,7 +362,7 @@ impl FallbackNode {
         }
         match self.control {
             command::STOP | command::ESM_ACKNOWLEDGE => Ok(()),
-            command::CLEAR => match self.download.clear(&mut flash.slot_b, &mut flash.state) {
+            command::CLEAR => match self.download.clear(&mut flash.slot_b, &mut flash.state, None) {
                 Ok(()) => {
                     self.status = status::NO_PROGRAM;
                     Ok(())

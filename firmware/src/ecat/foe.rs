@@ -18,7 +18,7 @@
 //!   "bootstrap only" (IDX: FoE download only in BOOT; the Beckhoff SSC `FOE_Write` returns
 //!   `ECAT_FOE_ERRCODE_BOOTSTRAPONLY` = 0x8008 for it; 0x8009 "not bootstrap" is the opposite case, a file that
 //!   is not valid in BOOT); a data packet with the wrong number gets 0x8005; a packet the state does not expect
-//!   gets 0x8004 (illegal); the sink's own refusals carry its code. The master's error request ends the transfer
+//!   gets 0x8004 (illegal); the sink's own refusals carry its code and the text it gives ([`FoeSink::error_text`]). The master's error request ends the transfer
 //!   without an answer. A mailbox shorter than the FoE header is mailbox error 0x06.
 
 use super::mailbox::MailboxError;
@@ -122,6 +122,12 @@ pub trait FoeSink {
     fn finish(&mut self) -> Result<(), FoeError>;
     /// The transfer ended early (master error, wrong packet, INIT, a new request): discard what was written.
     fn abort(&mut self) {}
+    /// The error text to send with `error` (ETG.1000.5 FoE error request: code, then text), asked once for each
+    /// error answer; the default sends none.
+    fn error_text(&mut self, error: FoeError) -> &'static [u8] {
+        let _ = error;
+        &[]
+    }
     /// Reads up to `buf.len()` bytes at `offset` of the file being read; returns how many (fewer than asked:
     /// end of file). Sinks without readable files keep the default, which refuses.
     fn read(&mut self, offset: u32, buf: &mut [u8]) -> Result<usize, FoeError> {
@@ -263,7 +269,16 @@ impl Foe {
             Ok(len) => len,
             Err(error) => {
                 self.stats.errors = self.stats.errors.saturating_add(1);
-                header(out, opcode::ERR, error.code())
+                let len = header(out, opcode::ERR, error.code());
+                let text = sink.error_text(error);
+                let room = out.len().saturating_sub(len).min(text.len());
+                match (out.get_mut(len..len.saturating_add(room)), text.get(..room)) {
+                    (Some(dst), Some(src)) => {
+                        dst.copy_from_slice(src);
+                        len.saturating_add(room)
+                    }
+                    _ => len,
+                }
             }
         }))
     }

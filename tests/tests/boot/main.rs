@@ -5,5 +5,6 @@
 
 mod image;
 mod power_cut;
+mod rollback;
 mod support;
 mod update;
