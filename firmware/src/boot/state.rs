@@ -54,7 +54,7 @@
 //! 12  u32  CRC-32 of bytes 0..12
 //! ```
 
-use super::verify::CRC32;
+use super::crc32;
 use crate::hal::flash::{FlashError, NorFlash};
 
 /// Size of one record.
@@ -144,7 +144,7 @@ impl Record {
         let mut b = [0u8; RECORD_LEN as usize];
         let head = [self.kind as u8, self.direction as u8, self.sector, self.phase as u8];
         let crc_in = concat12(head, self.image_crc.to_le_bytes(), RECORD_MAGIC.to_le_bytes());
-        let crc = CRC32.checksum(&crc_in);
+        let crc = crc32::checksum(&crc_in);
         for (dst, src) in b.iter_mut().zip(crc_in.iter().chain(crc.to_le_bytes().iter())) {
             *dst = *src;
         }
@@ -155,7 +155,7 @@ impl Record {
     pub fn parse(b: &[u8]) -> Option<Self> {
         let b: &[u8; RECORD_LEN as usize] = b.first_chunk()?;
         let (body, crc) = b.split_first_chunk::<12>()?;
-        if CRC32.checksum(body) != u32::from_le_bytes(*crc.first_chunk::<4>()?) {
+        if crc32::checksum(body) != u32::from_le_bytes(*crc.first_chunk::<4>()?) {
             return None;
         }
         let [k, d, s, p, c0, c1, c2, c3, m0, m1, m2, m3] = *body;

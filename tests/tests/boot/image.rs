@@ -50,7 +50,7 @@ fn every_refusal_from_bytes_is_typed() {
     // Payload and CRC changed consistently, signature left: the signature check catches it.
     let mut forged = good.clone();
     forged[HEADER_LEN as usize + 1000] ^= 0x01;
-    let crc = firmware::boot::verify::CRC32.checksum(&forged[HEADER_LEN as usize..]);
+    let crc = firmware::boot::crc32::checksum(&forged[HEADER_LEN as usize..]);
     forged[24..28].copy_from_slice(&crc.to_le_bytes());
     assert_eq!(verify_bytes(&forged, &t), Err(ImageError::BadSignature));
 

@@ -6,5 +6,6 @@
 mod image;
 mod power_cut;
 mod rollback;
+mod stored_comms;
 mod support;
 mod update;
