@@ -20,8 +20,9 @@
 //!   ([`firmware::boot::stored_comms`]: the record in force found as the application finds it, CRC, item
 //!   structure, node-ID 1..=127, an offered bit-rate code), else the device defaults (node-ID 1, 1 Mbit/s); a
 //!   stored rate the controller cannot time exactly from its 42 MHz (800 kbit/s, `hal::can`) falls back to
-//!   1 Mbit/s as the application does. The boot-up message goes out first; an NMT reset, 0x1F51 = 1 with a verified image or 0x1F51 = 2
-//!   answers, waits until the transmit mailboxes are empty and resets: the next boot activates the image.
+//!   1 Mbit/s as the application does. The boot-up message goes out first; an NMT reset, 0x1F51 = 1 with a
+//!   verified image or 0x1F51 = 2 answers, waits until the transmit mailboxes are empty and resets: the next boot
+//!   activates the image.
 //!   **Size**: a package of its own so that it is built size-optimised by a per-package profile override (root
 //!   `Cargo.toml`: `[profile.release.package.bootloader]` opt-level "z", with the link-time optimisation at that
 //!   level; the firmware library it uses keeps the release settings of the drive image). The plain release build
@@ -66,9 +67,9 @@ mod target {
     impl Fallback {
         /// The reason as one number for the QEMU report (`boot.fallback=`): 1xx no valid image (`ImageError`:
         /// 100 truncated, 101 trailing data, 102 bad magic, 103 format version, 104 malformed header, 105 wrong
-        /// hardware, 106 load address, 107 oversized, 108 CRC, 109 signature, 110 flash, 111 security version), 2xx unusable vector
-        /// table (200 stack pointer, 201 reset vector, 202 flash), 3xx update state (300 log full, 301 layout,
-        /// 302 flash regions taken). Numbers, not `Debug` text: the formatting code would not fit the 32 KiB.
+        /// hardware, 106 load address, 107 oversized, 108 CRC, 109 signature, 110 flash, 111 security version),
+        /// 2xx unusable vector table (200 stack pointer, 201 reset vector, 202 flash), 3xx update state (300 log
+        /// full, 301 layout, 302 flash regions taken). Numbers, not `Debug` text: the formatting code would not fit the 32 KiB.
         #[cfg_attr(not(feature = "qemu"), allow(dead_code))]
         pub(crate) fn code(&self) -> u32 {
             match *self {

@@ -100,8 +100,8 @@ pub const fn bit_timing(clock_hz: u32, bits_per_second: u32) -> Option<BitTiming
     // Most quanta first, so that a later candidate replaces an earlier one only with a better sample point.
     let mut quanta = *QUANTA.end();
     while quanta >= *QUANTA.start() {
-        let prescaler = match clocks_per_bit.checked_rem(quanta) {
-            Some(0) => clocks_per_bit.wrapping_div(quanta),
+        let prescaler = match (clocks_per_bit.checked_rem(quanta), clocks_per_bit.checked_div(quanta)) {
+            (Some(0), Some(p)) => p,
             _ => 0,
         };
         if prescaler != 0 && prescaler <= MAX_PRESCALER {
