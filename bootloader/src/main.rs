@@ -15,18 +15,20 @@
 //!   program", device type 0x0000012E, one interface) answers on CAN so that a new image can be loaded:
 //!   [`firmware::boot::fallback::FallbackNode`] (SDO server of the reduced object set, program control over
 //!   slot B) on bxCAN (`board::can::BxCan`), polled: receive, handle, send; the SDO timeout runs on
-//!   the DWT cycle counter. One interface only, CAN: the ESC / EtherCAT stack does not fit the 32 KiB. Bit
-//!   rate and node-ID are the device defaults (device.toml 0x2000 = 1, 0x2001 = 0: 1 Mbit/s), not the stored
-//!   parameters: a board without a valid application is found at a known address whatever its parameter
-//!   sectors hold, and the parameter store's record walk (CRC, item structure) would cost flash the fallback
-//!   needs. The boot-up message goes out first; an NMT reset, 0x1F51 = 1 with a verified image or 0x1F51 = 2
-//!   answers, waits until the transmit mailboxes are empty and resets: the next boot activates the image.
+//!   the DWT cycle counter. One interface only, CAN: the ESC / EtherCAT stack does not fit the 32 KiB. Node-ID
+//!   and bit rate are the saved 0x2000 and 0x2001 when the parameter store holds valid ones
+//!   ([`firmware::boot::stored_comms`]: the record in force found as the application finds it, CRC, item
+//!   structure, node-ID 1..=127, an offered bit-rate code), else the device defaults (node-ID 1, 1 Mbit/s); a
+//!   stored rate the controller cannot time exactly from its 42 MHz (800 kbit/s, `hal::can`) falls back to
+//!   1 Mbit/s as the application does. The boot-up message goes out first; an NMT reset, 0x1F51 = 1 with a
+//!   verified image or 0x1F51 = 2 answers, waits until the transmit mailboxes are empty and resets: the next boot
+//!   activates the image.
 //!   **Size**: a package of its own so that it is built size-optimised by a per-package profile override (root
 //!   `Cargo.toml`: `[profile.release.package.bootloader]` opt-level "z", with the link-time optimisation at that
 //!   level; the firmware library it uses keeps the release settings of the drive image). The plain release build
 //!   makes it: `cargo build --release -p bootloader --target thumbv7em-none-eabihf` (or the workspace-wide
 //!   `cargo build --release --target thumbv7em-none-eabihf`, whose default members are the two images).
-//!   29,084 bytes with the CAN service, 32,324 with defmt, 27,544 for QEMU, of the 32,768 (the linker script
+//!   28,864 bytes with the CAN service, 32,312 with defmt, 26,172 for QEMU, of the 32,768 (the linker script
 //!   refuses an image that does not fit; `tests/tests/qemu_boot.rs` checks all three builds).
 //!
 //! With the `qemu` feature (QEMU's `netduinoplus2`): reports on semihosting stdout (`boot.*` lines and
@@ -65,9 +67,9 @@ mod target {
     impl Fallback {
         /// The reason as one number for the QEMU report (`boot.fallback=`): 1xx no valid image (`ImageError`:
         /// 100 truncated, 101 trailing data, 102 bad magic, 103 format version, 104 malformed header, 105 wrong
-        /// hardware, 106 load address, 107 oversized, 108 CRC, 109 signature, 110 flash), 2xx unusable vector
-        /// table (200 stack pointer, 201 reset vector, 202 flash), 3xx update state (300 log full, 301 layout,
-        /// 302 flash regions taken). Numbers, not `Debug` text: the formatting code would not fit the 32 KiB.
+        /// hardware, 106 load address, 107 oversized, 108 CRC, 109 signature, 110 flash, 111 security version),
+        /// 2xx unusable vector table (200 stack pointer, 201 reset vector, 202 flash), 3xx update state (300 log
+        /// full, 301 layout, 302 flash regions taken). Numbers, not `Debug` text: the formatting code would not fit the 32 KiB.
         #[cfg_attr(not(feature = "qemu"), allow(dead_code))]
         pub(crate) fn code(&self) -> u32 {
             match *self {
@@ -83,6 +85,7 @@ mod target {
                     ImageError::Crc { .. } => 108,
                     ImageError::BadSignature => 109,
                     ImageError::Flash(_) => 110,
+                    ImageError::Rollback { .. } => 111,
                 },
                 Fallback::Start(StartError::StackPointer(_)) => 200,
                 Fallback::Start(StartError::ResetVector(_)) => 201,
@@ -171,10 +174,11 @@ mod target {
         use firmware::board::boot::UpdateFlash;
         use firmware::board::can::BxCan;
         use firmware::board::clock::SYSCLK_HZ;
+        use firmware::board::flash::ParamFlash;
         use firmware::boot::fallback::FallbackNode;
         use firmware::boot::image::ImageError;
+        use firmware::boot::stored_comms::stored_comms;
         use firmware::canopen::frame::{BitRate, CanBus, CanFrame};
-        use firmware::od::generated::DEFAULT_NODE_ID;
 
         use super::TRUST;
 
@@ -215,19 +219,22 @@ mod target {
             }
         }
 
-        /// Brings CAN up at the device defaults and serves [`FallbackNode`] until a reset. Never returns.
+        /// Brings CAN up at the stored node-ID and bit rate (or the device defaults) and serves [`FallbackNode`]
+        /// until a reset. Never returns.
         pub(super) fn serve(reason: ImageError, flash: &mut UpdateFlash) -> ! {
             if let Some(mut core) = cortex_m::Peripherals::take() {
                 core.DCB.enable_trace();
                 core.DWT.enable_cycle_counter();
             }
+            let comms = ParamFlash::take().map(|mut params| stored_comms(&mut params)).unwrap_or_default();
+            let rate = if BxCan::timing(comms.bit_rate).is_ok() { comms.bit_rate } else { BitRate::default() };
             // Without a transceiver or bus, leaving initialisation times out: try again until a bus is there.
             let mut can = loop {
-                if let Ok(can) = BxCan::init(BitRate::default()) {
+                if let Ok(can) = BxCan::init(rate) {
                     break can;
                 }
             };
-            let mut node = FallbackNode::new(DEFAULT_NODE_ID, TRUST, reason);
+            let mut node = FallbackNode::new(comms.node_id, TRUST, reason);
             let mut clock = Millis { last: DWT::cycle_count(), ms: 0, rest: 0 };
             send(&mut can, &node.boot_up());
             loop {

@@ -22,6 +22,9 @@ pub struct PackOptions {
     pub software_id: u32,
     /// Version string (at most 16 ASCII bytes).
     pub version_string: String,
+    /// Security version (anti-rollback, `firmware::boot::image`): the drive refuses images below the one it last
+    /// confirmed; raise it only for a release that must not be downgraded past.
+    pub security_version: u32,
 }
 
 /// Parses 64 hex digits (surrounding white space allowed) into 32 bytes.
@@ -144,6 +147,7 @@ pub fn pack(payload: &[u8], seed: &[u8; 32], options: &PackOptions, noise: [u8; 
     }
     let mut header = ImageHeader::new(options.hardware_id, options.firmware_version, options.software_id, 0, 0);
     header.version_string[..vs.len()].copy_from_slice(vs);
+    header.security_version = options.security_version;
     sign_image(&mut header, &payload, seed, noise);
     let mut image = header.to_bytes().to_vec();
     image.extend_from_slice(&payload);
@@ -163,6 +167,7 @@ pub fn describe(image: &[u8], public_key: &[u8; 32], hardware_id: u32) -> String
             let _ = writeln!(s, "firmware version: {}.{}.{} ({v:#010x})", v >> 24, (v >> 16) & 0xFF, v & 0xFFFF);
             let _ = writeln!(s, "version string:   {}", String::from_utf8_lossy(h.version_str()));
             let _ = writeln!(s, "software id:      {:#010x} (0x1F56:01)", h.software_id);
+            let _ = writeln!(s, "security version: {}", h.security_version);
             let _ = writeln!(s, "load address:     {:#010x}", h.load_address);
             let _ = writeln!(s, "payload:          {} bytes, CRC-32 {:#010x}", h.payload_len, h.payload_crc);
             let _ = writeln!(s, "image:            {} bytes (header {HEADER_LEN})", image.len());

@@ -13,8 +13,9 @@ const USAGE: &str = "\
 drive-image keygen --out PREFIX [--rust FILE]
     writes PREFIX.secret and PREFIX.pub (64 hex digits each); --rust also writes the firmware's key file
 drive-image pack (--elf FILE | --bin FILE) --key SECRET --version X.Y.Z [--hw-id N] [--sw-id N]
-                 [--version-string S] --out FILE
+                 [--version-string S] [--security-version N] --out FILE
     --elf: the PT_LOAD segments inside slot A (0x0802_0000..); --bin: the raw bytes of slot A from its start
+    --security-version: anti-rollback level (default 0); a drive refuses images below the one it confirmed
 drive-image inspect FILE [--pub PUBFILE] [--hw-id N]
     prints the header and verifies the image (default key: the one compiled into the firmware)";
 
@@ -73,6 +74,7 @@ fn run(args: &[String]) -> Result<String, String> {
                 firmware_version,
                 software_id: opt(rest, "--sw-id").map_or(Ok(firmware_version & 0xFFFF_0000), parse_u32)?,
                 version_string: opt(rest, "--version-string").unwrap_or(version_text).to_string(),
+                security_version: opt(rest, "--security-version").map_or(Ok(0), parse_u32)?,
             };
             let out = opt(rest, "--out").ok_or("pack needs --out FILE")?;
             let image = pack(&payload, &seed, &options, os_random()?)?;

@@ -73,3 +73,39 @@ fn foe_refusals_leave_the_old_firmware_running() {
         assert_eq!(rig.request(0x0001).0 & 0x0F, 0x0001);
     }
 }
+
+/// Anti-rollback over FoE (issue 19 item 7): after an image of security version 2 confirmed itself, an FoE write
+/// of an image of security version 1 is refused with 0x8009 and the text of 0x1F57 status 94 (ETG.1000.5 FoE
+/// error request: code and text), nothing is activated at INIT (no reset, the confirmed image reports); an image
+/// of security version 2 is accepted and activated.
+#[test]
+fn foe_an_older_security_version_is_refused_with_its_code_and_text() {
+    let mut rig = EcatRig::new();
+    rig.enter_boot();
+    assert_eq!(rig.foe_write(b"EPOS4", 0, &image_with_security(4096, 0x0002_0000, 2)), Ok(()));
+    assert_eq!(rig.request(0x0001).0 & 0x0F, 0x0001, "INIT");
+    assert_eq!(rig.r.node.resets, 1);
+    rig.enter_preop();
+    assert!(!rig.r.node.program.borrow().on_trial(), "security version 2 confirmed in PRE-OP");
+
+    rig.enter_boot();
+    assert_eq!(rig.foe_write(b"EPOS4", 0, &image_with_security(4096, 0x0003_0000, 1)), Err(0x8009));
+    assert_eq!(rig.foe_error_text, b"image older than minimum security version".to_vec());
+    assert_eq!(rig.r.node.program.borrow().status_code(), 94);
+    assert_eq!(rig.request(0x0001).0 & 0x0F, 0x0001, "INIT");
+    assert_eq!(rig.r.node.resets, 1, "nothing to activate: no reset");
+    rig.enter_preop();
+    assert_eq!(rig.upload_u32(0x1F56, 1), Ok(0x0002_0001), "the confirmed image still runs");
+
+    // Another refusal sharing 0x8009 says its own reason.
+    rig.enter_boot();
+    let mut forged = image_with_security(4096, 0x0003_0000, 2);
+    forged[64] ^= 1;
+    assert_eq!(rig.foe_write(b"EPOS4", 0, &forged), Err(0x8009));
+    assert_eq!(rig.foe_error_text, b"signature invalid".to_vec());
+
+    assert_eq!(rig.foe_write(b"EPOS4", 0, &image_with_security(4096, 0x0003_0000, 2)), Ok(()), "equal");
+    assert_eq!(rig.request(0x0001).0 & 0x0F, 0x0001, "INIT");
+    assert_eq!(rig.r.node.resets, 2);
+    assert!(matches!(rig.r.node.last_boot, Outcome::Run { trial: true, event: BootEvent::Activated, .. }));
+}

@@ -25,6 +25,7 @@ const INVALID_VALUE: u32 = 0x0609_0030;
 const LENGTH_TOO_LOW: u32 = 0x0607_0013;
 const LENGTH_TOO_HIGH: u32 = 0x0607_0012;
 const NO_OBJECT: u32 = 0x0602_0000;
+const VALUE_TOO_LOW: u32 = 0x0609_0032;
 
 /// CoE segment size: what the 128-byte mailbox holds after the mailbox, CoE and SDO command headers.
 const COE_SEGMENT: usize = 128 - 9;
@@ -269,4 +270,42 @@ fn canopen_an_unconfirmed_image_is_reverted_at_the_next_reset() {
     assert!(matches!(rig.r.drive(1).unwrap().last_boot, Outcome::Run { event: BootEvent::Reverted, .. }));
     assert_eq!(rig.upload_u32(0x1F56, 1), Ok(OLD_VERSION & 0xFFFF_0000 | 1));
     assert_eq!(rig.upload(0x100A, 0), Ok(FACTORY_VERSION_STRING.as_bytes().to_vec()));
+}
+
+/// Anti-rollback through program control on CANopen (issue 19 item 7): after an image of security version 2
+/// confirmed itself, the 0x1F50 download of an image of security version 1 is aborted with 0x0609_0032 (value
+/// too low: the header's security version) as soon as its header is in, 0x1F57 reads status 94, and 0x1F51 = 1
+/// starts the confirmed application again without a reset; an image of security version 2 goes through and is
+/// activated by 0x1F51 = 1.
+#[test]
+fn canopen_an_older_security_version_is_refused_through_program_control() {
+    let mut rig = CanRig::new();
+    assert_eq!(rig.download(0x1F51, 1, &[0]), Some(Ok(())));
+    assert_eq!(rig.download(0x1F51, 1, &[3]), Some(Ok(())));
+    assert_eq!(rig.block_download(0x1F50, 1, &image_with_security(8 * 1024, 0x0002_0000, 2)), Ok(()));
+    let _ = rig.download(0x1F51, 1, &[1]);
+    rig.r.run_for(5_000_000);
+    assert!(matches!(rig.r.drive(1).unwrap().last_boot, Outcome::Run { event: BootEvent::Activated, .. }));
+    assert!(!rig.r.drive(1).unwrap().program.on_trial(), "security version 2 confirmed");
+
+    assert_eq!(rig.download(0x1F51, 1, &[0]), Some(Ok(())));
+    assert_eq!(rig.download(0x1F51, 1, &[3]), Some(Ok(())));
+    let older = image_with_security(8 * 1024, 0x0003_0000, 1);
+    assert_eq!(rig.block_download(0x1F50, 1, &older), Err(VALUE_TOO_LOW));
+    assert_eq!(rig.upload_u32(0x1F57, 1).map(|s| s >> 1), Ok(94));
+    assert_eq!(rig.download(0x1F51, 1, &[1]), Some(Ok(())), "start: the confirmed application again");
+    rig.r.run_for(5_000_000);
+    let d = rig.r.drive(1).unwrap();
+    assert!(matches!(d.last_boot, Outcome::Run { event: BootEvent::Activated, .. }), "no reset since");
+    assert_eq!(rig.upload_u32(0x1F56, 1), Ok(0x0002_0001));
+    assert_eq!(rig.upload_u32(0x1F51, 1), Ok(1), "the application runs");
+
+    assert_eq!(rig.download(0x1F51, 1, &[0]), Some(Ok(())));
+    assert_eq!(rig.download(0x1F51, 1, &[3]), Some(Ok(())));
+    assert_eq!(rig.block_download(0x1F50, 1, &image_with_security(8 * 1024, 0x0003_0000, 2)), Ok(()), "equal");
+    assert_eq!(rig.upload_u32(0x1F57, 1), Ok(0));
+    let _ = rig.download(0x1F51, 1, &[1]);
+    rig.r.run_for(5_000_000);
+    assert!(matches!(rig.r.drive(1).unwrap().last_boot, Outcome::Run { event: BootEvent::Activated, .. }));
+    assert_eq!(rig.upload_u32(0x1F56, 1), Ok(0x0003_0001));
 }

@@ -30,7 +30,7 @@
 
 use super::reg::{base, rcc, Gpio, Reg};
 use crate::canopen::frame::{BitRate, BusState, BusStatus, CanBus, CanFrame, TxBusy, MAX_ID};
-use crate::hal::can::{bit_timing, BitTiming};
+use crate::hal::can::{timings, BitTiming};
 
 /// CAN1 (RM0090 memory map: 0x4000_6400).
 pub const CAN1: usize = 0x4000_6400;
@@ -206,9 +206,11 @@ impl BxCan {
         Ok(Self { rate, rx_overruns: 0 })
     }
 
-    /// The timing of `rate` from [`APB1_HZ`].
+    /// The timing of `rate` from [`APB1_HZ`]: a table evaluated at build time (the search of
+    /// [`crate::hal::can::bit_timing`] is not in the image).
     pub fn timing(rate: BitRate) -> Result<BitTiming, CanError> {
-        bit_timing(APB1_HZ, rate.bits_per_second()).ok_or(CanError::BitRate)
+        const TIMINGS: [Option<BitTiming>; BitRate::ALL.len()] = timings(APB1_HZ);
+        TIMINGS.get(rate.index()).copied().flatten().ok_or(CanError::BitRate)
     }
 
     /// Changes the bit rate (a reset node with a new 0x2001): initialisation, CAN_BTR, normal mode. Frames still

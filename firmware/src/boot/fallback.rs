@@ -362,7 +362,7 @@ impl FallbackNode {
         }
         match self.control {
             command::STOP | command::ESM_ACKNOWLEDGE => Ok(()),
-            command::CLEAR => match self.download.clear(&mut flash.slot_b, &mut flash.state) {
+            command::CLEAR => match self.download.clear(&mut flash.slot_b, &mut flash.state, None) {
                 Ok(()) => {
                     self.status = status::NO_PROGRAM;
                     Ok(())
@@ -1050,6 +1050,33 @@ mod tests {
         // The bootloader still finds no valid image: nothing was activated.
         let mut buf = [0u8; 1024];
         assert!(matches!(boot(&mut c.flash, &trust(), &mut buf), Ok(Outcome::NoValidImage(_))));
+    }
+
+    /// Anti-rollback in the fallback: without a valid image in slot A the log's minimum alone counts
+    /// (`state::minimum_security_version`); an image below it is refused with 0x0609_0032 and status 94, one at it
+    /// is accepted.
+    #[test]
+    fn an_image_below_the_logs_minimum_security_version_is_refused() {
+        let mut c = Client::new();
+        crate::boot::state::append(&mut c.flash.state, crate::boot::state::Record::floor(5)).unwrap();
+        let with_security = |security: u32| {
+            let mut img = image(0x0002_0000, 2000);
+            let mut header = ImageHeader::parse(&img[..HEADER_LEN as usize]).unwrap();
+            header.security_version = security;
+            let payload = img[HEADER_LEN as usize..].to_vec();
+            sign_image(&mut header, &payload, &SEED, [3; 16]);
+            img[..HEADER_LEN as usize].copy_from_slice(&header.to_bytes());
+            img
+        };
+        c.write(0x1F51, 1, &[command::CLEAR]).unwrap();
+        assert_eq!(c.write_segmented(0x1F50, 1, &with_security(4)), Err(0x0609_0032));
+        assert_eq!(status(&mut c), u32::from(status::ROLLBACK) << 1);
+        assert_eq!(c.write(0x1F51, 1, &[command::START]), Err(0x0800_0022), "nothing to start");
+        c.write(0x1F51, 1, &[command::CLEAR]).unwrap();
+        assert_eq!(c.write_block(0x1F50, 1, &with_security(5), &[], 0), Ok(()));
+        assert_eq!(status(&mut c), 0);
+        assert_eq!(c.write(0x1F51, 1, &[command::START]), Ok(()));
+        assert_eq!(c.resets, 1);
     }
 
     #[test]

@@ -14,12 +14,26 @@
 //!  24  u32       CRC-32 (IEEE 802.3) of the payload
 //!  28  u32       load address (start of slot A, 0x0802_0000)
 //!  32  [u8; 16]  version string (ASCII, NUL padded; what 0x100A reports)
-//!  48  [u8; 16]  reserved, zero
+//!  48  u32       security version (anti-rollback: an image below the drive's minimum is refused, see below)
+//!  52  [u8; 12]  reserved, zero
 //!  64  [u8; 64]  Ed25519 signature (RFC 8032, pure Ed25519) over header bytes 0..64 followed by the payload
 //! ```
 //! The signature covers every header field, so no field can be changed without the signing key; the CRC is
 //! checked first so that a transfer error is reported as such (0x1F57 / FoE 0x800C "checksum wrong") and not
 //! as a forged image.
+//!
+//! # Security version (anti-rollback)
+//! The firmware version says what an image is; the security version says which older images it supersedes. The
+//! drive keeps a minimum accepted security version in its update state ([`super::state`]), raised to an image's
+//! security version when that image confirms itself, and refuses a signed image below it
+//! ([`ImageError::Rollback`]): an old image with a known weakness cannot be loaded again once a fixed one ran.
+//! Images that fix nothing security-relevant keep the security version of their predecessor, so a downgrade
+//! to them stays possible.
+//!
+//! The field took 4 of the 16 reserved bytes, which format version 1 already required to be zero, so the format
+//! version stays 1: every existing image reads as security version 0, exactly what it was before the field
+//! existed, and an older firmware, which does not know the field, refuses an image with a non-zero one as a
+//! malformed header instead of misreading it. Old images stay valid; no new meaning needs a new version number.
 //!
 //! # Where the header lives in a slot
 //! The application is linked to run from the start of slot A (its vector table at 0x0802_0000, `memory.x`
@@ -66,9 +80,10 @@ const OFF_PAYLOAD_LEN: usize = 20;
 const OFF_PAYLOAD_CRC: usize = 24;
 const OFF_LOAD_ADDRESS: usize = 28;
 const OFF_VERSION_STRING: usize = 32;
-const OFF_RESERVED: usize = 48;
+const OFF_SECURITY_VERSION: usize = 48;
+const OFF_RESERVED: usize = 52;
 const OFF_SIGNATURE: usize = 64;
-const RESERVED_LEN: usize = 16;
+const RESERVED_LEN: usize = 12;
 
 /// Why an image was refused. Every check of an untrusted image ends in one of these; nothing panics.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -108,6 +123,13 @@ pub enum ImageError {
     },
     /// The Ed25519 signature does not verify with the trusted key (forged, altered, or another key).
     BadSignature,
+    /// The image's security version is below the drive's minimum accepted one (anti-rollback, module docs).
+    Rollback {
+        /// The minimum security version in force.
+        minimum: u32,
+        /// The image's security version.
+        found: u32,
+    },
     /// Reading the image from flash failed.
     Flash(FlashError),
 }
@@ -129,12 +151,15 @@ pub struct ImageHeader {
     pub load_address: u32,
     /// Version string (ASCII, NUL padded).
     pub version_string: [u8; VERSION_STRING_LEN],
+    /// Security version (anti-rollback, module docs); 0 for images from before the field.
+    pub security_version: u32,
     /// Ed25519 signature over header bytes 0..64 and the payload.
     pub signature: [u8; SIGNATURE_LEN],
 }
 
 impl ImageHeader {
-    /// A header for a payload of `payload_len` bytes with CRC `payload_crc`, unsigned (signature zero).
+    /// A header for a payload of `payload_len` bytes with CRC `payload_crc`, unsigned (signature zero), security
+    /// version 0.
     pub const fn new(
         hardware_id: u32,
         firmware_version: u32,
@@ -150,6 +175,7 @@ impl ImageHeader {
             payload_crc,
             load_address: SLOT_A_START,
             version_string: [0; VERSION_STRING_LEN],
+            security_version: 0,
             signature: [0; SIGNATURE_LEN],
         }
     }
@@ -167,6 +193,7 @@ impl ImageHeader {
         put(&mut b, OFF_PAYLOAD_CRC, &self.payload_crc.to_le_bytes());
         put(&mut b, OFF_LOAD_ADDRESS, &self.load_address.to_le_bytes());
         put(&mut b, OFF_VERSION_STRING, &self.version_string);
+        put(&mut b, OFF_SECURITY_VERSION, &self.security_version.to_le_bytes());
         put(&mut b, OFF_SIGNATURE, &self.signature);
         b
     }
@@ -203,6 +230,7 @@ impl ImageHeader {
             payload_crc: le_u32(b, OFF_PAYLOAD_CRC),
             load_address: le_u32(b, OFF_LOAD_ADDRESS),
             version_string,
+            security_version: le_u32(b, OFF_SECURITY_VERSION),
             signature,
         })
     }
@@ -220,6 +248,15 @@ impl ImageHeader {
         }
         if self.payload_len == 0 {
             return Err(ImageError::Truncated);
+        }
+        Ok(())
+    }
+
+    /// Checks the security version against the drive's minimum accepted one (anti-rollback, module docs): equal
+    /// or newer is accepted.
+    pub const fn check_security_version(&self, minimum: u32) -> Result<(), ImageError> {
+        if self.security_version < minimum {
+            return Err(ImageError::Rollback { minimum, found: self.security_version });
         }
         Ok(())
     }
@@ -268,6 +305,7 @@ mod tests {
     fn header() -> ImageHeader {
         let mut h = ImageHeader::new(HARDWARE_ID, 0x0102_0003, 0x0002_0001, 1024, 0xDEAD_BEEF);
         h.version_string[..5].copy_from_slice(b"1.2.3");
+        h.security_version = 0x0000_0102;
         h.signature = [0x5A; SIGNATURE_LEN];
         h
     }
@@ -277,6 +315,7 @@ mod tests {
         let h = header();
         let b = h.to_bytes();
         assert_eq!(&b[..4], b"OSDI");
+        assert_eq!(&b[48..52], &[0x02, 0x01, 0, 0], "security version at offset 48, little-endian");
         assert_eq!(ImageHeader::parse(&b), Ok(h));
         assert_eq!(h.version_str(), b"1.2.3");
         assert_eq!(h.check(HARDWARE_ID, MAX_PAYLOAD_LEN), Ok(()));
@@ -296,7 +335,10 @@ mod tests {
         x[6] = 64;
         assert_eq!(ImageHeader::parse(&x), Err(ImageError::MalformedHeader));
         let mut x = b;
-        x[50] = 1;
+        x[52] = 1; // first reserved byte after the security version
+        assert_eq!(ImageHeader::parse(&x), Err(ImageError::MalformedHeader));
+        let mut x = b;
+        x[63] = 1; // last reserved byte
         assert_eq!(ImageHeader::parse(&x), Err(ImageError::MalformedHeader));
         let mut x = b;
         x[20] = 3; // payload length 1027: not word aligned
@@ -308,6 +350,19 @@ mod tests {
         let mut moved = h;
         moved.load_address = 0x0808_0000;
         assert_eq!(moved.check(HARDWARE_ID, MAX_PAYLOAD_LEN), Err(ImageError::WrongLoadAddress(0x0808_0000)));
+    }
+
+    /// Anti-rollback: an image at the minimum security version or above is accepted, one below is refused with
+    /// both versions; a header of the format before the field (bytes 48..52 zero) reads as security version 0.
+    #[test]
+    fn the_security_version_is_checked_against_the_minimum() {
+        let h = header();
+        assert_eq!(h.check_security_version(0x0102), Ok(()), "equal");
+        assert_eq!(h.check_security_version(0x0101), Ok(()), "newer");
+        assert_eq!(h.check_security_version(0x0103), Err(ImageError::Rollback { minimum: 0x0103, found: 0x0102 }));
+        let mut old = h;
+        old.security_version = 0;
+        assert_eq!(ImageHeader::parse(&old.to_bytes()).map(|p| p.security_version), Ok(0));
     }
 
     #[test]

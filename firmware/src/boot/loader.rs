@@ -4,10 +4,14 @@
 //! | state at reset | action |
 //! |---|---|
 //! | Idle | verify slot A, run it |
-//! | Pending | verify slot B; valid: activation swap, verify A, record Trial, run A on trial; invalid: record Rejected, run A |
+//! | Pending | verify slot B and its security version against the log's minimum; valid: activation swap, verify A, record Trial, run A on trial; invalid or older: record Rejected, run A |
 //! | Swapping (activate) | resume the swap, then as after an activation |
 //! | Trial (did not confirm) | verify slot B (the previous image); valid: revert swap, record Reverted, run A; invalid: record Confirmed (no fallback exists), run A |
 //! | Swapping (revert) | resume the swap, record Reverted, run A |
+//!
+//! The security-version check at Pending repeats the application's (`update::Download`) as a defence in depth: a
+//! Pending record written by anything but a download that passed it does not activate an older image. It uses the
+//! log's minimum alone, which the activation wrote before the Pending record (`state` module documentation).
 //!
 //! After an activation, an image in slot A that fails verification (a flash fault while copying) is reverted
 //! at once. If slot A holds no valid image at the end, the outcome is [`Outcome::NoValidImage`]: the bootloader
@@ -62,8 +66,10 @@ pub fn boot<A: NorFlash, B: NorFlash, S: NorFlash>(
     let scan = state::scan(&mut flash.state)?;
     match scan.state {
         BootState::Idle => run_a(flash, trust, buf, false, BootEvent::Normal),
-        BootState::Pending { image_crc } => match verify_in_flash(&mut flash.slot_b, HEADER_OFFSET, trust, buf) {
-            Ok(_) => {
+        BootState::Pending { image_crc } => match verify_in_flash(&mut flash.slot_b, HEADER_OFFSET, trust, buf)
+            .and_then(|h| h.check_security_version(scan.floor))
+        {
+            Ok(()) => {
                 flash.swap(Direction::Activate, image_crc, None, buf)?;
                 after_activation(flash, trust, buf, image_crc)
             }

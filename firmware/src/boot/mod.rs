@@ -11,6 +11,7 @@
 //! * [`update`]: the application's side (download into slot B, activate, confirm).
 //! * [`program`]: program control 0x1F50/0x1F51/0x1F56/0x1F57 and the FoE sink over [`update`] (phase 2).
 //! * [`tables`]: the application's and the stopped program's dictionary tables.
+//! * [`stored_comms`]: the bootloader fallback's node-ID and bit rate from the parameter store.
 //!
 //! # Flash use (`memory.x`)
 //! Slot A (sectors 5-7, 3 x 128 KiB) runs the image; slot B (sectors 8-11) receives a download in its first
@@ -32,7 +33,8 @@
 //!   opt-level 3 (15.4 KiB at opt-level "z"), 2 KiB .rodata; `ed25519-dalek` 2.2 (default features off,
 //!   `hazmat` for `verify_stream`): 56 KiB at opt-level 3, 26 KiB at "z"; `ed25519-compact` without
 //!   `opt_size`: 312 KiB. `salty` has no streaming verification of pure Ed25519 (only Ed25519ph).
-//! * CRC: the `crc` crate (CRC-32/ISO-HDLC = IEEE 802.3).
+//! * CRC: [`crc32`], CRC-32/ISO-HDLC (= IEEE 802.3) with a 16-entry table (the `crc` crate's 1 KiB table did
+//!   not leave the bootloader room for its fallback's stored node-ID and bit rate).
 //! * Swap: not embassy-boot. Its layout requirements would fit (ACTIVE and DFU with 128 KiB pages, DFU one
 //!   page larger, a separate STATE partition), but (1) its bootloader does not verify anything at boot: the
 //!   signature is checked only by the application's `FirmwareUpdater::verify_and_mark_updated`, over the
@@ -43,6 +45,7 @@
 //!   idea (page swap through one spare page, progress in a state partition) in ~150 lines over
 //!   [`crate::hal::flash::NorFlash`].
 
+pub mod crc32;
 pub mod fallback;
 pub mod image;
 pub mod keys;
@@ -51,6 +54,7 @@ pub mod program;
 #[cfg(not(target_os = "none"))]
 pub mod sign;
 pub mod state;
+pub mod stored_comms;
 pub mod swap;
 pub mod tables;
 pub mod update;

@@ -41,10 +41,17 @@
 //! | wrong hardware id | 0x0609_0030 | 64 hardware version mismatch | 0x800D |
 //! | payload CRC | 0x0800_0020 | 3 data CRC error | 0x800C |
 //! | signature (forged, altered, other key) | 0x0800_0020 | 93 signature invalid (manufacturer-specific, IDX 93-127) | 0x8009 |
+//! | security version below the minimum (anti-rollback, [`super::state`]) | 0x0609_0032 value too low | 94 image older than the minimum security version (manufacturer-specific) | 0x8009 |
 //! | truncated (fewer bytes than the header says) | 0x0607_0013 | 3 data format error | 0x800B |
 //! | oversized (beyond the slot or the header's length) | 0x0607_0012 | 6 general address error | 0x8003 |
 //! | flash program / state log failure | 0x0606_0000 | 5 flash write error | 0x8011 |
 //! | flash erase failure (clear) | 0x0606_0000 | 65 flash clear error | 0x8011 |
+//!
+//! The security version is checked when the header has arrived (the 0x1F50 transfer or FoE data packet that
+//! completes it is refused), again when the image is verified (end of 0x1F50, FoE end of file) and at *start*.
+//! An FoE error answer carries the 0x1F57 status as its text ([`status_text`], ETG.1000.5 FoE error request:
+//! error code and error text), so that 93 and 94, which share 0x8009 "not bootstrap" (IDX Table 7-155: "file not
+//! accepted for firmware update"), are told apart there too.
 
 use core::cell::RefCell;
 
@@ -119,6 +126,27 @@ pub mod status {
     pub const SEQUENCE_ERROR: u8 = 66;
     /// Manufacturer-specific (IDX reserves 93-127): the Ed25519 signature does not verify with the trusted key.
     pub const SIGNATURE_INVALID: u8 = 93;
+    /// Manufacturer-specific (IDX reserves 93-127): the image's security version is below the minimum the drive
+    /// accepts (anti-rollback, [`crate::boot::state`]).
+    pub const ROLLBACK: u8 = 94;
+}
+
+/// The text of a 0x1F57 status, sent with an FoE error (module documentation); empty for 0 "no error".
+pub const fn status_text(code: u8) -> &'static [u8] {
+    match code {
+        status::NO_PROGRAM => b"no valid program",
+        status::FORMAT_UNKNOWN => b"data format unknown",
+        status::DATA_ERROR => b"data format or CRC error",
+        status::WRITE_ERROR => b"flash write error",
+        status::ADDRESS_ERROR => b"address error",
+        status::SECURED => b"flash secured",
+        status::HARDWARE_MISMATCH => b"hardware version mismatch",
+        status::CLEAR_ERROR => b"flash clear error",
+        status::SEQUENCE_ERROR => b"sequence error",
+        status::SIGNATURE_INVALID => b"signature invalid",
+        status::ROLLBACK => b"image older than minimum security version",
+        _ => b"",
+    }
 }
 
 /// The 0x1F57:01 word (IDX L3413-3473): status code `status` in bits 7..1, bit 0 set while `phase` is receiving.
@@ -209,6 +237,10 @@ pub const fn classify(e: UpdateError) -> Refusal {
         UpdateError::Image(ImageError::BadSignature) => {
             refusal(SdoAbort::CannotTransfer, Some(status::SIGNATURE_INVALID), FoeError::NotBootstrap)
         }
+        // CiA 301 Table 22 0x0609_0032 "value of parameter written too low": the header's security version.
+        UpdateError::Image(ImageError::Rollback { .. }) => {
+            refusal(SdoAbort::ValueTooLow, Some(status::ROLLBACK), FoeError::NotBootstrap)
+        }
     }
 }
 
@@ -224,6 +256,8 @@ pub struct ProgramControl<A, B, S> {
     status: u8,
     request: Option<Request>,
     esm_acknowledge: bool,
+    /// The FoE code of the refusal just made, until its FoE answer takes its text ([`status_text`]).
+    refused: Option<FoeError>,
     buf: [u8; VERIFY_BUF_LEN],
 }
 
@@ -241,6 +275,7 @@ impl<A: NorFlash, B: NorFlash, S: NorFlash> ProgramControl<A, B, S> {
             status: status::NO_PROGRAM,
             request: None,
             esm_acknowledge: false,
+            refused: None,
             buf: [0; VERIFY_BUF_LEN],
         }
     }
@@ -282,9 +317,11 @@ impl<A: NorFlash, B: NorFlash, S: NorFlash> ProgramControl<A, B, S> {
         }
     }
 
-    /// The running image confirms itself after a successful start (ends its trial; [`update::confirm`]).
+    /// The running image confirms itself after a successful start (ends its trial and raises the minimum security
+    /// version to its own; [`update::confirm`]).
     pub fn confirm(&mut self) -> Result<bool, UpdateError> {
-        let confirmed = update::confirm(&mut self.flash.state)?;
+        let security_version = self.running.map_or(0, |h| h.security_version);
+        let confirmed = update::confirm(&mut self.flash.state, security_version)?;
         self.trial = false;
         Ok(confirmed)
     }
@@ -376,6 +413,7 @@ impl<A: NorFlash, B: NorFlash, S: NorFlash> ProgramControl<A, B, S> {
         let r = classify(e);
         if let Some(s) = r.status {
             self.status = s;
+            self.refused = Some(r.foe);
         }
         r
     }
@@ -399,7 +437,9 @@ impl<A: NorFlash, B: NorFlash, S: NorFlash> ProgramControl<A, B, S> {
             return Err(self.refuse(UpdateError::Sequence));
         }
         self.mode = Mode::Stopped { owner: Some(interface) };
-        match self.download.clear(&mut self.flash.slot_b, &mut self.flash.state) {
+        // The running image is the confirmed one here (`clear` refuses during a trial).
+        let slot_a_version = self.running.map(|h| h.security_version);
+        match self.download.clear(&mut self.flash.slot_b, &mut self.flash.state, slot_a_version) {
             Ok(()) => {
                 self.status = if self.running.is_some() { status::OK } else { status::NO_PROGRAM };
                 Ok(())
@@ -565,6 +605,13 @@ impl<A: NorFlash, B: NorFlash, S: NorFlash> FoeSink for ProgramPort<'_, A, B, S>
             self.control.download.abort();
         }
     }
+
+    fn error_text(&mut self, error: FoeError) -> &'static [u8] {
+        match self.control.refused.take() {
+            Some(refused) if refused == error => status_text(self.control.status),
+            _ => b"",
+        }
+    }
 }
 
 /// [`ProgramControl`] in a [`RefCell`], seen by one interface: the form a platform hands to the EtherCAT slave,
@@ -639,6 +686,13 @@ impl<A: NorFlash, B: NorFlash, S: NorFlash> FoeSink for SharedPort<'_, A, B, S> 
     fn abort(&mut self) {
         if let Ok(mut c) = self.control.try_borrow_mut() {
             FoeSink::abort(&mut c.port(self.interface, self.power_stage_enabled));
+        }
+    }
+
+    fn error_text(&mut self, error: FoeError) -> &'static [u8] {
+        match self.control.try_borrow_mut() {
+            Ok(mut c) => c.port(self.interface, self.power_stage_enabled).error_text(error),
+            Err(_) => b"",
         }
     }
 }

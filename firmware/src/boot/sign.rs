@@ -3,8 +3,8 @@
 
 use ed25519_compact::{KeyPair, Noise, Seed};
 
+use super::crc32;
 use super::image::{signed_header, ImageHeader};
-use super::verify::CRC32;
 
 /// The Ed25519 public key of a 32-byte secret seed (RFC 8032 section 5.1.5).
 pub fn public_key(seed: &[u8; 32]) -> [u8; 32] {
@@ -17,7 +17,7 @@ pub fn public_key(seed: &[u8; 32]) -> [u8; 32] {
 /// Returns the image: the header bytes followed by the payload is what a download carries.
 pub fn sign_image(header: &mut ImageHeader, payload: &[u8], seed: &[u8; 32], noise: [u8; 16]) {
     header.payload_len = u32::try_from(payload.len()).unwrap_or(u32::MAX);
-    header.payload_crc = CRC32.checksum(payload);
+    header.payload_crc = crc32::checksum(payload);
     let key = KeyPair::from_seed(Seed::new(*seed));
     let mut st = key.sk.sign_incremental(Noise::new(noise));
     let bytes = header.to_bytes();

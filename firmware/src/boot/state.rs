@@ -13,18 +13,48 @@
 //!   progress, a trial). [`ensure_room`] does this compaction before an activation starts, so that the
 //!   activation, the swap and a possible revert find [`RESERVE`] free slots.
 //!
+//! # The minimum security version (anti-rollback)
+//! The drive refuses a signed image whose security version ([`super::image`]) is below a minimum, which rises when
+//! an image confirms itself, never at its download: a trial that reverts must leave the previous image loadable.
+//! The minimum lives in [`RecordKind::Floor`] records (their 4-byte field holds the version) and is the highest
+//! one in the log ([`Scan::floor`]); a Floor record does not change the [`BootState`] (the state comes from the
+//! newest other record). The log is erased when idle, so the minimum must also survive a power cut right after
+//! that erase, before it is written again. It does because of one invariant: **in the idle and pending states,
+//! slot A holds the confirmed image, and its security version is at least the minimum** (the minimum is only
+//! ever raised to the security version of the image that confirms itself in slot A; a reverted trial leaves it
+//! where it was; a new image must be at or above it to be activated). So the minimum in force is
+//! [`minimum_security_version`]: the highest Floor record, and in the idle and pending states also slot A's
+//! security version. Every write order is then safe:
+//! * confirmation ([`super::update::confirm`]): `Confirmed`, then `Floor(security version of the image)`. A cut
+//!   between them leaves the idle state with the old Floor: slot A's version (the new image) counts already. The
+//!   other order would be wrong: `Floor` first and a cut before `Confirmed` would revert the trial with the
+//!   minimum already raised, locking out the image it reverts to.
+//! * compaction ([`ensure_room`], idle only): erase, and the activation that asked for it
+//!   ([`super::update::Download::activate`]) then writes `Floor(minimum in force)` before `Pending`. A cut after
+//!   the erase leaves an empty log (idle: slot A's version is the minimum); a cut before `Pending` leaves idle
+//!   with the Floor. When `Pending` is in force the log's Floor is therefore the whole minimum, and the
+//!   bootloader checks the pending image against it without reading slot A.
+//! * a torn Floor record fails its CRC and is skipped (the previous ones still count); the log only ever gains
+//!   Floor records with a version at least the previous ones', so a partial erase that leaves some old records
+//!   can only leave a lower Floor, which slot A's version covers.
+//!
+//! During a swap and a trial, slot A's version does not count (slot A holds a half swap or the unconfirmed
+//! image); the log's Floor, written before the Pending record, is the minimum then. Without a valid image in
+//! slot A (the bootloader's fallback) the log's Floor alone is the minimum.
+//!
 //! # Record (little-endian)
 //! ```text
 //!  0  u8   kind (RecordKind)
 //!  1  u8   direction of a swap step (1 activate, 2 revert)
 //!  2  u8   sector index of a swap step
 //!  3  u8   phase of a swap step (1 saved, 2 installed, 3 done)
-//!  4  u32  payload CRC of the image concerned (information: which image is pending / on trial)
+//!  4  u32  payload CRC of the image concerned (information: which image is pending / on trial); in a Floor
+//!           record the minimum security version
 //!  8  u32  magic "OSDS"
 //! 12  u32  CRC-32 of bytes 0..12
 //! ```
 
-use super::verify::CRC32;
+use super::crc32;
 use crate::hal::flash::{FlashError, NorFlash};
 
 /// Size of one record.
@@ -53,6 +83,9 @@ pub enum RecordKind {
     Rejected = 6,
     /// The application withdrew a pending image (a new download started).
     Cancelled = 7,
+    /// The minimum accepted security version is (at least) the record's value; leaves the state as it is
+    /// (module documentation).
+    Floor = 8,
 }
 
 /// Direction of a swap.
@@ -86,7 +119,7 @@ pub struct Record {
     pub sector: u8,
     /// Phase of a swap step (`Done` for other records).
     pub phase: Phase,
-    /// Payload CRC of the image concerned.
+    /// Payload CRC of the image concerned; in a [`RecordKind::Floor`] record the minimum security version.
     pub image_crc: u32,
 }
 
@@ -94,6 +127,11 @@ impl Record {
     /// A record of `kind` about the image with payload CRC `image_crc`.
     pub const fn new(kind: RecordKind, image_crc: u32) -> Self {
         Self { kind, direction: Direction::Activate, sector: 0, phase: Phase::Done, image_crc }
+    }
+
+    /// A record raising the minimum accepted security version to `security_version`.
+    pub const fn floor(security_version: u32) -> Self {
+        Self::new(RecordKind::Floor, security_version)
     }
 
     /// A swap step record.
@@ -106,7 +144,7 @@ impl Record {
         let mut b = [0u8; RECORD_LEN as usize];
         let head = [self.kind as u8, self.direction as u8, self.sector, self.phase as u8];
         let crc_in = concat12(head, self.image_crc.to_le_bytes(), RECORD_MAGIC.to_le_bytes());
-        let crc = CRC32.checksum(&crc_in);
+        let crc = crc32::checksum(&crc_in);
         for (dst, src) in b.iter_mut().zip(crc_in.iter().chain(crc.to_le_bytes().iter())) {
             *dst = *src;
         }
@@ -117,7 +155,7 @@ impl Record {
     pub fn parse(b: &[u8]) -> Option<Self> {
         let b: &[u8; RECORD_LEN as usize] = b.first_chunk()?;
         let (body, crc) = b.split_first_chunk::<12>()?;
-        if CRC32.checksum(body) != u32::from_le_bytes(*crc.first_chunk::<4>()?) {
+        if crc32::checksum(body) != u32::from_le_bytes(*crc.first_chunk::<4>()?) {
             return None;
         }
         let [k, d, s, p, c0, c1, c2, c3, m0, m1, m2, m3] = *body;
@@ -132,6 +170,7 @@ impl Record {
             5 => RecordKind::Reverted,
             6 => RecordKind::Rejected,
             7 => RecordKind::Cancelled,
+            8 => RecordKind::Floor,
             _ => return None,
         };
         let direction = match d {
@@ -194,9 +233,12 @@ impl BootState {
                     Self::Swapping { direction: r.direction, sector: r.sector, phase: r.phase, image_crc: r.image_crc }
                 }
                 RecordKind::Trial => Self::Trial { image_crc: r.image_crc },
-                RecordKind::Confirmed | RecordKind::Reverted | RecordKind::Rejected | RecordKind::Cancelled => {
-                    Self::Idle
-                }
+                // A Floor record never becomes `last` (`scan`); as one it would mean nothing pending.
+                RecordKind::Confirmed
+                | RecordKind::Reverted
+                | RecordKind::Rejected
+                | RecordKind::Cancelled
+                | RecordKind::Floor => Self::Idle,
             },
         }
     }
@@ -207,8 +249,10 @@ impl BootState {
 pub struct Scan {
     /// The state in force.
     pub state: BootState,
-    /// The newest valid record, if any.
+    /// The newest valid record that is not a [`RecordKind::Floor`], if any.
     pub last: Option<Record>,
+    /// The highest minimum security version of the Floor records (0 without one).
+    pub floor: u32,
     /// Index of the first slot after the highest non-erased one (where the next record goes).
     pub next_free: u32,
     /// Number of record slots in the region.
@@ -219,6 +263,16 @@ impl Scan {
     /// Free record slots.
     pub const fn free(&self) -> u32 {
         self.capacity.saturating_sub(self.next_free)
+    }
+}
+
+/// The minimum accepted security version in force (module documentation): the log's Floor, and in the idle and
+/// pending states also the security version of the confirmed image in slot A (`slot_a_version`, `None` when
+/// slot A holds no valid image).
+pub fn minimum_security_version(scan: &Scan, slot_a_version: Option<u32>) -> u32 {
+    match scan.state {
+        BootState::Idle | BootState::Pending { .. } => scan.floor.max(slot_a_version.unwrap_or(0)),
+        BootState::Swapping { .. } | BootState::Trial { .. } => scan.floor,
     }
 }
 
@@ -241,6 +295,7 @@ impl From<FlashError> for StateError {
 pub fn scan<S: NorFlash>(flash: &mut S) -> Result<Scan, FlashError> {
     let capacity = flash.geometry().capacity() / RECORD_LEN;
     let mut last = None;
+    let mut floor = 0u32;
     let mut next_free = 0u32;
     let mut buf = [0u8; SCAN_BATCH * RECORD_LEN as usize];
     let mut index = 0u32;
@@ -252,14 +307,16 @@ pub fn scan<S: NorFlash>(flash: &mut S) -> Result<Scan, FlashError> {
             let at = index.saturating_add(i as u32);
             if slot.iter().any(|b| *b != 0xFF) {
                 next_free = at.saturating_add(1);
-                if let Some(r) = Record::parse(slot) {
-                    last = Some(r);
+                match Record::parse(slot) {
+                    Some(Record { kind: RecordKind::Floor, image_crc: version, .. }) => floor = floor.max(version),
+                    Some(r) => last = Some(r),
+                    None => {}
                 }
             }
         }
         index = index.saturating_add(n);
     }
-    Ok(Scan { state: BootState::from_record(last), last, next_free, capacity })
+    Ok(Scan { state: BootState::from_record(last), last, floor, next_free, capacity })
 }
 
 /// Appends `record` to the log.
@@ -273,7 +330,9 @@ pub fn append<S: NorFlash>(flash: &mut S, record: Record) -> Result<(), StateErr
 }
 
 /// Makes sure [`RESERVE`] slots are free, erasing the log if needed, which is allowed only in the idle state
-/// (see the module docs). Returns the scan after it.
+/// (see the module docs). Returns the scan after it. The erase takes the Floor records with it: the caller
+/// writes the minimum again ([`super::update::Download::activate`]; why a cut in between loses nothing: module
+/// documentation).
 pub fn ensure_room<S: NorFlash>(flash: &mut S) -> Result<Scan, StateError> {
     let s = scan(flash)?;
     if s.free() >= RESERVE {

@@ -10,6 +10,11 @@
 //!
 //! While an image runs on trial, slot B holds the previous image, the only way back: a new download is refused
 //! ([`UpdateError::NotConfirmed`]) until the running image has confirmed itself.
+//!
+//! Anti-rollback ([`super::state`], "The minimum security version"): *clear* takes the minimum accepted security
+//! version in force, the header of the download is checked against it as soon as it is complete, the verified
+//! image again, and *activate* writes the minimum into the log before the Pending record; *confirm* raises it to
+//! the confirmed image's security version. An image below it is refused with [`ImageError::Rollback`].
 
 use super::image::{ImageError, ImageHeader, HEADER_LEN, HEADER_OFFSET, IMAGE_AREA_LEN, MAX_IMAGE_LEN};
 use super::state::{self, BootState, Record, RecordKind, StateError};
@@ -81,6 +86,8 @@ pub struct Download {
     stage: [u8; STAGE_LEN],
     stage_len: usize,
     stage_start: u32,
+    /// The minimum accepted security version, fixed by `clear`.
+    minimum: u32,
 }
 
 impl Default for Download {
@@ -92,7 +99,15 @@ impl Default for Download {
 impl Download {
     /// No download in progress.
     pub const fn new() -> Self {
-        Self { phase: Phase::Idle, received: 0, expected: None, stage: [0xFF; STAGE_LEN], stage_len: 0, stage_start: 0 }
+        Self {
+            phase: Phase::Idle,
+            received: 0,
+            expected: None,
+            stage: [0xFF; STAGE_LEN],
+            stage_len: 0,
+            stage_start: 0,
+            minimum: 0,
+        }
     }
 
     /// Where the download stands.
@@ -105,11 +120,25 @@ impl Download {
         self.received
     }
 
+    /// The minimum accepted security version this download is checked against (set by `clear`).
+    pub fn minimum_security_version(&self) -> u32 {
+        self.minimum
+    }
+
     /// *Clear program*: withdraws a pending image and erases the image area of slot B (the scratch sector is
-    /// left alone: the bootloader erases it before use).
-    pub fn clear<B: NorFlash, S: NorFlash>(&mut self, slot_b: &mut B, state_flash: &mut S) -> Result<(), UpdateError> {
+    /// left alone: the bootloader erases it before use). `slot_a_version` is the security version of the
+    /// confirmed image in slot A (`None` without a valid one, in the bootloader's fallback): with the log it makes
+    /// the minimum the download is checked against ([`state::minimum_security_version`]).
+    pub fn clear<B: NorFlash, S: NorFlash>(
+        &mut self,
+        slot_b: &mut B,
+        state_flash: &mut S,
+        slot_a_version: Option<u32>,
+    ) -> Result<(), UpdateError> {
         *self = Self::new();
-        match state::scan(state_flash)?.state {
+        let scan = state::scan(state_flash)?;
+        self.minimum = state::minimum_security_version(&scan, slot_a_version);
+        match scan.state {
             BootState::Idle => {}
             BootState::Pending { image_crc } => {
                 state::append(state_flash, Record::new(RecordKind::Cancelled, image_crc))?;
@@ -184,6 +213,7 @@ impl Download {
             if self.received == HEADER_LEN && self.expected.is_none() {
                 let header = ImageHeader::parse(&self.stage).map_err(UpdateError::Image)?;
                 header.check(trust.hardware_id, trust.max_payload).map_err(UpdateError::Image)?;
+                header.check_security_version(self.minimum).map_err(UpdateError::Image)?;
                 self.expected = Some(header.image_len());
                 self.flush(slot_b)?;
             } else if self.stage_len == STAGE_LEN {
@@ -228,7 +258,8 @@ impl Download {
         }
         self.flush(slot_b)?;
         let result = match self.expected {
-            Some(expected) if expected == self.received => verify_in_flash(slot_b, HEADER_OFFSET, trust, buf),
+            Some(expected) if expected == self.received => verify_in_flash(slot_b, HEADER_OFFSET, trust, buf)
+                .and_then(|h| h.check_security_version(self.minimum).map(|()| h)),
             _ => Err(ImageError::Truncated),
         };
         match result {
@@ -245,6 +276,8 @@ impl Download {
     }
 
     /// *Start program*: records the verified image as pending; the bootloader activates it at the next reset.
+    /// The minimum security version goes into the log first (a compaction may just have erased it, and the
+    /// bootloader checks the pending image against the log alone: `state` module documentation).
     pub fn activate<S: NorFlash>(&mut self, state_flash: &mut S) -> Result<(), UpdateError> {
         let Phase::Verified(header) = self.phase else {
             return Err(UpdateError::Sequence);
@@ -253,6 +286,14 @@ impl Download {
         if scan.state != BootState::Idle {
             return Err(UpdateError::NotConfirmed);
         }
+        let minimum = self.minimum.max(scan.floor);
+        if let Err(e) = header.check_security_version(minimum) {
+            self.phase = Phase::Failed(e);
+            return Err(UpdateError::Image(e));
+        }
+        if scan.floor < minimum {
+            state::append(state_flash, Record::floor(minimum))?;
+        }
         state::append(state_flash, Record::new(RecordKind::Pending, header.payload_crc))?;
         self.phase = Phase::Activated(header);
         Ok(())
@@ -260,12 +301,17 @@ impl Download {
 }
 
 /// Called by a new image after a successful start: ends its trial, so it is no longer reverted at a reset
-/// (and the previous image in slot B is no longer a way back). Returns `true` if a trial ended, `false` if
-/// the image was confirmed already.
-pub fn confirm<S: NorFlash>(state_flash: &mut S) -> Result<bool, UpdateError> {
-    match state::scan(state_flash)?.state {
+/// (and the previous image in slot B is no longer a way back), and raises the minimum accepted security version
+/// to the image's `security_version`: `Confirmed` first, then `Floor` (why this order: `state` module
+/// documentation). Returns `true` if a trial ended, `false` if the image was confirmed already.
+pub fn confirm<S: NorFlash>(state_flash: &mut S, security_version: u32) -> Result<bool, UpdateError> {
+    let scan = state::scan(state_flash)?;
+    match scan.state {
         BootState::Trial { image_crc } => {
             state::append(state_flash, Record::new(RecordKind::Confirmed, image_crc))?;
+            if security_version > scan.floor {
+                state::append(state_flash, Record::floor(security_version))?;
+            }
             Ok(true)
         }
         BootState::Idle | BootState::Pending { .. } => Ok(false),

@@ -97,6 +97,15 @@ pub enum BitRate {
 }
 
 impl BitRate {
+    /// Every rate the drive offers, in declaration (and code) order: `ALL[rate.index()] == rate`.
+    pub const ALL: [BitRate; 7] =
+        [Self::Kbit1000, Self::Kbit800, Self::Kbit500, Self::Kbit250, Self::Kbit125, Self::Kbit50, Self::Kbit20];
+
+    /// The rate's position in [`BitRate::ALL`] (its declaration order).
+    pub const fn index(self) -> usize {
+        self as usize
+    }
+
     /// The rate of an 0x2001 code, or `None` for a code the drive does not offer.
     pub const fn from_code(code: u8) -> Option<Self> {
         match code {

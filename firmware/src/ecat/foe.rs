@@ -18,8 +18,8 @@
 //!   "bootstrap only" (IDX: FoE download only in BOOT; the Beckhoff SSC `FOE_Write` returns
 //!   `ECAT_FOE_ERRCODE_BOOTSTRAPONLY` = 0x8008 for it; 0x8009 "not bootstrap" is the opposite case, a file that
 //!   is not valid in BOOT); a data packet with the wrong number gets 0x8005; a packet the state does not expect
-//!   gets 0x8004 (illegal); the sink's own refusals carry its code. The master's error request ends the transfer
-//!   without an answer. A mailbox shorter than the FoE header is mailbox error 0x06.
+//!   gets 0x8004 (illegal); the sink's own refusals carry its code and the text it gives
+//!   ([`FoeSink::error_text`]). The master's error request ends the transfer without an answer. A mailbox shorter than the FoE header is mailbox error 0x06.
 
 use super::mailbox::MailboxError;
 
@@ -122,6 +122,12 @@ pub trait FoeSink {
     fn finish(&mut self) -> Result<(), FoeError>;
     /// The transfer ended early (master error, wrong packet, INIT, a new request): discard what was written.
     fn abort(&mut self) {}
+    /// The error text to send with `error` (ETG.1000.5 FoE error request: code, then text), asked once for each
+    /// error answer; the default sends none.
+    fn error_text(&mut self, error: FoeError) -> &'static [u8] {
+        let _ = error;
+        &[]
+    }
     /// Reads up to `buf.len()` bytes at `offset` of the file being read; returns how many (fewer than asked:
     /// end of file). Sinks without readable files keep the default, which refuses.
     fn read(&mut self, offset: u32, buf: &mut [u8]) -> Result<usize, FoeError> {
@@ -263,7 +269,16 @@ impl Foe {
             Ok(len) => len,
             Err(error) => {
                 self.stats.errors = self.stats.errors.saturating_add(1);
-                header(out, opcode::ERR, error.code())
+                let len = header(out, opcode::ERR, error.code());
+                let text = sink.error_text(error);
+                let room = out.len().saturating_sub(len).min(text.len());
+                match (out.get_mut(len..len.saturating_add(room)), text.get(..room)) {
+                    (Some(dst), Some(src)) => {
+                        dst.copy_from_slice(src);
+                        len.saturating_add(room)
+                    }
+                    _ => len,
+                }
             }
         }))
     }
@@ -390,6 +405,8 @@ mod tests {
         data: Vec<u8>,
         finished: bool,
         aborted: bool,
+        /// Refuse the end of file with this code and text.
+        refuse: Option<(FoeError, &'static [u8])>,
     }
 
     impl FoeSink for Sink {
@@ -402,10 +419,16 @@ mod tests {
         }
         fn finish(&mut self) -> Result<(), FoeError> {
             self.finished = true;
-            Ok(())
+            self.refuse.map_or(Ok(()), |(e, _)| Err(e))
         }
         fn abort(&mut self) {
             self.aborted = true;
+        }
+        fn error_text(&mut self, error: FoeError) -> &'static [u8] {
+            match self.refuse.take() {
+                Some((e, text)) if e == error => text,
+                _ => b"",
+            }
         }
     }
 
@@ -440,6 +463,20 @@ mod tests {
         assert!(sink.finished);
         assert_eq!(sink.data.len(), 117);
         assert!(!foe.is_busy());
+    }
+
+    /// ETG.1000.5 FoE error request: the code, then the sink's text for its own refusal (once); the service's own
+    /// errors carry none.
+    #[test]
+    fn a_sink_refusal_carries_its_text() {
+        let mut sink = Sink { refuse: Some((FoeError::NotBootstrap, b"why")), ..Sink::default() };
+        let mut foe = Foe::new();
+        run(&mut foe, &mut sink, true, &[2, 0, 0, 0, 0, 0, b'f']).ok();
+        let answer = run(&mut foe, &mut sink, true, &[3, 0, 1, 0, 0, 0, 0xBB]);
+        assert_eq!(answer, Ok(Some(vec![5, 0, 0x09, 0x80, 0, 0, b'w', b'h', b'y'])));
+        // The next error (a data packet without a transfer: illegal) is the service's own: no text.
+        let answer = run(&mut foe, &mut sink, true, &[3, 0, 2, 0, 0, 0, 0xBB]);
+        assert_eq!(answer, Ok(Some(vec![5, 0, 0x04, 0x80, 0, 0])));
     }
 
     #[test]

@@ -88,51 +88,92 @@ impl BitTiming {
 }
 
 /// The timing for exactly `bits_per_second` from a controller clock of `clock_hz` (see the module documentation
-/// for the choice), or `None` when no prescaler and quantum count give the rate exactly.
-pub fn bit_timing(clock_hz: u32, bits_per_second: u32) -> Option<BitTiming> {
-    let clocks_per_bit = clock_hz.checked_div(bits_per_second)?;
-    if bits_per_second.checked_mul(clocks_per_bit) != Some(clock_hz) {
-        return None;
+/// for the choice), or `None` when no prescaler and quantum count give the rate exactly. A `const fn`, so that a
+/// board evaluates it for its clock at build time ([`timings`]) instead of searching at run time.
+pub const fn bit_timing(clock_hz: u32, bits_per_second: u32) -> Option<BitTiming> {
+    let Some(clocks_per_bit) = clock_hz.checked_div(bits_per_second) else { return None };
+    match bits_per_second.checked_mul(clocks_per_bit) {
+        Some(c) if c == clock_hz => {}
+        _ => return None,
     }
     let mut best: Option<(u32, BitTiming)> = None;
     // Most quanta first, so that a later candidate replaces an earlier one only with a better sample point.
-    for quanta in QUANTA.rev() {
-        if clocks_per_bit.checked_rem(quanta) != Some(0) {
-            continue;
-        }
-        let prescaler = clocks_per_bit.checked_div(quanta).unwrap_or(0);
-        if prescaler == 0 || prescaler > MAX_PRESCALER {
-            continue;
-        }
-        for seg2 in SEG2 {
-            let Some(seg1) = quanta.checked_sub(seg2).and_then(|q| q.checked_sub(1)) else {
-                continue;
-            };
-            if seg1 == 0 || seg1 > MAX_SEG1 {
-                continue;
+    let mut quanta = *QUANTA.end();
+    while quanta >= *QUANTA.start() {
+        let prescaler = match (clocks_per_bit.checked_rem(quanta), clocks_per_bit.checked_div(quanta)) {
+            (Some(0), Some(p)) => p,
+            _ => 0,
+        };
+        if prescaler != 0 && prescaler <= MAX_PRESCALER {
+            let mut seg2 = *SEG2.start();
+            while seg2 <= *SEG2.end() {
+                let seg1 = quanta.saturating_sub(seg2).saturating_sub(1);
+                if seg1 != 0 && seg1 <= MAX_SEG1 && seg1.saturating_add(seg2).saturating_add(1) == quanta {
+                    // In range: prescaler <= 1024, seg1 <= 16, seg2 <= 8 (checked above / by SEG2).
+                    let timing = BitTiming {
+                        prescaler: prescaler as u16,
+                        seg1: seg1 as u8,
+                        seg2: seg2 as u8,
+                        sjw: if SJW < seg2 as u8 { SJW } else { seg2 as u8 },
+                    };
+                    let error = timing.sample_point_permille().abs_diff(SAMPLE_POINT_PERMILLE);
+                    let better = match best {
+                        Some((e, _)) => error < e,
+                        None => true,
+                    };
+                    if better {
+                        best = Some((error, timing));
+                    }
+                }
+                seg2 = seg2.wrapping_add(1);
             }
-            let timing = BitTiming {
-                prescaler: u16::try_from(prescaler).ok()?,
-                seg1: u8::try_from(seg1).ok()?,
-                seg2: u8::try_from(seg2).ok()?,
-                sjw: SJW.min(u8::try_from(seg2).ok()?),
-            };
-            let error = timing.sample_point_permille().abs_diff(SAMPLE_POINT_PERMILLE);
-            if best.is_none_or(|(e, _)| error < e) {
-                best = Some((error, timing));
-            }
         }
+        quanta = quanta.wrapping_sub(1);
     }
-    best.map(|(_, timing)| timing)
+    match best {
+        Some((_, timing)) => Some(timing),
+        None => None,
+    }
 }
+
+/// The timing of every 0x2001 rate from `clock_hz`, in the order of [`BitRate::ALL`] (`None`: not exact);
+/// meant to be evaluated at build time (`const`), so that the image carries the table, not the search.
+pub const fn timings(clock_hz: u32) -> [Option<BitTiming>; BitRate::ALL.len()] {
+    let mut table = [None; BitRate::ALL.len()];
+    let mut i = 0;
+    while i < table.len() {
+        // In bounds: i < table.len() = BitRate::ALL.len(). Const evaluation would fail the build otherwise.
+        #[allow(clippy::indexing_slicing)]
+        {
+            table[i] = bit_timing(clock_hz, BitRate::ALL[i].bits_per_second());
+        }
+        i = i.wrapping_add(1);
+    }
+    table
+}
+
+use crate::canopen::frame::BitRate;
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::canopen::frame::BitRate;
 
     /// The reference board's APB1 clock (`board::clock`: 168 MHz / 4).
     const APB1_HZ: u32 = 42_000_000;
+
+    /// The build-time table holds, for each rate of [`BitRate::ALL`] (whose order is `index()`), what the search
+    /// gives at run time.
+    #[test]
+    fn the_build_time_table_is_the_search_for_every_rate() {
+        const TABLE: [Option<BitTiming>; 7] = timings(APB1_HZ);
+        for (i, rate) in BitRate::ALL.iter().enumerate() {
+            assert_eq!(rate.index(), i);
+            assert_eq!(BitRate::from_code(rate.code()), Some(*rate));
+            assert_eq!(TABLE[i], bit_timing(APB1_HZ, rate.bits_per_second()), "{rate:?}");
+        }
+        assert!(TABLE[BitRate::Kbit800.index()].is_none(), "800 kbit/s is not exact from 42 MHz");
+        assert_eq!(TABLE[BitRate::Kbit1000.index()].map(BitTiming::bxcan_btr), Some(0x011A_0002));
+    }
 
     /// Proves the table of the module documentation: for every 0x2001 rate the timing chosen from 42 MHz, its
     /// exact rate, its sample point (85.7..87.5 %, within 2 % of CiA 301's 87.5 %) and its CAN_BTR value; and

@@ -69,17 +69,17 @@ pub const RECORD_HEADER_LEN: u32 = 32;
 /// Size of an item header (index, sub, length).
 pub const ITEM_HEADER_LEN: u32 = 5;
 
-const OFF_MAGIC: usize = 0;
-const OFF_VERSION: usize = 4;
-const OFF_STORED: usize = 6;
+pub(crate) const OFF_MAGIC: usize = 0;
+pub(crate) const OFF_VERSION: usize = 4;
+pub(crate) const OFF_STORED: usize = 6;
 const OFF_RESTORED: usize = 7;
-const OFF_SEQUENCE: usize = 8;
-const OFF_PAYLOAD_LEN: usize = 12;
-const OFF_ITEM_COUNT: usize = 16;
-const OFF_CRC: usize = 24;
-const OFF_COMMIT: usize = 28;
+pub(crate) const OFF_SEQUENCE: usize = 8;
+pub(crate) const OFF_PAYLOAD_LEN: usize = 12;
+pub(crate) const OFF_ITEM_COUNT: usize = 16;
+pub(crate) const OFF_CRC: usize = 24;
+pub(crate) const OFF_COMMIT: usize = 28;
 /// Header bytes the CRC covers (everything before the CRC word).
-const CRC_HEADER_LEN: usize = 24;
+pub(crate) const CRC_HEADER_LEN: usize = 24;
 /// Payload bytes buffered per program operation.
 const CHUNK: usize = 128;
 /// Bytes read per flash read when checking or copying.

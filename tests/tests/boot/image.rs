@@ -50,7 +50,7 @@ fn every_refusal_from_bytes_is_typed() {
     // Payload and CRC changed consistently, signature left: the signature check catches it.
     let mut forged = good.clone();
     forged[HEADER_LEN as usize + 1000] ^= 0x01;
-    let crc = firmware::boot::verify::CRC32.checksum(&forged[HEADER_LEN as usize..]);
+    let crc = firmware::boot::crc32::checksum(&forged[HEADER_LEN as usize..]);
     forged[24..28].copy_from_slice(&crc.to_le_bytes());
     assert_eq!(verify_bytes(&forged, &t), Err(ImageError::BadSignature));
 
@@ -95,7 +95,7 @@ fn stream(img: &[u8], chunk: usize) -> Result<ImageHeader, UpdateError> {
     let mut b = SimFlash::new(SLOT_SECTOR, 4, 4);
     let mut s = SimFlash::new(STATE_SECTOR, 1, 4);
     let mut d = Download::new();
-    d.clear(&mut b, &mut s)?;
+    d.clear(&mut b, &mut s, None)?;
     for (i, c) in img.chunks(chunk).enumerate() {
         d.write(&mut b, (i * chunk) as u32, c, &trust())?;
     }
@@ -126,20 +126,20 @@ fn every_refusal_through_a_download_is_typed_and_wrong_headers_are_refused_befor
     let mut b = SimFlash::new(SLOT_SECTOR, 4, 4);
     let mut s = SimFlash::new(STATE_SECTOR, 1, 4);
     let mut d = Download::new();
-    d.clear(&mut b, &mut s).unwrap();
+    d.clear(&mut b, &mut s, None).unwrap();
     let e = d.write(&mut b, 0, &other_hw[..HEADER_LEN as usize], &trust());
     assert_eq!(e, Err(UpdateError::Image(ImageError::WrongHardware { expected: HARDWARE_ID, found: 0x1234_5678 })));
     assert!(matches!(d.phase(), Phase::Failed(ImageError::WrongHardware { .. })));
     assert_eq!(d.write(&mut b, HEADER_LEN, &other_hw[128..256], &trust()), Err(UpdateError::Sequence));
 
     let oversized = image(MAX_PAYLOAD_LEN as usize + 4, 0x0300_0000);
-    d.clear(&mut b, &mut s).unwrap();
+    d.clear(&mut b, &mut s, None).unwrap();
     assert_eq!(
         d.write(&mut b, 0, &oversized[..HEADER_LEN as usize], &trust()),
         Err(UpdateError::Image(ImageError::Oversized { len: MAX_PAYLOAD_LEN + 4, max: MAX_PAYLOAD_LEN }))
     );
     // A stream longer than a slot is refused by its length alone, whatever its header says.
-    d.clear(&mut b, &mut s).unwrap();
+    d.clear(&mut b, &mut s, None).unwrap();
     let long = vec![0u8; 400 * 1024];
     assert!(matches!(d.write(&mut b, 0, &long, &trust()), Err(UpdateError::Image(ImageError::Oversized { .. }))));
 }
@@ -154,7 +154,7 @@ fn a_download_outside_the_clear_write_finish_activate_sequence_is_refused() {
     assert_eq!(d.write(&mut b, 0, &img[..64], &trust()), Err(UpdateError::Sequence), "write without clear");
     assert_eq!(d.finish(&mut b, &trust(), &mut buf), Err(UpdateError::Sequence));
     assert_eq!(d.activate(&mut s), Err(UpdateError::Sequence), "activate without a verified image");
-    d.clear(&mut b, &mut s).unwrap();
+    d.clear(&mut b, &mut s, None).unwrap();
     assert_eq!(d.write(&mut b, 64, &img[64..128], &trust()), Err(UpdateError::OutOfOrder { expected: 0 }));
     d.write(&mut b, 0, &img[..64], &trust()).unwrap();
     assert_eq!(d.write(&mut b, 100, &img[100..200], &trust()), Err(UpdateError::OutOfOrder { expected: 64 }));
@@ -162,7 +162,7 @@ fn a_download_outside_the_clear_write_finish_activate_sequence_is_refused() {
     assert_eq!(d.write(&mut b, 64, &img[64..128], &trust()), Err(UpdateError::Sequence), "abort needs a new clear");
     // Slot B is erased by clear, so a second download over a first one works.
     for _ in 0..2 {
-        d.clear(&mut b, &mut s).unwrap();
+        d.clear(&mut b, &mut s, None).unwrap();
         d.write(&mut b, 0, &img, &trust()).unwrap();
         d.finish(&mut b, &trust(), &mut buf).unwrap();
     }

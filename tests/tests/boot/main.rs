@@ -5,5 +5,7 @@
 
 mod image;
 mod power_cut;
+mod rollback;
+mod stored_comms;
 mod support;
 mod update;

@@ -164,7 +164,7 @@ fn power_cut_during_the_confirmation_keeps_the_new_or_reverts_to_the_old_image()
     for seed in 0..24u64 {
         let mut b = on_supply(&base);
         cut_at(&b, 0, seed);
-        assert!(confirm(&mut b.state).is_err());
+        assert!(confirm(&mut b.state, 0).is_err());
         power_on(&mut b);
         match boot_checked(&mut b, &format!("confirm cut, seed {seed}")) {
             (NEW, false, BootEvent::Normal) => kept += 1,

@@ -45,8 +45,8 @@ fn update_end_to_end_download_activate_trial_confirm() {
     assert_eq!(running(&run(&mut board)), (NEW, true, BootEvent::Activated));
     assert_eq!(slot_image(board.slot_a.flash.contents()), new);
     assert_eq!(slot_image(board.slot_b.flash.contents()), image(150 * 1024, OLD), "the old image is kept in B");
-    assert_eq!(confirm(&mut board.state), Ok(true));
-    assert_eq!(confirm(&mut board.state), Ok(false), "confirming twice changes nothing");
+    assert_eq!(confirm(&mut board.state, 0), Ok(true));
+    assert_eq!(confirm(&mut board.state, 0), Ok(false), "confirming twice changes nothing");
 
     for _ in 0..3 {
         assert_eq!(running(&run(&mut board)), (NEW, false, BootEvent::Normal), "the confirmed image stays");
@@ -66,7 +66,7 @@ fn an_image_that_never_confirms_is_reverted_at_the_next_reset() {
     assert_eq!(running(&run(&mut board)), (NEW, true, BootEvent::Activated));
     // While on trial a new download is refused: slot B holds the only way back.
     let mut d = Download::new();
-    assert_eq!(d.clear(&mut board.slot_b, &mut board.state), Err(UpdateError::NotConfirmed));
+    assert_eq!(d.clear(&mut board.slot_b, &mut board.state, None), Err(UpdateError::NotConfirmed));
     // No confirmation; reset.
     assert_eq!(running(&run(&mut board)), (OLD, false, BootEvent::Reverted));
     assert_eq!(slot_image(board.slot_a.flash.contents()), image(150 * 1024, OLD));
@@ -91,7 +91,7 @@ fn a_new_clear_withdraws_a_pending_image() {
     let mut board = factory();
     download(&mut board.slot_b, &mut board.state, &image(64 * 1024, NEW), 4096).unwrap();
     let mut d = Download::new();
-    d.clear(&mut board.slot_b, &mut board.state).unwrap();
+    d.clear(&mut board.slot_b, &mut board.state, None).unwrap();
     assert_eq!(scan(&mut board.state).unwrap().state, BootState::Idle);
     assert_eq!(running(&run(&mut board)), (OLD, false, BootEvent::Normal));
 }
@@ -119,7 +119,7 @@ fn the_state_log_is_compacted_only_when_idle_and_updates_keep_working() {
         let (v, trial, _) = running(&run(&mut board));
         assert!(trial);
         version = v;
-        confirm(&mut board.state).unwrap();
+        confirm(&mut board.state, 0).unwrap();
     }
     assert_eq!(version, 0x0600_0000);
     let erases = board.state.flash.erase_counts()[0] - start_erases;
@@ -141,7 +141,7 @@ fn the_application_finds_its_header_and_its_trial_as_the_bootloader_left_them() 
     let Outcome::Run { header, trial: true, .. } = run(&mut board) else { panic!("the new image runs on trial") };
     let seen = running_image(&mut board.slot_a, &mut board.state, &trust());
     assert!(matches!(seen, Outcome::Run { header: h, trial: true, event: BootEvent::Normal } if h == header));
-    assert_eq!(confirm(&mut board.state), Ok(true));
+    assert_eq!(confirm(&mut board.state, 0), Ok(true));
     assert_eq!(running(&running_image(&mut board.slot_a, &mut board.state, &trust())), (NEW, false, BootEvent::Normal));
 
     // An erased slot A (no header): no program, with the reason.

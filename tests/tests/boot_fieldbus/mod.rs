@@ -34,6 +34,20 @@ pub fn new_image(len: usize) -> Vec<u8> {
     signed_image(&payload(len, NEW_VERSION), NEW_VERSION, NEW_VERSION_STRING, HARDWARE_ID, &dev_seed())
 }
 
+/// An image of firmware `version` (0x1F56 identification `version & 0xFFFF_0000`) at security version
+/// `security_version`, signed with the development key.
+pub fn image_with_security(len: usize, version: u32, security_version: u32) -> Vec<u8> {
+    use firmware::boot::image::ImageHeader;
+    let body = payload(len, version);
+    let mut header = ImageHeader::new(HARDWARE_ID, version, version & 0xFFFF_0000, 0, 0);
+    header.version_string[..3].copy_from_slice(b"sec");
+    header.security_version = security_version;
+    firmware::boot::sign::sign_image(&mut header, &body, &dev_seed(), [security_version as u8; 16]);
+    let mut image = header.to_bytes().to_vec();
+    image.extend_from_slice(&body);
+    image
+}
+
 pub fn u32_of(v: &[u8]) -> u32 {
     let mut b = [0u8; 4];
     b[..v.len().min(4)].copy_from_slice(&v[..v.len().min(4)]);
@@ -46,12 +60,15 @@ pub struct EcatRig {
     counter: u8,
     /// Frames (= bus cycles) sent so far.
     pub frames: u64,
+    /// The text of the last FoE error answer (ETG.1000.5: after the error code).
+    pub foe_error_text: Vec<u8>,
 }
 
 impl EcatRig {
     pub fn new() -> Self {
         let config = EthercatConfig { clock: ClockMode::LockStep, cycle_ns: CYCLE_NS, ..EthercatConfig::default() };
-        let mut rig = Self { r: EthercatRunner::new(config).expect("runner"), counter: 0, frames: 0 };
+        let mut rig =
+            Self { r: EthercatRunner::new(config).expect("runner"), counter: 0, frames: 0, foe_error_text: Vec::new() };
         rig.datagram(Command::Apwr, 0, 0x0010, &STATION.to_le_bytes());
         rig
     }
@@ -194,6 +211,7 @@ impl EcatRig {
         req.extend_from_slice(name);
         let a = self.exchange(FOE, &req).expect("an FoE answer to the write request");
         if a[0] == 5 {
+            self.foe_error_text = a[6..].to_vec();
             return Err(u32_of(&a[2..6]));
         }
         let mut number = 1u32;
@@ -206,7 +224,10 @@ impl EcatRig {
             let a = self.exchange(FOE, &req).expect("an FoE answer to a data packet");
             match a[0] {
                 4 => {}
-                5 => return Err(u32_of(&a[2..6])),
+                5 => {
+                    self.foe_error_text = a[6..].to_vec();
+                    return Err(u32_of(&a[2..6]));
+                }
                 other => panic!("FoE opcode {other} to a data packet"),
             }
             at += n;
@@ -317,6 +338,12 @@ impl CanRig {
                 last_len = n;
             }
             let got = self.r.run_until_quiet(hal_sim::sim::canopen::QUIET_LIMIT_NS);
+            // An abort in the middle of the sub-block ends the transfer; the server takes the segments after it
+            // for new requests and answers them too, so the first abort is the answer.
+            let first_abort = got.iter().find(|d| d.frame.id() == 0x581 && d.frame.data()[0] == 0x80);
+            if let Some(abort) = first_abort {
+                return Err(u32_of(&abort.frame.data()[4..8]));
+            }
             let a: [u8; 8] = got
                 .iter()
                 .rev()

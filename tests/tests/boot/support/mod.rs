@@ -49,6 +49,26 @@ pub fn image(len: usize, version: u32) -> Vec<u8> {
     image_signed_with(len, version, HARDWARE_ID, &dev_seed())
 }
 
+/// A signed image of firmware `version` with a `len`-byte payload and security version `security_version`.
+pub fn image_with_security(len: usize, version: u32, security_version: u32) -> Vec<u8> {
+    let body = payload(len, version);
+    let mut header = ImageHeader::new(HARDWARE_ID, version, version & 0xFFFF_0000, 0, 0);
+    header.security_version = security_version;
+    sign_image(&mut header, &body, &dev_seed(), [version as u8 ^ security_version as u8; 16]);
+    let mut image = header.to_bytes().to_vec();
+    image.extend_from_slice(&body);
+    image
+}
+
+/// The security version of the image in slot A as the started application finds it (`loader::running_image`,
+/// what program control hands to `Download::clear`); `None` without a valid header.
+pub fn slot_a_security_version<A: NorFlash, S: NorFlash>(slot_a: &mut A, state: &mut S) -> Option<u32> {
+    match firmware::boot::loader::running_image(slot_a, state, &trust()) {
+        firmware::boot::loader::Outcome::Run { header, .. } => Some(header.security_version),
+        firmware::boot::loader::Outcome::NoValidImage(_) => None,
+    }
+}
+
 /// Erased regions with the real layout: slot A 3 x 128 KiB, slot B 4 x 128 KiB, BOOT_STATE 1 x 64 KiB.
 pub fn regions() -> BootFlash<SimFlash, SimFlash, SimFlash> {
     assert_eq!(3 * SLOT_SECTOR, FLASH_LEN);
@@ -84,8 +104,19 @@ pub fn download<B: NorFlash, S: NorFlash>(
     image: &[u8],
     chunk: usize,
 ) -> Result<ImageHeader, UpdateError> {
+    download_over(None, slot_b, state, image, chunk)
+}
+
+/// As [`download`], with the security version of the confirmed image in slot A as program control passes it.
+pub fn download_over<B: NorFlash, S: NorFlash>(
+    slot_a_version: Option<u32>,
+    slot_b: &mut B,
+    state: &mut S,
+    image: &[u8],
+    chunk: usize,
+) -> Result<ImageHeader, UpdateError> {
     let mut d = Download::new();
-    d.clear(slot_b, state)?;
+    d.clear(slot_b, state, slot_a_version)?;
     for (i, c) in image.chunks(chunk).enumerate() {
         d.write(slot_b, (i * chunk) as u32, c, &trust())?;
     }
