@@ -48,10 +48,10 @@
 //!   (Gamma L850: "in case of a fatal error ... remove the high power immediately").
 //!
 //! - Safe Torque Off ([`Inputs::safe_torque_off`]; EPOS4 AN ch. 9): the hardware has already removed the torque,
-//!   so no stop can be performed and none is waited for. A state with the power section on goes to «Switch on
-//!   disabled» at once by the transition «Disable voltage» takes from it (7 from RTSO, a calibration in progress
-//!   included; 10 from SO; 9 from OE without the 0x605B ramp; 12 from QSA); a fault reaction ends its ramp at once
-//!   (14). «Shutdown» (2) is refused while it lasts, so the drive stays in «Switch on disabled» and, once STO is
+//!   so no stop can be performed and none is waited for. RTSO and every state with the power section on go to
+//!   «Switch on disabled» at once by the transition «Disable voltage» takes from them (7 from RTSO, a calibration
+//!   in progress included; 10 from SO; 9 from OE without the 0x605B ramp; 12 from QSA); a fault reaction ends its
+//!   ramp at once (14). «Shutdown» (2) is refused while it lasts, so the drive stays in «Switch on disabled» and, once STO is
 //!   released, is restarted only by the master's «Shutdown», «Switch on», «Enable operation» (no command held
 //!   from before STO re-enables it: in «Switch on disabled» only «Shutdown» leads on). Faults and a fault reset
 //!   (15) work as without STO.
@@ -424,7 +424,9 @@ impl StateMachine {
                 self.phase = Phase::PowerOff { completes: Transition::T14 };
                 None
             }
-            (None, _) if inputs.safe_torque_off && self.power().enabled => self.torque_off(now),
+            (None, state) if inputs.safe_torque_off && (state == State::ReadyToSwitchOn || self.power().enabled) => {
+                self.torque_off(now)
+            }
             (Some(_), State::FaultReactionActive | State::Fault) | (None, _) => {
                 let mut command = cw.command(previous, self.state);
                 if inputs.connection_lost {
@@ -580,7 +582,7 @@ impl StateMachine {
         Transition::T13
     }
 
-    /// Safe Torque Off in a state with the power section on: to «Switch on disabled» at once, by the transition
+    /// Safe Torque Off in RTSO or a state with the power section on: to «Switch on disabled» at once, by the transition
     /// «Disable voltage» takes from the state, without a stop (the torque is already gone); a fault reaction ends
     /// at the next step (14).
     fn torque_off(&mut self, now: Ticks) -> Option<Transition> {

@@ -7,8 +7,8 @@
 //!   ramps (0x605A = 1..8, read at transition 11), and in FRA with a fault reaction that ramps (class "f",
 //!   0x605E = 1, 2, torque applied before the fault); the brake is only released while torque is allowed;
 //! - transition 16 only with 0x605A = 5..8 (Gamma L834);
-//! - Safe Torque Off (EPOS4 AN ch. 9): with no new fault, the step ends with the power section off, and
-//!   «Shutdown» (2) never completes while it lasts;
+//! - Safe Torque Off (EPOS4 AN ch. 9): with no new fault, the step ends with the power section off and in none of
+//!   RTSO, SO, OE, QSA, and «Shutdown» (2) never completes while it lasts;
 //! - the statusword reports the state (IDX Table 2-5), bit 4 is the power stage and bit 14 Safe Torque Off.
 
 use crate::support::*;
@@ -184,6 +184,11 @@ fn check_sequence(config: Config, sequence: &[Inputs], start_time: u32) -> Resul
         if inputs.safe_torque_off {
             if raised.is_none() {
                 prop_assert!(!out.power.enabled, "power section on in {:?} with STO", out.state);
+                let on_the_way = matches!(
+                    out.state,
+                    State::ReadyToSwitchOn | State::SwitchedOn | State::OperationEnabled | State::QuickStopActive
+                );
+                prop_assert!(!on_the_way, "{:?} with STO", out.state);
             }
             prop_assert_ne!(out.transition, Some(Transition::T2), "«Shutdown» accepted with STO");
         }
