@@ -762,8 +762,8 @@ pub static FAULT_TABLE: [FaultInfo; FAULT_COUNT] = [
         Tier::Supervision,
         S::Detail,
         "Safe torque off active",
-        "manufacturer code (no seed gives one, digest control-and-protection 3.9); EPOS4 AN ch. 9 L8741-8905, \
-         Gamma 0x2002 bit 0 L2101",
+        // No seed gives an STO code (module documentation); the state is Gamma's 0x2002 bit 0 (GT L2101).
+        "manufacturer code; EPOS4 AN ch. 9 (S1 L8741-8905)",
     ),
     row(
         FaultId::StoDiscrepancy,
@@ -774,6 +774,7 @@ pub static FAULT_TABLE: [FaultInfo; FAULT_COUNT] = [
         Tier::Supervision,
         S::Detail,
         "STO inputs discrepancy",
-        "manufacturer code; EPOS4 AN ch. 9 Tab. 9-87 L8890-8905 (both inputs are one demand)",
+        // Both inputs carry one demand (S1 Tab. 9-87); the discrepancy time is `supervision::safe_torque_off`'s.
+        "manufacturer code; EPOS4 AN ch. 9 Tab. 9-87 (S1 L8890-8905)",
     ),
 ];
