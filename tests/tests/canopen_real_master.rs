@@ -553,3 +553,37 @@ fn a_96_kib_signed_image_goes_in_by_block_download_with_its_crc_and_runs_after_t
         out.master("sw_id_after")
     );
 }
+
+/// Proves (issue 19 item 1; the field trap of ros2_canopen#421, a CiA 402 start-up blocked by a de-energised STO
+/// input): with PyPI canopen against `drive-sim canopen --lock-step --sto-open 1` (both STO inputs de-energised
+/// from power-up), after a reset node the boot-up 0x701 [0x00] arrives followed by an EMCY 0xFFA0; in
+/// PRE-OPERATIONAL SDO reads 0x1000 (the device type), the statusword 0x4040 («Switch on disabled», bit 14 Safe
+/// Torque Off), 0x603F = 0xFFA0 and 0x1001 = 0; after NMT Start the heartbeat reports OPERATIONAL (0x05); and
+/// «Shutdown», «Switch on», «Enable operation» written by SDO each leave the statusword at 0x4240 (bit 9 remote in
+/// OPERATIONAL): enabling is refused with the reason visible.
+#[test]
+fn canopen_with_sto_low_at_power_up_reaches_operational_and_enabling_is_refused() {
+    skip_unless_runnable!("canopen_with_sto_low_at_power_up_reaches_operational_and_enabling_is_refused");
+    let dir = WorkDir::new("sto");
+    let eds = write_eds(&dir);
+    let out = run("sto.py", &["--lock-step", "--sto-open", "1"], &eds, &[]);
+    pass(&out);
+    assert_eq!(out.master("bootup"), "701:00");
+    let code = FaultId::SafeTorqueOff.info().code;
+    assert!(
+        out.master("emcy_codes").split(' ').any(|c| c == format!("{code:04x}")),
+        "EMCY {code:04x} after the boot-up\n{}",
+        out.text
+    );
+    let device_type = format!("0x{:08x}", drive_tests::real_master::default_u32(&Dictionary::new(1), 0x1000, 0));
+    assert_eq!(out.master("device_type"), device_type);
+    assert_eq!(out.master("statusword_preop"), "0x4040");
+    assert_eq!(out.master("error_code_preop"), format!("0x{code:04x}"));
+    assert_eq!(out.master("error_register_preop"), "0x00");
+    assert_eq!(out.master("hb_after_start"), "05", "heartbeat OPERATIONAL\n{}", out.text);
+    for cw in ["0006", "0007", "000f"] {
+        assert_eq!(out.master(&format!("statusword_after_{cw}")), "0x4240", "after controlword {cw}\n{}", out.text);
+    }
+    assert_eq!(out.master("error_code_end"), format!("0x{code:04x}"));
+    assert_eq!(out.sim("node1_nmt"), "Operational");
+}

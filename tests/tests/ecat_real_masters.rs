@@ -388,3 +388,39 @@ fn soem_going_quiet_trips_the_watchdog_and_the_drive_quick_stops_within_100ms_pl
     let sw = u16::from_str_radix(out.master("sdo_statusword").trim_start_matches("0x"), 16).expect("statusword");
     assert!(matches!(sw & 0x6F, 0x07 | 0x40 | 0x60), "statusword 0x{sw:04x}");
 }
+
+/// Proves (issue 19 item 1; the field trap of ros2_canopen#421, a CiA 402 start-up blocked by a de-energised STO
+/// input): SOEM against `drive-sim ethercat --lock-step --sto-open` (both STO inputs de-energised from power-up)
+/// finds the drive, reads 0x1000 (the device type) in PRE-OP, takes it to OP, and 500 cycles of «Shutdown» /
+/// «Switch on» / «Enable operation» in the RxPDO with every working counter right leave the TxPDO's statusword at
+/// 0x4240 («Switch on disabled», bit 9 remote in OP, bit 14 Safe Torque Off) without ever showing «Operation
+/// enabled»; in OP SDO answers the statusword 0x4240, 0x603F = 0xFFA0 and 0x1001 = 0, and the CoE emergency 0xFFA0
+/// reached the master. (In lock-step no simulated time passes before the cyclic frames, so the drive's state is
+/// read in OP.)
+#[test]
+fn soem_with_sto_low_at_power_up_reaches_op_and_enabling_is_refused() {
+    if prerequisite::skip("soem_with_sto_low_at_power_up_reaches_op_and_enabling_is_refused", cannot_run()) {
+        return;
+    }
+    let dir = root().join("tests/ecat");
+    let command = format!("sh -c \"cd '{}' && python3 soem_sto.py --iface ecm0 --cycles 500\"", dir.display());
+    let out = real_master::run_in_namespace("soem-sto", "--lock-step --cycle-us 1000 --sto-open", &command);
+    assert_eq!(out.master("verdict"), "pass", "\n{}", out.text);
+    assert_eq!(out.master("master_rc"), "0", "\n{}", out.text);
+    assert_eq!(out.master("sim_rc"), "0", "drive-sim's exit status\n{}", out.text);
+    let code = firmware::fault::FaultId::SafeTorqueOff.info().code;
+    assert_eq!(out.master("device_type"), format!("0x{:08x}", default_u32(&Dictionary::new(1), 0x1000, 0)));
+    assert_eq!(out.master("op"), "1");
+    assert_eq!(out.master("wkc_errors"), "0");
+    assert_eq!(out.master("statusword_end"), "0x4240");
+    assert_eq!(out.master("enabled_seen"), "0");
+    assert_eq!(out.master("sdo_statusword_op"), "0x4240");
+    assert_eq!(out.master("sdo_error_code_op"), format!("0x{code:04x}"));
+    assert_eq!(out.master("sdo_error_register_op"), "0x00");
+    assert!(
+        out.master("emcy_codes").split(' ').any(|c| c == format!("{code:04x}")),
+        "CoE emergency {code:04x}\n{}",
+        out.text
+    );
+    assert_eq!(out.sim("state_reached"), "OP");
+}

@@ -16,6 +16,7 @@
 //! | encoder A/B, index          | PB6, PB7, PB8 (AF2)    | TIM4 CH1/CH2 (encoder), CH3    |
 //! | Halls H1/H2/H3              | PC6, PC7, PC8 (inputs) | GPIOC IDR                      |
 //! | digital inputs 1..4         | PC9..PC12 (inputs)     | GPIOC IDR                      |
+//! | STO-IN1/IN2 feedback        | PB10, PB11 (inputs)    | GPIOB IDR (sto, tier 2)        |
 //! | SYNC0 from the ESC          | PB5 (AF2)              | TIM3 CH2 capture (sync_timer)  |
 //! | CAN RX/TX (transceiver)     | PA11, PA12 (AF9)       | CAN1 (can)                     |
 //! | ESC SPI SEL/CLK/DO/DI       | PA4 (out), PA5..7 (AF5)| SPI1 (esc_spi, `ethercat`)     |
@@ -38,6 +39,7 @@ pub mod flash;
 pub mod interrupt;
 pub mod pwm;
 pub mod reg;
+pub mod sto;
 pub mod sync_timer;
 pub mod watchdog;
 
@@ -113,6 +115,7 @@ pub fn init() -> Result<Board, ClockError> {
         chopper::init();
         adc::init();
         feedback::init();
+        sto::init();
         counter::init();
         Ok(Board { power: PowerStage { _owned: () } })
     }

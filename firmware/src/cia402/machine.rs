@@ -47,6 +47,15 @@
 //!   [`Config::brake_release_delay`]. Immediate disables (option code 0, faults without a ramp) do not wait
 //!   (Gamma L850: "in case of a fatal error ... remove the high power immediately").
 //!
+//! - Safe Torque Off ([`Inputs::safe_torque_off`]; EPOS4 AN ch. 9): the hardware has already removed the torque,
+//!   so no stop can be performed and none is waited for. RTSO and every state with the power section on go to
+//!   «Switch on disabled» at once by the transition «Disable voltage» takes from them (7 from RTSO, a calibration
+//!   in progress included; 10 from SO; 9 from OE without the 0x605B ramp; 12 from QSA); a fault reaction ends its
+//!   ramp at once (14). «Shutdown» (2) is refused while it lasts, so the drive stays in «Switch on disabled» and, once STO is
+//!   released, is restarted only by the master's «Shutdown», «Switch on», «Enable operation» (no command held
+//!   from before STO re-enables it: in «Switch on disabled» only «Shutdown» leads on). Faults and a fault reset
+//!   (15) work as without STO.
+//!
 //! The invariant, tested by property: torque (power stage on and controllers enabled) is only allowed in OE, in
 //! QSA while ramping or holding with 0x605A = 1..8, and in FRA while ramping with 0x605E = 1, 2; and Fault is
 //! only left by transition 15 (or a reset, transition 0).
@@ -108,6 +117,8 @@ pub struct Inputs {
     /// watchdog), from its detection until the fieldbus layer sees the master again. 0x6007 decides the reaction:
     /// 1 a fault (present while this is set), 2 «Disable voltage», 3 «Quick stop» in place of the controlword.
     pub connection_lost: bool,
+    /// Safe Torque Off is active: the hardware holds the power stage off (module documentation).
+    pub safe_torque_off: bool,
     /// The drive has initialised (transition 1).
     pub initialized: bool,
     /// The current-offset calibration started by [`Outputs::start_current_calibration`] has finished
@@ -130,6 +141,7 @@ impl Default for Inputs {
             options: OptionCodes::DEFAULT,
             fault: FaultInput::default(),
             connection_lost: false,
+            safe_torque_off: false,
             initialized: false,
             calibration_done: false,
             standstill: false,
@@ -412,6 +424,9 @@ impl StateMachine {
                 self.phase = Phase::PowerOff { completes: Transition::T14 };
                 None
             }
+            (None, state) if inputs.safe_torque_off && (state == State::ReadyToSwitchOn || self.power().enabled) => {
+                self.torque_off(now)
+            }
             (Some(_), State::FaultReactionActive | State::Fault) | (None, _) => {
                 let mut command = cw.command(previous, self.state);
                 if inputs.connection_lost {
@@ -452,6 +467,7 @@ impl StateMachine {
             internal_limit_active: inputs.status.internal_limit_active,
             operation_mode_specific_12: inputs.status.operation_mode_specific_12,
             operation_mode_specific_13: inputs.status.operation_mode_specific_13,
+            safe_torque_off: inputs.safe_torque_off,
             position_referenced: inputs.status.position_referenced,
         };
         Outputs {
@@ -566,6 +582,24 @@ impl StateMachine {
         Transition::T13
     }
 
+    /// Safe Torque Off in RTSO or a state with the power section on: to «Switch on disabled» at once, by the transition
+    /// «Disable voltage» takes from the state, without a stop (the torque is already gone); a fault reaction ends
+    /// at the next step (14).
+    fn torque_off(&mut self, now: Ticks) -> Option<Transition> {
+        match self.state {
+            State::ReadyToSwitchOn => self.enter(Transition::T7, now),
+            State::SwitchedOn => self.enter(Transition::T10, now),
+            State::OperationEnabled => self.enter(Transition::T9, now),
+            State::QuickStopActive => self.enter(Transition::T12, now),
+            State::FaultReactionActive => {
+                self.phase = Phase::PowerOff { completes: Transition::T14 };
+                None
+            }
+            // No power section on in these states (`Self::power`).
+            State::NotReadyToSwitchOn | State::SwitchOnDisabled | State::Fault => None,
+        }
+    }
+
     /// Whether the ramp that started at `since` has finished.
     fn ramp_finished(&self, inputs: &Inputs, since: Ticks, now: Ticks) -> bool {
         inputs.standstill
@@ -627,7 +661,8 @@ impl StateMachine {
                 }
             }
             State::SwitchOnDisabled => match command {
-                Command::Shutdown => self.enter(Transition::T2, now),
+                // Refused while Safe Torque Off is active: the drive shows why in statusword bit 14 and 0x603F.
+                Command::Shutdown if !inputs.safe_torque_off => self.enter(Transition::T2, now),
                 _ => None,
             },
             State::ReadyToSwitchOn => match command {

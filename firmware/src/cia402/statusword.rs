@@ -13,7 +13,7 @@
 //! | 10 | target reached (mode specific); in QSA with 0x605A = 5..8, 1 once the quick stop finished and the drive halted (Gamma L912) | input from the mode, overridden in QSA |
 //! | 11 | internal limit active (I2t, current, velocity limits) | input |
 //! | 12, 13 | operation mode specific | input from the mode |
-//! | 14 | reserved, 0 (IDX; E3 "refresh cycle of power stage" not used) | always 0 |
+//! | 14 | manufacturer specific: Safe Torque Off active, the hardware holds the power stage off (IDX reserved; E3 "refresh cycle of power stage" not used; the STO state Gamma shows in 0x2002 bit 0, GT L2101) | input from the fault handling |
 //! | 15 | manufacturer specific: position referenced to home position (IDX L5589-5593, E3 same) | input from homing |
 
 use super::state::State;
@@ -40,6 +40,8 @@ pub struct StatusFlags {
     pub operation_mode_specific_12: bool,
     /// Bit 13: operation mode specific (PPM/CSP following error, HMM homing error).
     pub operation_mode_specific_13: bool,
+    /// Bit 14: Safe Torque Off is active (manufacturer specific).
+    pub safe_torque_off: bool,
     /// Bit 15: position referenced to home position (manufacturer specific, IDX/E3).
     pub position_referenced: bool,
 }
@@ -73,6 +75,8 @@ impl Statusword {
     pub const OMS_12: u16 = 0x1000;
     /// Bit 13, operation mode specific.
     pub const OMS_13: u16 = 0x2000;
+    /// Bit 14, Safe Torque Off active (manufacturer specific).
+    pub const SAFE_TORQUE_OFF: u16 = 0x4000;
     /// Bit 15, position referenced to home position.
     pub const POSITION_REFERENCED: u16 = 0x8000;
 
@@ -101,6 +105,9 @@ impl Statusword {
         }
         if flags.operation_mode_specific_13 {
             sw |= Self::OMS_13;
+        }
+        if flags.safe_torque_off {
+            sw |= Self::SAFE_TORQUE_OFF;
         }
         if flags.position_referenced {
             sw |= Self::POSITION_REFERENCED;
@@ -145,11 +152,12 @@ mod tests {
                 internal_limit_active: true,
                 operation_mode_specific_12: true,
                 operation_mode_specific_13: true,
+                safe_torque_off: true,
                 position_referenced: true,
             };
             let sw = Statusword::encode(state, all);
             assert_eq!(sw.state(), Some(state));
-            assert_eq!(sw.0 & !0x006F, 0xBE90, "{state:?}");
+            assert_eq!(sw.0 & !0x006F, 0xFE90, "{state:?}");
         }
     }
 

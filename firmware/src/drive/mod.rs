@@ -75,6 +75,7 @@ use crate::fault::emcy::InhibitTime;
 use crate::fault::table::FaultId;
 use crate::hal::power::PwmCommand;
 use crate::hal::reset::ResetCause;
+use crate::hal::sto::StoInputs;
 use crate::motion::axis::{Axis, AxisInputs, AxisOutputs, CurrentDemand};
 use crate::od::access::Dictionary;
 use crate::od::generated::handles as h;
@@ -240,6 +241,8 @@ pub struct Drive {
     bus_limiter: BusVoltageLimiter,
     /// The braking chopper (0x3203).
     chopper: BrakingChopper,
+    /// The STO inputs tier 2 read for this slow period ([`Self::set_sto_inputs`]).
+    sto_inputs: StoInputs,
 }
 
 impl Drive {
@@ -293,6 +296,7 @@ impl Drive {
             output_pins: 0,
             bus_limiter: BusVoltageLimiter::default(),
             chopper: BrakingChopper::default(),
+            sto_inputs: StoInputs::RELEASED,
             dictionary,
         };
         drive.configure_commutation();
@@ -432,6 +436,7 @@ impl Drive {
         self.supervision.refresh(&self.dictionary);
         let inputs = self.supervision_inputs();
         let supervised = self.supervision.step(&inputs, self.axis.faults_mut(), &mut self.dictionary);
+        self.supervision.safe_torque_off.step(self.sto_inputs, &inputs, self.axis.faults_mut());
         // The I2t protection's and the thermal derating's current limits (applied one slow tick after the models
         // decided them: far inside the winding's and the heat sink's thermal time constants).
         let i2t_limit = Amps::from_milliamps(i32::try_from(self.axis.i2t_current_limit_ma()).unwrap_or(i32::MAX));
@@ -491,6 +496,20 @@ impl Drive {
             self.dictionary.set(h::BUS_LIMITER_STATE, self.bus_limiter.state_bits());
             self.update_demand();
         }
+    }
+
+    /// The levels of the two Safe Torque Off inputs, read by tier 2 at the start of the slow period (target:
+    /// `board::sto`; host: the plant's safety circuit), before [`Self::background`], which takes them: the STO
+    /// state and the machine follow within that slow period ([`crate::supervision::safe_torque_off`]). The drive
+    /// starts with both released, as a board without a safety circuit reads them.
+    pub fn set_sto_inputs(&mut self, inputs: StoInputs) {
+        self.sto_inputs = inputs;
+    }
+
+    /// The Safe Torque Off inputs last handed in ([`Self::set_sto_inputs`]).
+    #[must_use]
+    pub const fn sto_inputs(&self) -> StoInputs {
+        self.sto_inputs
     }
 
     /// The demand scale with the current limits of the protections in force (I2t and thermal derating): the

@@ -16,8 +16,12 @@
 //!   They set statusword bit 7 ([`FaultManager::warning_active`]), send an EMCY, and stay out of 0x1001, 0x603F and
 //!   0x1003 (digest §3.6: a warning is neither error nor fault).
 //! - 0x1001: the OR of the active faults' register bits (IDX L7028-L7032: "summary of all active error flags").
+//! - Safe Torque Off ([`ReactionClass::TorqueOff`]) is neither: it clears itself like a warning, but shows in
+//!   0x603F (below every fault) and in [`FaultManager::safe_torque_off_active`], which the CiA 402 machine takes;
+//!   it stays out of 0x1001 and 0x1003 and does not block a fault reset.
 //! - 0x603F: the code of the most severe active fault (class d over f over a), the earliest raised among equals
-//!   (the root cause of a cascade); 0 when no fault is active (device.toml 0x603F "0 when none is pending").
+//!   (the root cause of a cascade); the STO code when only STO is active; 0 when none is (device.toml 0x603F "0
+//!   when none is pending").
 //! - 0x1003: every new fault event enters the history, newest first ([`super::history`]).
 //! - EMCY: one message per new fault or warning event; an "error reset" (code 0x0000) when the last fault or
 //!   warning has gone (CiA 301 EMCY protocol; while a warning remains the drive has something to report, so it
@@ -87,6 +91,7 @@ pub struct Trip {
 struct Summary {
     any_fault: bool,
     warning: bool,
+    torque_off: bool,
     connection_lost: bool,
     cause_present: bool,
     error_code: u16,
@@ -121,6 +126,7 @@ impl<const Q: usize> FaultManager<Q> {
             summary: Summary {
                 any_fault: false,
                 warning: false,
+                torque_off: false,
                 connection_lost: false,
                 cause_present: false,
                 error_code: 0,
@@ -172,7 +178,7 @@ impl<const Q: usize> FaultManager<Q> {
         self.order = self.order.wrapping_add(1);
 
         let register = self.active().fold(0, |acc, a| acc | a.id.info().register);
-        if !info.reaction.is_warning() {
+        if info.reaction.is_fault() {
             if no_fault_before {
                 self.first_trip = Some(Trip { id, snapshot });
             }
@@ -229,14 +235,18 @@ impl<const Q: usize> FaultManager<Q> {
                 summary.warning = true;
                 continue;
             }
-            summary.any_fault = true;
-            summary.connection_lost |= info.reaction == ReactionClass::AbortConnection;
-            summary.cause_present |= a.cause_present && info.reaction.machine_class().is_some();
-            summary.error_register |= info.register;
             let severity = info.reaction.severity();
             if shown.is_none_or(|(s, order, _)| severity > s || (severity == s && a.order < order)) {
                 shown = Some((severity, a.order, info.code));
             }
+            if !info.reaction.is_fault() {
+                summary.torque_off = true;
+                continue;
+            }
+            summary.any_fault = true;
+            summary.connection_lost |= info.reaction == ReactionClass::AbortConnection;
+            summary.cause_present |= a.cause_present && info.reaction.machine_class().is_some();
+            summary.error_register |= info.register;
         }
         summary.error_code = shown.map_or(0, |(_, _, code)| code);
         if summary.error_code != self.summary.error_code || summary.error_register != self.summary.error_register {
@@ -277,9 +287,9 @@ impl<const Q: usize> FaultManager<Q> {
         }
     }
 
-    /// The active faults (not warnings), in table order.
+    /// The active faults (not warnings, not the STO state), in table order.
     pub fn active(&self) -> impl Iterator<Item = &ActiveFault> + '_ {
-        self.slots.iter().flatten().filter(|a| !a.id.info().reaction.is_warning())
+        self.slots.iter().flatten().filter(|a| a.id.info().reaction.is_fault())
     }
 
     /// The active warnings, in table order.
@@ -302,6 +312,12 @@ impl<const Q: usize> FaultManager<Q> {
         self.summary.warning
     }
 
+    /// Safe Torque Off is active: the hardware holds the power stage off (`cia402::Inputs::safe_torque_off`,
+    /// statusword bit 14).
+    pub fn safe_torque_off_active(&self) -> bool {
+        self.summary.torque_off
+    }
+
     /// The snapshot stored with active `id`.
     pub fn snapshot(&self, id: FaultId) -> Option<&DiagnosisSnapshot> {
         self.slot(id).map(|a| &a.snapshot)
@@ -317,7 +333,8 @@ impl<const Q: usize> FaultManager<Q> {
         self.summary.error_register
     }
 
-    /// 0x603F: the code of the most severe active fault, the earliest among equals; 0 when none.
+    /// 0x603F: the code of the most severe active fault, the earliest among equals; the STO code when only STO is
+    /// active; 0 when none.
     pub fn error_code(&self) -> u16 {
         self.summary.error_code
     }

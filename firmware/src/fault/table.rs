@@ -10,7 +10,11 @@
 //!   **\[BG\]** (background knowledge, not in the seeds; verify against CiA 402-2 Annex) and, where another seed uses
 //!   the same code for the same thing, that seed is cited as corroboration (Gamma L1060-L1075, PD4 p.109).
 //!   Warnings and the EMCY overflow have manufacturer-specific codes (CiA 301 0xFF00..0xFFFF "device specific"),
-//!   chosen from 0xFF80 up so that they never collide with IDX's 0xFF01..0xFF22.
+//!   chosen from 0xFF80 up so that they never collide with IDX's 0xFF01..0xFF22. Safe Torque Off has no code in
+//!   any seed (digest `control-and-protection.md` §3.9: "No seed specifies an STO-related error code"): its two
+//!   rows take a block of their own from 0xFFA0 (device specific, clear of IDX's 0xFF01..0xFF22, the warnings'
+//!   0xFF80.. and the EMCY overflow's 0xFF90), so that a master reading 0x603F tells "STO demanded" (0xFFA0) from
+//!   "STO wiring faulty" (0xFFA1) without a vendor table.
 //! - Error register: CiA 301 bit meanings as IDX L1570-L1595 lists them (0 generic, 1 current, 2 voltage,
 //!   3 temperature, 4 communication, 5 device profile, 7 manufacturer/motion). The class bit follows IDX
 //!   Table 7-153; **bit 0 (generic) is set for every fault as well**, because CiA 301 (object 1001h) asks for it "if any
@@ -54,6 +58,13 @@ pub enum ReactionClass {
     /// Not a fault: statusword bit 7 "warning" and an EMCY, no state change (digest §3.6; Gamma L910;
     /// IDX L5584).
     Warning,
+    /// Not a fault: the hardware holds the power stage off (Safe Torque Off, EPOS4 AN ch. 9, S1 L8741-8905). While
+    /// it lasts the CiA 402 machine leaves every state with power for «Switch on disabled» and refuses «Shutdown»
+    /// there (`cia402::Inputs::safe_torque_off`), statusword bit 14 shows it and 0x603F its code when no fault is
+    /// active; an EMCY announces it. It clears itself when the inputs are energised again, enters neither 0x1001
+    /// nor the error history, and a fault reset neither needs nor clears it: the drive is restarted only by the
+    /// master's normal «Shutdown», «Switch on», «Enable operation».
+    TorqueOff,
 }
 
 impl ReactionClass {
@@ -64,7 +75,7 @@ impl ReactionClass {
         match self {
             Self::DisablePowerImmediately => Some(FaultClass::Critical),
             Self::QuickStopThenDisable => Some(FaultClass::Reaction),
-            Self::AbortConnection | Self::Warning => None,
+            Self::AbortConnection | Self::Warning | Self::TorqueOff => None,
         }
     }
 
@@ -74,13 +85,19 @@ impl ReactionClass {
             Self::DisablePowerImmediately => 3,
             Self::QuickStopThenDisable => 2,
             Self::AbortConnection => 1,
-            Self::Warning => 0,
+            // The STO state is shown only while no fault is: a fault is what the master must act on first.
+            Self::Warning | Self::TorqueOff => 0,
         }
     }
 
     /// Whether this is a warning rather than a fault.
     pub const fn is_warning(self) -> bool {
         matches!(self, Self::Warning)
+    }
+
+    /// Whether this is a fault (classes d, f, a): it latches, sets 0x1001 and enters the error history.
+    pub const fn is_fault(self) -> bool {
+        matches!(self, Self::DisablePowerImmediately | Self::QuickStopThenDisable | Self::AbortConnection)
     }
 }
 
@@ -218,12 +235,16 @@ pub enum FaultId {
     CanRxOverrun = 32,
     /// The independent watchdog reset the device: some tier stopped running (reported at the next start).
     WatchdogReset = 33,
+    /// Safe Torque Off: an STO input is not energised, the hardware holds the power stage off (EPOS4 AN ch. 9).
+    SafeTorqueOff = 34,
+    /// The two STO inputs disagreed for longer than the discrepancy time: a channel or its wiring has failed.
+    StoDiscrepancy = 35,
     /// Warning: the braking resistor's thermal model reached its limit; the chopper is off until it has cooled.
-    ChopperOverload = 34,
+    ChopperOverload = 36,
 }
 
 /// Number of rows in [`FAULT_TABLE`].
-pub const FAULT_COUNT: usize = 35;
+pub const FAULT_COUNT: usize = 37;
 
 /// One row of the fault table.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -287,6 +308,8 @@ impl FaultId {
         Self::CanBusOff,
         Self::CanRxOverrun,
         Self::WatchdogReset,
+        Self::SafeTorqueOff,
+        Self::StoDiscrepancy,
         Self::ChopperOverload,
     ];
 
@@ -326,8 +349,8 @@ static FALLBACK: FaultInfo = row(
     "IDX L7061, L7236",
 );
 
-/// A fault row; warnings use [`warning`]. Latching follows from the class: faults latch, warnings clear
-/// themselves.
+/// A fault row; warnings use [`warning`]. Latching follows from the class: faults latch, warnings and the STO
+/// state clear themselves.
 #[allow(clippy::too_many_arguments)]
 const fn row(
     id: FaultId,
@@ -340,7 +363,7 @@ const fn row(
     name: &'static str,
     source: &'static str,
 ) -> FaultInfo {
-    let latch = if reaction.is_warning() { LatchPolicy::SelfClearing } else { LatchPolicy::Latching };
+    let latch = if reaction.is_fault() { LatchPolicy::Latching } else { LatchPolicy::SelfClearing };
     FaultInfo { id, code, register, reaction, latch, cause, tier, emcy_field, name, source }
 }
 
@@ -730,6 +753,32 @@ pub static FAULT_TABLE: [FaultInfo; FAULT_COUNT] = [
         S::Detail,
         "Watchdog error",
         "IDX L7093, L7490 (7.2.48): the independent watchdog reset the device; reported at the next start",
+    ),
+    // No error-register bit: STO is a state the safety circuit demands, not an error of the drive (the manager
+    // keeps it out of 0x1001 and 0x1003).
+    row(
+        FaultId::SafeTorqueOff,
+        0xFFA0,
+        0,
+        ReactionClass::TorqueOff,
+        Level,
+        Tier::Supervision,
+        S::Detail,
+        "Safe torque off active",
+        // No seed gives an STO code (module documentation); the state is Gamma's 0x2002 bit 0 (GT L2101).
+        "manufacturer code; EPOS4 AN ch. 9 (S1 L8741-8905)",
+    ),
+    row(
+        FaultId::StoDiscrepancy,
+        0xFFA1,
+        REG_GENERIC,
+        D,
+        Level,
+        Tier::Supervision,
+        S::Detail,
+        "STO inputs discrepancy",
+        // Both inputs carry one demand (S1 Tab. 9-87); the discrepancy time is `supervision::safe_torque_off`'s.
+        "manufacturer code; EPOS4 AN ch. 9 Tab. 9-87 (S1 L8890-8905)",
     ),
     warning(
         FaultId::ChopperOverload,

@@ -341,6 +341,7 @@ impl Axis {
             options: self.params.options,
             fault: self.faults.take_machine_input(),
             connection_lost: self.faults.connection_lost(),
+            safe_torque_off: self.faults.safe_torque_off_active(),
             initialized: true,
             calibration_done: matches!(input.power, PowerState::SwitchedOn | PowerState::OperationEnabled),
             standstill: self.standstill,
@@ -818,6 +819,7 @@ impl Axis {
             internal_limit_active: self.internal_limit,
             operation_mode_specific_12: s.bit12,
             operation_mode_specific_13: bit13,
+            safe_torque_off: self.faults.safe_torque_off_active(),
             position_referenced: self.referenced,
         };
         d.set(h::STATUSWORD, Statusword::encode(out.state, flags).0);

@@ -12,6 +12,8 @@
 //!   displaced, encoder signal loss.
 //! - [`stall`]: motor blocked (stall) supervision in the modes where the loops drive the motor.
 //! - [`phases`]: motor phase open (a phase that carries no current while the others do).
+//! - [`safe_torque_off`]: the STO state and the discrepancy of its two inputs (read by tier 2, stepped by
+//!   `Drive::background` after the others).
 //! - [`watchdog`]: the rule by which tier 3 feeds the independent watchdog (all three tiers ran).
 //! - [`communication`]: the one interface through which the fieldbus layers report communication loss
 //!   (heartbeat, RxPDO/SYNC timeout, EtherCAT watchdog, ...), and the process-data watchdog they share.
@@ -19,6 +21,7 @@
 pub mod communication;
 pub mod feedback;
 pub mod phases;
+pub mod safe_torque_off;
 pub mod stall;
 pub mod thermal;
 pub mod watchdog;
@@ -171,6 +174,8 @@ pub struct Supervision {
     pub stall: stall::StallSupervision,
     /// Motor phase open.
     pub phases: phases::PhaseSupervision,
+    /// Safe Torque Off state and input discrepancy.
+    pub safe_torque_off: safe_torque_off::StoSupervision,
 }
 
 impl Supervision {
@@ -182,6 +187,7 @@ impl Supervision {
             feedback: feedback::FeedbackSupervision::new(d),
             stall: stall::StallSupervision::new(d),
             phases: phases::PhaseSupervision::new(d),
+            safe_torque_off: safe_torque_off::StoSupervision::default(),
         }
     }
 

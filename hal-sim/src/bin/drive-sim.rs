@@ -15,8 +15,10 @@
 //!                        [--idle-cycle]                            --pcap records every frame in and out;
 //!                                                                  --idle-cycle: lock-step idle polls run a cycle
 //!                        [--drive-clock-error-ppm X]               the drive's oscillator X ppm off (DC PLL)
+//!                        [--sto-open]                              both STO inputs de-energised from power-up
 //! drive-sim canopen --port N [--nodes K] [--bit-rate BPS] [--lock-step] [--sync-us N] [--seconds S]
 //!                   [--idle-exit-ms N] [--seed N]              K drives on a simulated CAN bus, socketcand on N
+//!                   [--sto-open ID]...                         node ID with both STO inputs de-energised
 //! ```
 //!
 //! Each scenario prints a human-readable report, the paths of the CSV traces and SVG plots it wrote (under
@@ -45,7 +47,7 @@ const USAGE: &str =
     "usage: drive-sim <current-step | spinning | csp | csv-sweep | ppm | homing | fault-matrix | duty-cycle | bench | ethercat | canopen> [--seed N] [--default-gains | --gains P,I] \
                      [--out DIR] [--seconds S] [--only TEXT] \
                      [--iface NAME --lock-step --cycle-us N --clock-error-ppm X --idle-exit-ms N --pcap FILE --idle-cycle \
-                     --drive-clock-error-ppm X]";
+                     --drive-clock-error-ppm X --sto-open]";
 
 struct Args {
     scenario: String,
@@ -77,6 +79,8 @@ struct EcatArgs {
     /// `--drive-clock-error-ppm X`: the drive's oscillator against the master's time
     /// (`EthercatConfig::drive_clock_error_ppb`).
     drive_clock_error_ppm: f64,
+    /// `--sto-open`: both Safe Torque Off inputs de-energised from power-up, for the whole run.
+    sto_open: bool,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -120,6 +124,7 @@ fn parse_args() -> Result<Args, String> {
             "--iface" => args.ecat.iface = Some(value("--iface")?),
             "--lock-step" => args.ecat.lock_step = true,
             "--idle-cycle" => args.ecat.idle_cycle = true,
+            "--sto-open" => args.ecat.sto_open = true,
             "--cycle-us" => {
                 args.ecat.cycle_us = Some(value("--cycle-us")?.parse().map_err(|e| format!("--cycle-us: {e}"))?);
             }
@@ -628,6 +633,10 @@ fn ethercat(args: &Args) -> Result<(), String> {
         println!("note: a debug build; real masters' timeouts want `cargo run --release`");
     }
     let mut runner = EthercatRunner::new(config)?;
+    if e.sto_open {
+        runner.node.sim.plant.set_sto_inputs(firmware::hal::sto::StoInputs::DEMANDED);
+        println!("  STO-IN1 and STO-IN2 de-energised (Safe Torque Off active from power-up)");
+    }
     match config.clock {
         ClockMode::LockStep => println!(
             "ethercat: serving the simulated drive on {iface}, lock-step: {cycle_us} us of simulated time per cyclic \
@@ -739,6 +748,7 @@ fn ethercat(args: &Args) -> Result<(), String> {
         println!("left_operation_enabled_to={state:?}");
     }
     println!("cia402_state_final={:?}", runner.node.sim.cia402_state());
+    println!("statusword_final=0x{:04x}", runner.node.sim.statusword());
     // The process-data watchdog as the master configured it: SM2's control byte (bit 6 = the ESC retriggers the
     // watchdog with every SM2 write), 0x0400 divider and 0x0420 time, and how often it expired.
     println!("sm2_control=0x{:02x}", runner.esc.register(0x0814));

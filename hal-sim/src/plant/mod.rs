@@ -66,6 +66,8 @@
 //!   floating at its back-EMF above the star point of the two others (`open_phase_terminal`), switching or not; a
 //!   short between two outputs is a resistance between their poles ([`inverter::OutputShort`]), loading the legs,
 //!   their shunts, the bus and the over-current comparator while they switch.
+//! * **Safe Torque Off** ([`Plant::set_sto_inputs`]): either STO input de-energised keeps the bridge from
+//!   switching, as disabled outputs, whatever the command (the hardware path of EPOS4 AN ch. 9; `sto`).
 //! * **DC bus**: `C dV/dt = i_source - i_dc` with `i_source = (V_source - V) / R_source` (not negative unless the
 //!   source sinks current) and `i_dc` the sum of the phase currents of the legs connected to the positive rail, so
 //!   regeneration raises the bus voltage.
@@ -110,6 +112,7 @@ mod params;
 pub mod rng;
 mod sampling;
 pub mod sensors;
+mod sto;
 mod switching;
 mod thermal;
 
@@ -243,6 +246,8 @@ pub struct Plant {
     chopper_gate: bool,
     /// Energy the braking resistor has taken since the start, in J.
     chopper_energy_j: f64,
+    /// The Safe Torque Off inputs ([`sto`]): either one de-energised keeps the bridge from switching.
+    sto: firmware::hal::sto::StoInputs,
 }
 
 impl core::fmt::Debug for Plant {
@@ -288,6 +293,7 @@ impl Plant {
             faults: faults::PlantFaults::default(),
             chopper_gate: false,
             chopper_energy_j: 0.0,
+            sto: firmware::hal::sto::StoInputs::RELEASED,
             params,
         };
         plant.last_count = plant.count_now();
@@ -347,7 +353,8 @@ impl Plant {
         if !cmd.enabled {
             self.break_latched = false;
         }
-        let enabled = cmd.enabled && !self.break_latched;
+        // The STO path gates the bridge in hardware, whatever the command ([`sto`]).
+        let enabled = cmd.enabled && !self.break_latched && self.sto.torque_permitted();
         let mut patterns = [LegPattern::off(period_s); 3];
         let mut end_levels = [None; 3];
         if enabled {

@@ -14,6 +14,12 @@
 //!    then «Enable operation» alone does nothing, and the normal «Shutdown», «Switch on», «Enable operation»
 //!    sequence enables the drive again.
 //!
+//! Safe Torque Off (its inputs are the plant's, EPOS4 AN ch. 9) is a state, not a fault: its case checks that the
+//! bridge stops switching in the period after the input opens (the hardware path), the EMCY, 0x603F and statusword
+//! bit 14, «Switch on disabled» with the outputs commanded off, «Shutdown» refused while STO lasts, and, once the
+//! inputs are energised again, no restart by a held «Enable operation» but one by the normal sequence. Its
+//! discrepancy fault has a case per input.
+//!
 //! Latencies are counted in PWM periods (40 us): from the injection to the detection, and from the detection to
 //! the outputs off. `drive-sim fault-matrix` prints the table; `tests/tests/fault/matrix.rs` asserts it.
 
@@ -21,6 +27,7 @@ use firmware::cia402::State;
 use firmware::drive::DriveConfig;
 use firmware::fault::history;
 use firmware::fault::{EmcyMessage, FaultId, ReactionClass, Tier};
+use firmware::hal::sto::StoInputs;
 use firmware::od::generated::handles as h;
 use firmware::supervision::communication::{LinkLoss, ProcessDataWatchdog, WatchdogEvent};
 
@@ -39,6 +46,10 @@ const WATCHDOG_SLOW_TICKS: u32 = 25;
 /// A stop counts as performed when the motor turns slower than this when the outputs go off, rpm: 10 % of the
 /// running speed (a coast from 300 rpm leaves the outputs off at 300 rpm).
 const STANDSTILL_AT_OFF_RPM: f64 = 30.0;
+
+/// The STO discrepancy time (`supervision::safe_torque_off`, 100 ms) in PWM periods.
+const STO_DISCREPANCY_PERIODS: u64 =
+    firmware::supervision::safe_torque_off::DISCREPANCY_TICKS.0 as u64 * PERIODS_PER_SLOW_TICK;
 
 /// RCC_CSR as the board reads it after an IWDG reset: IWDGRSTF with PINRSTF (RM0090 7.3.21), LSI on and ready.
 const RCC_CSR_AFTER_IWDG_RESET: u32 = 0x2400_0003;
@@ -550,6 +561,32 @@ pub fn cases() -> Vec<Case> {
             },
         ),
         case(
+            F::SafeTorqueOff,
+            "STO-IN1 and STO-IN2 de-energised (safety relay opens)",
+            S::RunningCsv,
+            // Read at the next slow-tick boundary.
+            PERIODS_PER_SLOW_TICK,
+            |b| b.sim.plant.set_sto_inputs(StoInputs::DEMANDED),
+            |b| b.sim.plant.set_sto_inputs(StoInputs::RELEASED),
+        ),
+        case(
+            F::StoDiscrepancy,
+            "STO-IN1 de-energised alone (STO-IN2 stays energised)",
+            S::RunningCsv,
+            // The 100 ms discrepancy time plus the slow tick that reads the inputs.
+            STO_DISCREPANCY_PERIODS + PERIODS_PER_SLOW_TICK,
+            |b| b.sim.plant.set_sto_inputs(StoInputs { channel_1: false, channel_2: true }),
+            |b| b.sim.plant.set_sto_inputs(StoInputs::RELEASED),
+        ),
+        case(
+            F::StoDiscrepancy,
+            "STO-IN2 de-energised alone (STO-IN1 stays energised)",
+            S::RunningCsv,
+            STO_DISCREPANCY_PERIODS + PERIODS_PER_SLOW_TICK,
+            |b| b.sim.plant.set_sto_inputs(StoInputs { channel_1: true, channel_2: false }),
+            |b| b.sim.plant.set_sto_inputs(StoInputs::RELEASED),
+        ),
+        case(
             F::EmcyOverflow,
             "20 PDO length errors within the EMCY inhibit time",
             S::RunningCsv,
@@ -659,6 +696,10 @@ pub fn run_case(case: &Case, seed: u64) -> Outcome {
     outcome.outputs_were_on = was_enabled;
     (case.inject)(&mut b);
     let warning = info.reaction.is_warning();
+    let torque_off = info.reaction == ReactionClass::TorqueOff;
+    // The STO hardware path: an opened input stops the bridge in the next period, before any firmware reacts.
+    let sto_opened = !b.sim.plant.sto_inputs().torque_permitted();
+    let mut bridge_stopped_by_sto = true;
 
     // 1. Detection, and when the outputs go off.
     let mut detected_at = None;
@@ -667,6 +708,9 @@ pub fn run_case(case: &Case, seed: u64) -> Outcome {
     for k in 0..=limit {
         if k > 0 {
             b.step();
+        }
+        if k == 1 && sto_opened && was_enabled {
+            bridge_stopped_by_sto = !b.sim.plant.bridge_switched();
         }
         // Tier 1 trips the power stage before the fault manager hears of it (with the report of the next slow-tick
         // boundary): the detection is tier 1's own state.
@@ -706,6 +750,9 @@ pub fn run_case(case: &Case, seed: u64) -> Outcome {
     if detected > case.detect_within {
         f.push(format!("detected after {detected} periods, more than the stated {}", case.detect_within));
     }
+    if !bridge_stopped_by_sto {
+        f.push("the bridge still switched in the period after an STO input opened".into());
+    }
     outcome.off_after_detect_periods = off_at.map(|o| o.saturating_sub(detected));
 
     // 2. Reporting.
@@ -741,9 +788,13 @@ pub fn run_case(case: &Case, seed: u64) -> Outcome {
             f.push(format!("0x1001 = {register:#04x} lacks {:#04x}", info.register));
         }
         let newer = history::count(d).saturating_sub(history_before).max(1);
-        if !(1..=newer).any(|n| history::entry(d, n).is_some_and(|e| e.code == info.code)) {
+        // STO is a state, not an error: it stays out of the history (`fault::manager`).
+        if !torque_off && !(1..=newer).any(|n| history::entry(d, n).is_some_and(|e| e.code == info.code)) {
             f.push(format!("0x1003 has no new entry with {:#06x}", info.code));
         }
+    }
+    if sto_opened && d.get(h::STATUSWORD) & (1 << 14) == 0 {
+        f.push("statusword bit 14 (Safe Torque Off) not set".into());
     }
 
     // 3. Reaction.
@@ -753,6 +804,7 @@ pub fn run_case(case: &Case, seed: u64) -> Outcome {
         // 0x6007 = 3 (the default): «Quick stop»; with 0x605A = 6 (the default) the drive stays in «Quick stop
         // active», holding at standstill with the power on, until the master disables it.
         ReactionClass::AbortConnection => Some(State::QuickStopActive),
+        ReactionClass::TorqueOff => Some(State::SwitchOnDisabled),
     };
     if info.reaction == ReactionClass::AbortConnection && case.fault != FaultId::EmcyOverflow {
         if outcome.state != State::QuickStopActive {
@@ -768,7 +820,7 @@ pub fn run_case(case: &Case, seed: u64) -> Outcome {
         if was_enabled {
             match (info.reaction, outcome.off_after_detect_periods) {
                 (_, None) => f.push("the outputs stayed on".into()),
-                (ReactionClass::DisablePowerImmediately, Some(p)) if p > 1 => {
+                (ReactionClass::DisablePowerImmediately | ReactionClass::TorqueOff, Some(p)) if p > 1 => {
                     f.push(format!("outputs off {p} periods after the detection, more than one"))
                 }
                 (ReactionClass::QuickStopThenDisable | ReactionClass::AbortConnection, Some(_))
@@ -784,7 +836,9 @@ pub fn run_case(case: &Case, seed: u64) -> Outcome {
     }
 
     // 4. Reset.
-    if !warning && case.fault != FaultId::EmcyOverflow {
+    if torque_off {
+        check_sto_restart(&mut b, case, f);
+    } else if !warning && case.fault != FaultId::EmcyOverflow {
         let level = info.cause == firmware::fault::Cause::Level;
         if level && b.sim.drive.axis().faults().blocking_fault().is_some() {
             fault_reset(&mut b);
@@ -836,6 +890,54 @@ pub fn run_case(case: &Case, seed: u64) -> Outcome {
         }
     }
     outcome
+}
+
+/// After an STO demand: «Shutdown» refused while it lasts (the state, bit 14 and 0x603F say why); once the inputs
+/// are energised again a held «Enable operation» restarts nothing, the normal sequence does (EPOS4 AN ch. 9; issue
+/// 19 "restart only through the normal sequence").
+fn check_sto_restart(b: &mut Bench, case: &Case, f: &mut Vec<String>) {
+    let code = case.fault.info().code;
+    b.sim.set_controlword(0x0006);
+    b.run(20 * PERIODS_PER_SLOW_TICK);
+    let sw = b.sim.statusword();
+    if b.sim.cia402_state() != State::SwitchOnDisabled || b.sim.command().enabled {
+        f.push(format!("«Shutdown» with STO active reached {:?}", b.sim.cia402_state()));
+    }
+    if sw & (1 << 14) == 0 || b.sim.drive.dictionary().get(h::ERROR_CODE) != code {
+        f.push(format!(
+            "with STO active: statusword {sw:#06x}, 0x603F {:#06x}",
+            b.sim.drive.dictionary().get(h::ERROR_CODE)
+        ));
+    }
+    // A master that keeps asking for «Enable operation» while STO is released.
+    b.sim.set_controlword(0x000F);
+    b.run(5 * PERIODS_PER_SLOW_TICK);
+    (case.remove)(b);
+    b.run(20 * PERIODS_PER_SLOW_TICK);
+    if is_active(b, case.fault) {
+        f.push("STO still active after the inputs were energised".into());
+    }
+    let (sw, error_code) = (b.sim.statusword(), b.sim.drive.dictionary().get(h::ERROR_CODE));
+    if b.sim.cia402_state() != State::SwitchOnDisabled || b.sim.command().enabled {
+        f.push(format!(
+            "STO released with «Enable operation» held: {:?}, expected SwitchOnDisabled",
+            b.sim.cia402_state()
+        ));
+    }
+    if sw & (1 << 14) != 0 || error_code != 0 {
+        f.push(format!("STO released: statusword {sw:#06x}, 0x603F {error_code:#06x}"));
+    }
+    if let Some(mode) = case.situation.mode() {
+        for _ in 0..2_500 {
+            if b.speed_rpm().abs() < 10.0 {
+                break;
+            }
+            b.run(2 * PERIODS_PER_SLOW_TICK);
+        }
+        if let Err(e) = b.sim.enable_through_controlword(mode) {
+            f.push(format!("no re-enable through the normal transitions: {e}"));
+        }
+    }
 }
 
 /// A fault reset as a master sends it: controlword 0 then the bit-7 edge.
@@ -898,5 +1000,6 @@ fn reaction_name(r: ReactionClass) -> &'static str {
         ReactionClass::QuickStopThenDisable => "f: stop (0x605E), then off",
         ReactionClass::AbortConnection => "a: 0x6007 (quick stop)",
         ReactionClass::Warning => "warning",
+        ReactionClass::TorqueOff => "STO: switch on disabled",
     }
 }

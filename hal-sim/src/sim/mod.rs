@@ -105,6 +105,8 @@ impl Simulation {
         let tick = self.tier1.fast_tick(&m);
         if tick.slow_tick_due {
             self.drive.receive_report(&self.tier1.report());
+            // Tier 2 reads the STO inputs at the start of its slow period, as `rt::tier2` does on the target.
+            self.drive.set_sto_inputs(self.plant.sto_inputs());
             self.drive.background();
             self.drive.slow_tick();
             self.plant.set_digital_outputs(self.drive.output_pins());

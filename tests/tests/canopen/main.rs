@@ -6,4 +6,5 @@
 mod bus_errors;
 mod fuzz;
 mod node;
+mod sto;
 mod watchdog;

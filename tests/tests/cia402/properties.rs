@@ -7,7 +7,9 @@
 //!   ramps (0x605A = 1..8, read at transition 11), and in FRA with a fault reaction that ramps (class "f",
 //!   0x605E = 1, 2, torque applied before the fault); the brake is only released while torque is allowed;
 //! - transition 16 only with 0x605A = 5..8 (Gamma L834);
-//! - the statusword reports the state (IDX Table 2-5) and bit 4 is the power stage.
+//! - Safe Torque Off (EPOS4 AN ch. 9): with no new fault, the step ends with the power section off and in none of
+//!   RTSO, SO, OE, QSA, and «Shutdown» (2) never completes while it lasts;
+//! - the statusword reports the state (IDX Table 2-5), bit 4 is the power stage and bit 14 Safe Torque Off.
 
 use crate::support::*;
 use firmware::cia402::{
@@ -59,6 +61,7 @@ fn inputs() -> impl Strategy<Value = Inputs> {
         any::<bool>(),
         any::<bool>(),
         any::<bool>(),
+        prop::bool::weighted(0.1),
     )
         .prop_map(
             |(
@@ -72,6 +75,7 @@ fn inputs() -> impl Strategy<Value = Inputs> {
                 calibration_done,
                 standstill,
                 remote,
+                safe_torque_off,
             )| {
                 Inputs {
                     controlword: Controlword(cw),
@@ -83,6 +87,7 @@ fn inputs() -> impl Strategy<Value = Inputs> {
                     calibration_done,
                     standstill,
                     remote,
+                    safe_torque_off,
                     ..Inputs::default()
                 }
             },
@@ -174,12 +179,26 @@ fn check_sequence(config: Config, sequence: &[Inputs], start_time: u32) -> Resul
         if matches!(out.state, State::NotReadyToSwitchOn | State::SwitchOnDisabled | State::Fault) {
             prop_assert!(!out.power.enabled);
         }
+        // STO: the hardware took the torque; the machine keeps no power section on and does not leave «Switch on
+        // disabled» for «Ready to switch on».
+        if inputs.safe_torque_off {
+            if raised.is_none() {
+                prop_assert!(!out.power.enabled, "power section on in {:?} with STO", out.state);
+                let on_the_way = matches!(
+                    out.state,
+                    State::ReadyToSwitchOn | State::SwitchedOn | State::OperationEnabled | State::QuickStopActive
+                );
+                prop_assert!(!on_the_way, "{:?} with STO", out.state);
+            }
+            prop_assert_ne!(out.transition, Some(Transition::T2), "«Shutdown» accepted with STO");
+        }
 
         // Statusword.
         prop_assert_eq!(out.statusword.state(), Some(out.state));
         prop_assert_eq!(out.statusword.0 & 0x0010 != 0, out.power.enabled);
         prop_assert_eq!(out.statusword.0 & 0x0200 != 0, inputs.remote);
-        prop_assert_eq!(out.statusword.0 & 0x4100, 0, "bits 8 and 14 reserved");
+        prop_assert_eq!(out.statusword.0 & 0x0100, 0, "bit 8 reserved");
+        prop_assert_eq!(out.statusword.0 & 0x4000 != 0, inputs.safe_torque_off, "bit 14 Safe Torque Off");
 
         prev_state = out.state;
         prev_torque = torque;

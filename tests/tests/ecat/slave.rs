@@ -526,3 +526,91 @@ fn missed_frames_in_dc_mode_count_and_then_raise_the_sync_error() {
     assert_eq!(rig.sdo_upload(0x1C32, 0x20), Ok(vec![0]));
     assert_eq!(rig.al_status(), (0x0008, 0x0000));
 }
+
+/// Safe Torque Off at power-up must not block the EtherCAT state machine or SDO (issue 19 item 1; the field trap of
+/// a CiA 402 start-up that stalls on a de-energised STO input, ros2_canopen#421).
+///
+/// Proves, with both STO inputs de-energised from the first PWM period (EPOS4 AN ch. 9): INIT -> PRE-OP -> SAFE-OP
+/// -> OP with the default mapping and every LRW's working counter 3; CoE SDO uploads of 0x1000 and 0x6041 answer;
+/// the drive announces STO with a CoE emergency 0xFFA0 (fault number of `FaultId::SafeTorqueOff`); a master
+/// that sends «Shutdown», «Switch on», «Enable operation» from the TxPDO's statusword gets nowhere: the statusword
+/// stays «Switch on disabled» (0x40) with bit 14 set, 0x603F reads 0xFFA0 and the power stage stays off. Once the
+/// inputs are energised, the same master takes the drive to «Operation enabled» through the normal sequence, bit
+/// 14 clears and 0x603F reads 0.
+#[test]
+fn sto_low_at_power_up_reaches_op_and_refuses_to_enable() {
+    use firmware::hal::sto::StoInputs;
+    let mut sim = Simulation::reference(1);
+    sim.plant.set_sto_inputs(StoInputs::DEMANDED);
+    let mut rig = Rig::new(sim);
+    rig.enter_preop();
+    assert_eq!(rig.sdo_upload(0x1000, 0), Ok(0x0002_0192u32.to_le_bytes().to_vec()), "0x1000 device type");
+
+    let layout = ProcessDataLayout::compile(rig.sim.drive.dictionary()).expect("default mapping compiles");
+    let (out_len, in_len) = (layout.output_bytes, layout.input_bytes);
+    let outs = offsets(layout.output_items());
+    let ins = offsets(layout.input_items());
+    rig.configure_sm(2, generated::PROCESS_OUT_START, out_len, 0x64);
+    rig.configure_sm(3, generated::PROCESS_IN_START, in_len, 0x20);
+    rig.configure_fmmu(0, LOGICAL, out_len, generated::PROCESS_OUT_START, 0x02);
+    rig.configure_fmmu(1, LOGICAL + u32::from(out_len), in_len, generated::PROCESS_IN_START, 0x01);
+    assert_eq!(rig.request(0x0004), (0x0004, 0x0000), "SAFE-OP reached with STO active");
+    let total = usize::from(out_len + in_len);
+    let out_len = usize::from(out_len);
+    let (cw_at, mode_at) = (at(&outs, 0x6040), at(&outs, 0x6060));
+    let sw_at = at(&ins, 0x6041);
+    let image = |controlword: u16| {
+        let mut img = vec![0u8; total];
+        img[cw_at..cw_at + 2].copy_from_slice(&controlword.to_le_bytes());
+        img[mode_at] = 9;
+        img
+    };
+    let (_, wkc) = rig.lrw(&image(0));
+    assert_eq!(wkc, 3);
+    rig.cycle();
+    assert_eq!(rig.request(0x0008), (0x0008, 0x0000), "OP reached with STO active");
+
+    // A master following the statusword: «Shutdown», then «Switch on», then «Enable operation»; `cycles` 1 ms
+    // cycles or until the TxPDO shows «Operation enabled». Returns the last statusword.
+    let master = |rig: &mut Rig, cycles: u32, sto_active: bool| {
+        let mut statusword = 0u16;
+        for k in 0..cycles {
+            let controlword = match statusword & 0x6F {
+                0x21 => 0x0007,
+                0x23 | 0x27 => 0x000F,
+                _ => 0x0006,
+            };
+            let (inputs, wkc) = rig.lrw(&image(controlword));
+            assert_eq!(wkc, 3, "cycle {k}");
+            statusword = u16::from_le_bytes([inputs[out_len + sw_at], inputs[out_len + sw_at + 1]]);
+            if statusword & 0x6F == 0x27 {
+                break;
+            }
+            rig.cycle();
+            rig.poll();
+            for _ in 0..PERIODS_PER_CYCLE {
+                rig.step();
+                assert!(!(sto_active && rig.sim.command().enabled), "the power stage stays off with STO");
+            }
+        }
+        statusword
+    };
+    let statusword = master(&mut rig, 200, true);
+    assert_eq!(statusword & 0x6F, 0x40, "«Switch on disabled» after 200 cycles of «Shutdown»: {statusword:#06x}");
+    assert_ne!(statusword & (1 << 14), 0, "statusword bit 14: STO active");
+    assert_eq!(rig.sdo_upload(0x603F, 0), Ok(0xFFA0u16.to_le_bytes().to_vec()), "0x603F shows STO");
+    assert_eq!(rig.sdo_upload(0x1001, 0), Ok(vec![0]), "STO is not an error (0x1001)");
+    assert_eq!(rig.al_status(), (0x0008, 0x0000), "still OP");
+    let code = FaultId::SafeTorqueOff.info().code;
+    let emcy = rig.emergencies.iter().find(|e| u16::from_le_bytes([e[0], e[1]]) == code);
+    let emcy = emcy.unwrap_or_else(|| panic!("EMCY {code:04X} in the mailbox, got {:02X?}", rig.emergencies));
+    assert_eq!(emcy[3], FaultId::SafeTorqueOff.number(), "byte 3: the fault's number");
+
+    // STO released: the same master enables the drive through the normal sequence.
+    rig.sim.plant.set_sto_inputs(StoInputs::RELEASED);
+    let statusword = master(&mut rig, 500, false);
+    let enabled = statusword & 0x6F == 0x27;
+    assert!(enabled, "«Operation enabled» after STO was released: {statusword:#06x}");
+    assert_eq!(statusword & (1 << 14), 0, "bit 14 clear");
+    assert_eq!(rig.sdo_upload(0x603F, 0), Ok(vec![0, 0]), "0x603F clear");
+}

@@ -246,7 +246,8 @@ proptest! {
     }
 
     /// Random raise / clear / reset / poll sequences on the manager never panic, keep 0x1001 and 0x603F
-    /// consistent with the active set, and account for every EMCY.
+    /// consistent with the active set (0x603F shows the STO state when no fault is active), and account for every
+    /// EMCY.
     #[test]
     fn the_manager_never_panics_and_accounts_for_every_emcy(ops in prop::collection::vec(manager_op(), 0..300)) {
         let mut m: FaultManager<4> = FaultManager::new();
@@ -282,9 +283,11 @@ proptest! {
             }
             let register = m.active().fold(0u8, |acc, a| acc | a.id.info().register);
             prop_assert_eq!(m.error_register(), register);
-            prop_assert_eq!(m.error_code() == 0, !m.any_fault());
+            // 0x603F: a fault's code, or with no fault the Safe Torque Off state's (`fault::manager`).
+            prop_assert_eq!(m.error_code() == 0, !m.any_fault() && !m.safe_torque_off_active());
             if let Some(code) = (m.error_code() != 0).then(|| m.error_code()) {
-                prop_assert!(m.active().any(|a| a.id.info().code == code));
+                let sto = !m.any_fault() && code == FaultId::SafeTorqueOff.info().code;
+                prop_assert!(m.active().any(|a| a.id.info().code == code) || sto);
             }
             m.publish(&mut dict);
             prop_assert!(firmware::fault::history::count(&dict) <= firmware::fault::history::capacity(&dict));

@@ -13,7 +13,9 @@ fn every_fault_of_the_table_has_a_case() {
     for id in FaultId::ALL {
         assert!(covered.contains(&id), "no matrix case for {id:?}");
     }
-    assert_eq!(covered.len(), FAULT_COUNT, "one case per fault");
+    // One case per fault, and the STO discrepancy once per input (EPOS4 AN ch. 9: two channels).
+    assert_eq!(covered.len(), FAULT_COUNT + 1, "one case per fault, two for the STO discrepancy");
+    assert_eq!(covered.iter().filter(|&&id| id == FaultId::StoDiscrepancy).count(), 2);
 }
 
 #[test]

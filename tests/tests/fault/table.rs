@@ -1,8 +1,9 @@
 //! The fault table (`firmware::fault::table`) against its sources and against the generated dictionary.
 //!
 //! - Sanity: one row per `FaultId` in discriminant order, unique non-zero codes, valid error-register bits (bit 0
-//!   "generic" set for every fault as CiA 301 object 1001h asks, bit 6 reserved never set, no bits for warnings),
-//!   faults latch and warnings clear themselves.
+//!   "generic" set for every fault as CiA 301 object 1001h asks, bit 6 reserved never set, no bits for warnings
+//!   and the Safe Torque Off state), faults latch and warnings and the STO state clear themselves.
+//! - Safe Torque Off: no seed gives a code, so its two rows use the manufacturer block 0xFFA0.. (golden below).
 //! - Sources: every row that cites IDX carries the code, class letter and class register bit of IDX Table 7-153
 //!   (seed `002_*.txt` L7040-L7110, restated below as golden data).
 //! - Dictionary: the objects the fault handling writes exist with the types and access the manager assumes
@@ -10,7 +11,7 @@
 
 use firmware::cia402::FaultClass;
 use firmware::fault::table::{REG_GENERIC, REG_RESERVED};
-use firmware::fault::{FaultId, LatchPolicy, ReactionClass, FAULT_COUNT, FAULT_TABLE};
+use firmware::fault::{Cause, FaultId, LatchPolicy, ReactionClass, Tier, FAULT_COUNT, FAULT_TABLE};
 use firmware::od::access::Dictionary;
 use firmware::od::entry::{Access, DataType, Limits, ObjectCode, PdoMapping, Storage};
 use firmware::od::generated::handles::{ERROR_CODE, ERROR_REGISTER};
@@ -50,6 +51,7 @@ fn letter(class: ReactionClass) -> char {
         ReactionClass::QuickStopThenDisable => 'f',
         ReactionClass::AbortConnection => 'a',
         ReactionClass::Warning => 'w',
+        ReactionClass::TorqueOff => 's',
     }
 }
 
@@ -81,8 +83,8 @@ fn codes_are_unique_and_not_the_reset_code() {
 fn register_bits_follow_cia_301() {
     for info in &FAULT_TABLE {
         assert_eq!(info.register & REG_RESERVED, 0, "{:?}: bit 6 is reserved", info.id);
-        if info.reaction.is_warning() {
-            assert_eq!(info.register, 0, "{:?}: warnings are not errors", info.id);
+        if !info.reaction.is_fault() {
+            assert_eq!(info.register, 0, "{:?}: warnings and the STO state are not errors", info.id);
         } else {
             assert_ne!(info.register & REG_GENERIC, 0, "{:?}: bit 0 'generic' goes with every fault", info.id);
         }
@@ -92,7 +94,7 @@ fn register_bits_follow_cia_301() {
 #[test]
 fn faults_latch_and_warnings_clear_themselves() {
     for info in &FAULT_TABLE {
-        let expected = if info.reaction.is_warning() { LatchPolicy::SelfClearing } else { LatchPolicy::Latching };
+        let expected = if info.reaction.is_fault() { LatchPolicy::Latching } else { LatchPolicy::SelfClearing };
         assert_eq!(info.latch, expected, "{:?}", info.id);
     }
     // The required warnings and their fault variants.
@@ -100,6 +102,27 @@ fn faults_latch_and_warnings_clear_themselves() {
     assert!(!FaultId::MotorThermalOverload.info().reaction.is_warning());
     assert!(FaultId::PowerStageTemperatureHigh.info().reaction.is_warning());
     assert!(!FaultId::PowerStageOverTemperature.info().reaction.is_warning());
+}
+
+/// Safe Torque Off (EPOS4 AN ch. 9; no seed code): the state 0xFFA0 (no register bit, clears itself, takes the
+/// machine to «Switch on disabled» rather than «Fault») and the input discrepancy 0xFFA1 (class d, latching until
+/// the inputs agree and a fault reset), both detected in tier 2 and outside IDX's 0xFF01..0xFF22.
+#[test]
+fn safe_torque_off_rows() {
+    let sto = FaultId::SafeTorqueOff.info();
+    assert_eq!((sto.code, sto.register, sto.reaction), (0xFFA0, 0, ReactionClass::TorqueOff));
+    assert_eq!((sto.latch, sto.cause, sto.tier), (LatchPolicy::SelfClearing, Cause::Level, Tier::Supervision));
+    assert_eq!(sto.reaction.machine_class(), None);
+    let discrepancy = FaultId::StoDiscrepancy.info();
+    assert_eq!(
+        (discrepancy.code, discrepancy.register, discrepancy.reaction),
+        (0xFFA1, REG_GENERIC, ReactionClass::DisablePowerImmediately)
+    );
+    assert_eq!(
+        (discrepancy.latch, discrepancy.cause, discrepancy.tier),
+        (LatchPolicy::Latching, Cause::Level, Tier::Supervision)
+    );
+    assert!(!(0xFF01..=0xFF22).contains(&sto.code) && !(0xFF01..=0xFF22).contains(&discrepancy.code));
 }
 
 #[test]
@@ -124,6 +147,7 @@ fn reaction_classes_map_to_the_state_machine() {
     assert_eq!(ReactionClass::QuickStopThenDisable.machine_class(), Some(FaultClass::Reaction));
     assert_eq!(ReactionClass::AbortConnection.machine_class(), None);
     assert_eq!(ReactionClass::Warning.machine_class(), None);
+    assert_eq!(ReactionClass::TorqueOff.machine_class(), None);
     // Communication faults are exactly those with register bit 4 (IDX Table 7-153: class a <=> 0001 0000b).
     for info in &FAULT_TABLE {
         let comm = info.register & firmware::fault::table::REG_COMMUNICATION != 0;

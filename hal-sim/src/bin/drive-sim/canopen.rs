@@ -3,7 +3,7 @@
 //!
 //! ```text
 //! drive-sim canopen --port N [--nodes K] [--bit-rate BPS] [--lock-step] [--sync-us N] [--seconds S]
-//!                   [--idle-exit-ms N] [--seed N] [--no-image ID]...
+//!                   [--idle-exit-ms N] [--seed N] [--no-image ID]... [--sto-open ID]...
 //! ```
 //! `--port 0` picks a free port; the chosen one is printed as `port=N` before anything else, so a test can read
 //! it. It runs until `--seconds` of wall time, or until `--idle-exit-ms` without a client frame once a client
@@ -12,6 +12,9 @@
 //! `--no-image ID` (repeatable, 1..=K) erases slot A of node ID before its first boot: the bootloader finds no
 //! valid image and serves its CAN fallback on that node-ID (boot-up, program control 0x1F50/0x1F51/0x1F56/0x1F57,
 //! device type 0x0000012E), through which a master loads a signed image and starts it (issue 7, item 4).
+//!
+//! `--sto-open ID` (repeatable, 1..=K) de-energises both Safe Torque Off inputs of node ID's plant before its first
+//! period, for the whole run: the drive starts with STO active (issue 19 item 1; EPOS4 AN ch. 9).
 
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
@@ -20,17 +23,20 @@ use hal_sim::can::socketcand::SocketcandServer;
 use hal_sim::sim::canopen::{CanClock, CanopenConfig, CanopenRunner};
 
 const USAGE: &str = "usage: drive-sim canopen --port N [--nodes K] [--bit-rate BPS] [--lock-step] [--sync-us N] \
-                     [--seconds S] [--idle-exit-ms N] [--seed N] [--no-image ID]...";
+                     [--seconds S] [--idle-exit-ms N] [--seed N] [--no-image ID]... [--sto-open ID]...";
 
 struct Args {
     port: u16,
     config: CanopenConfig,
     seconds: Option<f64>,
     idle_exit_ms: Option<u64>,
+    /// Node-IDs whose STO inputs are de-energised from power-up.
+    sto_open: Vec<u8>,
 }
 
 fn parse(args: &[String]) -> Result<Args, String> {
-    let mut out = Args { port: 0, config: CanopenConfig::default(), seconds: None, idle_exit_ms: None };
+    let mut out =
+        Args { port: 0, config: CanopenConfig::default(), seconds: None, idle_exit_ms: None, sto_open: Vec::new() };
     let mut port = None;
     let mut it = args.iter();
     while let Some(a) = it.next() {
@@ -70,12 +76,22 @@ fn parse(args: &[String]) -> Result<Args, String> {
                 }
                 out.config = out.config.with_empty_slot(id);
             }
+            "--sto-open" => {
+                let id: u8 = value("--sto-open")?.parse().map_err(|e| format!("--sto-open: {e}"))?;
+                if !(1..=127).contains(&id) {
+                    return Err(format!("--sto-open {id}: a node-ID 1..=127"));
+                }
+                out.sto_open.push(id);
+            }
             other => return Err(format!("unknown argument {other}\n{USAGE}")),
         }
     }
     out.port = port.ok_or_else(|| format!("--port is required\n{USAGE}"))?;
     if let Some(id) = (1..=127u8).find(|&id| out.config.empty_slot(id) && id > out.config.nodes) {
         return Err(format!("--no-image {id}: only node-IDs 1..={} are on the bus", out.config.nodes));
+    }
+    if let Some(id) = out.sto_open.iter().find(|&&id| id > out.config.nodes) {
+        return Err(format!("--sto-open {id}: only node-IDs 1..={} are on the bus", out.config.nodes));
     }
     Ok(out)
 }
@@ -106,6 +122,12 @@ pub fn run(args: &[String]) -> Result<(), String> {
     let mut runner = CanopenRunner::new(args.config);
     for d in runner.drives.iter().filter(|d| d.in_fallback()) {
         println!("  node {}: slot A holds no valid image ({:?}): bootloader fallback", d.node.node_id(), d.last_boot);
+    }
+    for &id in &args.sto_open {
+        if let Some(d) = runner.drive_mut(id) {
+            d.sim.plant.set_sto_inputs(firmware::hal::sto::StoInputs::DEMANDED);
+            println!("  node {id}: STO-IN1 and STO-IN2 de-energised (Safe Torque Off active from power-up)");
+        }
     }
     // The nodes boot before anyone connects (their boot-up messages go nowhere, as on a bus without a master).
     runner.run_for(2_000_000);
