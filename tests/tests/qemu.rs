@@ -45,9 +45,9 @@ const ECAT_CYCLE_BUDGET: u64 = 1_500;
 /// more lowers the others first or raises its budget here, with its reason in the commit, up to the ceiling.
 /// Raised by 3 to 4 KiB for the regeneration work (the bus-voltage limiter, the braking chopper with its resistor
 /// model and 13 dictionary entries, the stop ramp that follows the limiter: +3,660 to +4,268 bytes of text + data),
-/// which Safe Torque Off (+564 to +652) and the smaller CRC table of the update code (-928 to -332) then moved.
-/// Measured at the last change: 183,520, 213,444 and 221,420.
-const TEXT_BUDGETS: [(&str, u64); 3] = [("can", 180 * 1024), ("ethercat", 209 * 1024), ("ethercat_defmt", 217 * 1024)];
+/// which Safe Torque Off (+564 to +652), the smaller CRC table of the update code (-928 to -332) and the bus-off
+/// recovery EMCY (+156) then moved. Measured at the last change: 183,676, 213,992 and 221,984.
+const TEXT_BUDGETS: [(&str, u64); 3] = [("can", 181 * 1024), ("ethercat", 210 * 1024), ("ethercat_defmt", 218 * 1024)];
 
 #[test]
 fn board_images_fit_their_text_budgets() {

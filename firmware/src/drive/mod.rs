@@ -241,6 +241,8 @@ pub struct Drive {
     bus_limiter: BusVoltageLimiter,
     /// The braking chopper (0x3203).
     chopper: BrakingChopper,
+    /// An event warning ([`FaultId::CanBusOffRecovered`]) was raised: it goes at the next background step.
+    event_warning_shown: bool,
     /// The STO inputs tier 2 read for this slow period ([`Self::set_sto_inputs`]).
     sto_inputs: StoInputs,
 }
@@ -296,6 +298,7 @@ impl Drive {
             output_pins: 0,
             bus_limiter: BusVoltageLimiter::default(),
             chopper: BrakingChopper::default(),
+            event_warning_shown: false,
             sto_inputs: StoInputs::RELEASED,
             dictionary,
         };
@@ -424,6 +427,9 @@ impl Drive {
     /// and converts, with 64- and 128-bit arithmetic, only what changed).
     pub fn background(&mut self) {
         let before = self.setpoint.version;
+        if core::mem::take(&mut self.event_warning_shown) {
+            self.axis.faults_mut().clear_cause(FaultId::CanBusOffRecovered);
+        }
         self.refresh_parameters();
         self.publish_actual_values();
         self.axis.refresh(&mut self.dictionary);
@@ -586,6 +592,12 @@ impl Drive {
     /// accepted from now on (the fault itself stays until then).
     pub fn communication_restored(&mut self, loss: LinkLoss) {
         self.axis.faults_mut().clear_cause(loss.fault());
+        if loss == LinkLoss::CanBusOff {
+            // CiA 301's EMCY 0x8140 "recovered from bus off": an event, sent once; the warning it is stays for one
+            // slow period (statusword bit 7) and goes at the next background step.
+            self.raise(FaultId::CanBusOffRecovered, 0);
+            self.event_warning_shown = true;
+        }
     }
 
     /// The next EMCY frame to send (CiA 301, 8 bytes; [`crate::fault::emcy`]), respecting the inhibit time

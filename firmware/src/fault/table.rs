@@ -241,10 +241,12 @@ pub enum FaultId {
     StoDiscrepancy = 35,
     /// Warning: the braking resistor's thermal model reached its limit; the chopper is off until it has cooled.
     ChopperOverload = 36,
+    /// The CAN controller is back on the bus after a bus-off (reported once, as an event).
+    CanBusOffRecovered = 37,
 }
 
 /// Number of rows in [`FAULT_TABLE`].
-pub const FAULT_COUNT: usize = 37;
+pub const FAULT_COUNT: usize = 38;
 
 /// One row of the fault table.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -311,6 +313,7 @@ impl FaultId {
         Self::SafeTorqueOff,
         Self::StoDiscrepancy,
         Self::ChopperOverload,
+        Self::CanBusOffRecovered,
     ];
 
     /// The stable fault number (the table row; EMCY manufacturer byte 3).
@@ -789,5 +792,14 @@ pub static FAULT_TABLE: [FaultInfo; FAULT_COUNT] = [
         "Braking chopper overload",
         "CiA 402 error code 7113h (brake chopper protective circuit); no seed has a chopper; the bus-voltage limiter \
          0x3202 keeps the bus below the trip while the chopper is off",
+    ),
+    warning(
+        FaultId::CanBusOffRecovered,
+        0x8140,
+        Event,
+        Tier::Background,
+        S::Detail,
+        "Recovered from bus off",
+        "CiA 301 EMCY error code 8140h: the node rejoined the bus; the bus-off fault 0x81FD stays until a fault reset",
     ),
 ];

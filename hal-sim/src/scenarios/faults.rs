@@ -521,6 +521,16 @@ pub fn cases() -> Vec<Case> {
             |b| b.sim.drive.communication_restored(LinkLoss::CanBusOff),
         ),
         case(
+            F::CanBusOffRecovered,
+            // The CANopen layer reports the return (`CanopenNode::observe_bus`); the bus-off before it, a fault of
+            // its own with the 0x6007 reaction, is the case above.
+            "CAN controller back on the bus after a bus-off (CANopen layer)",
+            S::RunningCsv,
+            10,
+            |b| b.sim.drive.communication_restored(LinkLoss::CanBusOff),
+            nothing,
+        ),
+        case(
             F::CanRxOverrun,
             "3 frames lost in the receive FIFO (CANopen layer)",
             S::RunningCsv,

@@ -60,7 +60,8 @@ fn error_passive_sends_emcy_0x8120() {
 }
 
 /// IDX 7.2.36 and ISO 11898-1 §12.1.4: a bus-off node sends nothing for 100 ms (no heartbeat, no EMCY); when
-/// the controller is back on the bus the queued EMCY 0x81FD leaves, and the heartbeat resumes.
+/// the controller is back on the bus the queued EMCY 0x81FD leaves, then CiA 301's 0x8140 "recovered from bus
+/// off" (a warning: error register 0x11 of the bus-off still active, detail 0), and the heartbeat resumes.
 #[test]
 fn bus_off_holds_the_emcy_0x81fd_until_the_controller_is_back() {
     let mut r = booted();
@@ -69,8 +70,9 @@ fn bus_off_holds_the_emcy_0x81fd_until_the_controller_is_back() {
     assert_eq!(silent.iter().filter(|d| d.frame.id() & 0x7F == u16::from(NODE)).count(), 0, "{silent:?}");
     set_controller(&mut r, BusState::ErrorActive, 0, 0);
     let back = r.run_for(30_000_000);
-    assert_eq!(emcys(&back), vec![expected(FaultId::CanBusOff, 0)]);
+    assert_eq!(emcys(&back), vec![expected(FaultId::CanBusOff, 0), expected(FaultId::CanBusOffRecovered, 0)]);
     assert_eq!(FaultId::CanBusOff.info().code, 0x81FD);
+    assert_eq!(FaultId::CanBusOffRecovered.info().code, 0x8140);
     assert!(heartbeats(&back) >= 2, "the heartbeat resumes: {back:?}");
 }
 
