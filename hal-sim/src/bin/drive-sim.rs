@@ -200,12 +200,7 @@ fn time_plot(trace: &Trace, title: &str, signals: &[(&str, &str)], y_label: &str
 
 fn current_step(args: &Args, dir: &Path) -> Result<(), String> {
     let s = setup(args);
-    println!(
-        "current-step: plant (seed {}), shunt offsets {:?} LSB, {}",
-        s.seed,
-        s.offsets_lsb,
-        gains_text(&s)
-    );
+    println!("current-step: plant (seed {}), shunt offsets {:?} LSB, {}", s.seed, s.offsets_lsb, gains_text(&s));
     let step = scenarios::current_step(&s, 2.0 * PlantScale::current_plant().current).map_err(|e| e.to_string())?;
     let p = step.prepared;
     println!(
@@ -247,8 +242,13 @@ fn current_step(args: &Args, dir: &Path) -> Result<(), String> {
     write(&step.trace, &plot, dir, "step")?;
 
     let sc = PlantScale::current_plant();
-    let sweep = scenarios::bandwidth(&s, 2.0 * sc.current, 1.0 * sc.current, &SWEEP_FREQUENCIES_HZ).map_err(|e| e.to_string())?;
-    println!("\nClosed-loop frequency response, q reference 2 A + 1 A sine (no zero crossing), rotor locked:");
+    let sweep = scenarios::bandwidth(&s, 2.0 * sc.current, 1.0 * sc.current, &SWEEP_FREQUENCIES_HZ)
+        .map_err(|e| e.to_string())?;
+    println!(
+        "\nClosed-loop frequency response, q reference {:.2} A + {:.2} A sine (no zero crossing), rotor locked:",
+        2.0 * sc.current,
+        1.0 * sc.current
+    );
     println!("  {:>8}  {:>8}  {:>9}", "f [Hz]", "gain[dB]", "phase[deg]");
     for pt in &sweep.points {
         println!("  {:8.0}  {:8.2}  {:9.1}", pt.freq_hz, pt.gain_db(), pt.phase_deg);
@@ -387,7 +387,8 @@ fn csp(args: &Args, dir: &Path) -> Result<(), String> {
 
 fn csv_sweep(args: &Args, dir: &Path) -> Result<(), String> {
     println!("csv-sweep: plant (seed {}), CiA 402 CSV", args.seed);
-    let (step, trace) = motion::csv_step(args.seed, 100.0 * PlantScale::current_plant().speed).map_err(|e| e.to_string())?;
+    let (step, trace) =
+        motion::csv_step(args.seed, 100.0 * PlantScale::current_plant().speed).map_err(|e| e.to_string())?;
     println!("  velocity step 0 -> {:.0} rpm (plant's true speed):", step.step_rpm);
     println!("    overshoot          {:6.2} %   (bound <= 10 %)", step.overshoot_pct);
     println!("    settling to +-2 %  {:6.1} ms", step.settle_ms);
@@ -461,10 +462,7 @@ fn ppm(args: &Args, dir: &Path) -> Result<(), String> {
     let sc = PlantScale::current_plant();
     let stop_rpm = (5000.0 * sc.speed).round() as i32;
     let stop_rpm_per_s = (f64::from(QUICK_STOP_RPM_PER_S) * sc.speed).round() as u32;
-    println!(
-        "ppm: plant (seed {}), CiA 402 PPM, absolute moves from rest, position window 0x6067 = 10 inc",
-        args.seed
-    );
+    println!("ppm: plant (seed {}), CiA 402 PPM, absolute moves from rest, position window 0x6067 = 10 inc", args.seed);
     let mut worst = i64::MIN;
     let mut bus_peak = 0.0_f64;
     for (name, profile_type, distance, p) in [
@@ -479,8 +477,9 @@ fn ppm(args: &Args, dir: &Path) -> Result<(), String> {
             acceleration_rpm_per_s: scaled(p.acceleration_rpm_per_s),
             deceleration_rpm_per_s: scaled(p.deceleration_rpm_per_s),
         };
-        let (f, trace) = profile::ppm_move(args.seed, profile_type, (f64::from(distance) * sc.speed).round() as i32, &p)
-            .map_err(|e| e.to_string())?;
+        let (f, trace) =
+            profile::ppm_move(args.seed, profile_type, (f64::from(distance) * sc.speed).round() as i32, &p)
+                .map_err(|e| e.to_string())?;
         println!("  {name}:");
         println!(
             "    profile {} ticks; bit 10 {} tick(s) after the profile's end (bound <= 2); final error {} inc; peak \

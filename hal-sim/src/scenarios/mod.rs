@@ -80,7 +80,8 @@ impl PlantScale {
     /// The scale of `params` (all 1 exactly for the reference plant).
     pub fn of(params: &PlantParams) -> Self {
         let r = PlantParams::reference();
-        let peak_torque = |p: &PlantParams| p.torque_constant_nm_per_a() * p.peak_current_a * p.gear_ratio * p.gear_efficiency;
+        let peak_torque =
+            |p: &PlantParams| p.torque_constant_nm_per_a() * p.peak_current_a * p.gear_ratio * p.gear_efficiency;
         Self {
             speed: params.max_speed_rpm / r.max_speed_rpm,
             current: params.peak_current_a / r.peak_current_a,

@@ -195,7 +195,10 @@ impl Simulation {
         d.set(h::MOTOR_NOMINAL_CURRENT, milli(params.nominal_current_a));
         d.set(h::MOTOR_OUTPUT_CURRENT_LIMIT, milli(params.peak_current_a).min(12_000));
         d.set(h::MOTOR_POLE_PAIRS, u8::try_from(params.pole_pairs).unwrap_or(u8::MAX));
-        d.set(h::MOTOR_THERMAL_TIME_CONSTANT, (params.winding_time_constant_s * 10.0).round().clamp(1.0, 5400.0) as u16);
+        d.set(
+            h::MOTOR_THERMAL_TIME_CONSTANT,
+            (params.winding_time_constant_s * 10.0).round().clamp(1.0, 5400.0) as u16,
+        );
         d.set(h::MOTOR_TORQUE_CONSTANT, (params.torque_constant_nm_per_a() * 1e6).round().clamp(1.0, 1e7) as u32);
         d.set(h::MOTOR_PHASE_RESISTANCE, milli(params.phase_resistance_ohm));
         d.set(h::MOTOR_PHASE_INDUCTANCE, (params.lq_h * 1e6).round().clamp(1.0, 65_535.0) as u16);

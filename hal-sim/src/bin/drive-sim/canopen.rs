@@ -80,8 +80,8 @@ fn parse(args: &[String]) -> Result<Args, String> {
                 out.idle_exit_ms = Some(value("--idle-exit-ms")?.parse().map_err(|e| format!("--idle-exit-ms: {e}"))?);
             }
             "--plant" => {
-                out.plant = PlantParams::from_toml_file(std::path::Path::new(&value("--plant")?))
-                    .map_err(|e| e.to_string())?;
+                out.plant =
+                    PlantParams::from_toml_file(std::path::Path::new(&value("--plant")?)).map_err(|e| e.to_string())?;
             }
             "--seed" => out.config.seed = value("--seed")?.parse().map_err(|e| format!("--seed: {e}"))?,
             "--no-image" => {
