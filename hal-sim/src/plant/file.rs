@@ -164,7 +164,7 @@ impl PlantParams {
         if self.coupling_is_compliant() && self.load_inertia_kg_m2 <= 0.0 {
             return Err(("load_inertia_kg_m2", "must be positive with a compliant coupling (the load side)".into()));
         }
-        if self.encoder_counts_per_rev < 4 || self.encoder_counts_per_rev % 4 != 0 {
+        if self.encoder_counts_per_rev < 4 || !self.encoder_counts_per_rev.is_multiple_of(4) {
             return Err((
                 "encoder_counts_per_rev",
                 format!("must be a positive multiple of 4 (quadrature), got {}", self.encoder_counts_per_rev),
@@ -173,7 +173,7 @@ impl PlantParams {
         if self.index_count >= self.encoder_counts_per_rev {
             return Err(("index_count", format!("must be below encoder_counts_per_rev, got {}", self.index_count)));
         }
-        if self.load_encoder_counts_per_rev % 4 != 0 {
+        if !self.load_encoder_counts_per_rev.is_multiple_of(4) {
             return Err((
                 "load_encoder_counts_per_rev",
                 format!("must be 0 (none) or a multiple of 4 (quadrature), got {}", self.load_encoder_counts_per_rev),

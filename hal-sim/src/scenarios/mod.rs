@@ -111,7 +111,7 @@ pub struct Setup {
     pub gains: Gains,
     /// Mechanical angle the rotor starts at, rad.
     pub start_angle_rad: f64,
-    /// q current of the commissioning run, A.
+    /// q current of the commissioning run on the reference plant, A (scaled by [`PlantScale::current`] on another).
     pub commissioning_a: f64,
 }
 
@@ -158,7 +158,9 @@ pub fn prepare_plant(mut params: PlantParams, setup: &Setup) -> Result<(Simulati
         sim.set_current_gains(p, i);
     }
     sim.run(10);
-    let calibration_ticks = sim.commission(setup.commissioning_a)?;
+    // The commissioning current is the reference plant's; another plant gets the same share of its peak current.
+    let commissioning_a = setup.commissioning_a * PlantScale::of(&params).current;
+    let calibration_ticks = sim.commission(commissioning_a)?;
     let (est, residual) = offsets_of(&sim, setup);
     let angle_error_deg = angle_error_deg(&sim);
     Ok((
