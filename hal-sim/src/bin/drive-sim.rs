@@ -21,6 +21,13 @@
 //!                   [--sto-open ID]...                         node ID with both STO inputs de-energised
 //! ```
 //!
+//! Every scenario command (the `ethercat` and `canopen` servers too) takes `--plant FILE`: a plant file
+//! (`hal_sim::plant::file`, presets in `hal-sim/presets/`) instead of the reference plant. The drive is configured
+//! for it from its ratings (`Simulation::commission_motor_data`: 0x3001 motor data, 0x3010:01 encoder lines,
+//! 0x6073, 0x6080, 0x607F), and the scenario's numbers scale with the plant's ratings against the reference
+//! (`scenarios::PlantScale`; see [`PLANT_HELP`]). The gains stay the reference-tuned defaults, so on another plant a
+//! scenario may perform badly or trip until auto-tuning exists.
+//!
 //! Each scenario prints a human-readable report, the paths of the CSV traces and SVG plots it wrote (under
 //! `out/<scenario>/` of the current directory unless `--out` says otherwise), and as its last lines one
 //! `key=value` per figure (the stable measurement interface).
@@ -37,20 +44,32 @@ use hal_sim::plant::PlantParams;
 use hal_sim::scenarios::motion::{self, CspConfig};
 use hal_sim::scenarios::profile::{self, Profile};
 use hal_sim::scenarios::regeneration::{self, ChopperRating};
-use hal_sim::scenarios::{self, Setup, SpinConfig, SpinStepFigures, SWEEP_FREQUENCIES_HZ};
+use hal_sim::scenarios::{self, PlantScale, Setup, SpinConfig, SpinStepFigures, SWEEP_FREQUENCIES_HZ};
 use hal_sim::scenarios::{duty_cycle, faults, homing};
 use hal_sim::sim::ethercat::{ClockMode, EthercatConfig, EthercatRunner};
 use hal_sim::sim::plot::{Plot, Series};
 use hal_sim::sim::trace::Trace;
 
+/// How `--plant FILE` scales each scenario (printed with the usage).
+const PLANT_HELP: &str = "--plant FILE: run on the plant of a TOML plant file (keys: PlantParams' fields; presets in \
+hal-sim/presets/). The drive gets the plant's motor data (0x3001, 0x3010:01, 0x6073, 0x6080, 0x607F); the gains stay \
+the reference-tuned ones. Scaling against the reference plant, so a scenario means the same on every plant: speeds, \
+accelerations and distances in revolutions x max_speed_rpm / 5000 (a move keeps its timing); currents (steps, \
+sweep bias and amplitude, spinning base and high current) x peak_current_a / 10; load torques (at the output) x \
+kt * peak_current_a * gear_ratio * gear_efficiency / 0.335 N m. Scaled: current-step, spinning, csp, csv-sweep, ppm \
+(moves and quick stops). Not scaled (reference numbers): homing, fault-matrix, duty-cycle, bench, and the servers, \
+whose motion comes from the master.";
+
 const USAGE: &str =
-    "usage: drive-sim <current-step | spinning | csp | csv-sweep | ppm | homing | fault-matrix | duty-cycle | bench | ethercat | canopen> [--seed N] [--default-gains | --gains P,I] \
+    "usage: drive-sim <current-step | spinning | csp | csv-sweep | ppm | homing | fault-matrix | duty-cycle | bench | ethercat | canopen> [--plant FILE] [--seed N] [--default-gains | --gains P,I] \
                      [--out DIR] [--seconds S] [--only TEXT] \
                      [--iface NAME --lock-step --cycle-us N --clock-error-ppm X --idle-exit-ms N --pcap FILE --idle-cycle \
                      --drive-clock-error-ppm X --sto-open]";
 
 struct Args {
     scenario: String,
+    /// `--plant FILE`: the plant file, none for the reference plant.
+    plant: Option<PathBuf>,
     seed: u64,
     default_gains: bool,
     gains: Option<(u32, u32)>,
@@ -85,9 +104,10 @@ struct EcatArgs {
 
 fn parse_args() -> Result<Args, String> {
     let mut it = std::env::args().skip(1);
-    let scenario = it.next().ok_or_else(|| USAGE.to_owned())?;
+    let scenario = it.next().ok_or_else(|| format!("{USAGE}\n{PLANT_HELP}"))?;
     let mut args = Args {
         scenario,
+        plant: None,
         seed: 1,
         default_gains: false,
         gains: None,
@@ -101,6 +121,7 @@ fn parse_args() -> Result<Args, String> {
         let mut value = |name: &str| it.next().ok_or_else(|| format!("{name} needs a value\n{USAGE}"));
         match a.as_str() {
             "--seed" => args.seed = value("--seed")?.parse().map_err(|e| format!("--seed: {e}"))?,
+            "--plant" => args.plant = Some(PathBuf::from(value("--plant")?)),
             "--default-gains" => args.default_gains = true,
             "--gains" => {
                 let v = value("--gains")?;
@@ -179,13 +200,8 @@ fn time_plot(trace: &Trace, title: &str, signals: &[(&str, &str)], y_label: &str
 
 fn current_step(args: &Args, dir: &Path) -> Result<(), String> {
     let s = setup(args);
-    println!(
-        "current-step: reference plant (seed {}), shunt offsets {:?} LSB, {}",
-        s.seed,
-        s.offsets_lsb,
-        gains_text(&s)
-    );
-    let step = scenarios::current_step(&s, 2.0).map_err(|e| e.to_string())?;
+    println!("current-step: plant (seed {}), shunt offsets {:?} LSB, {}", s.seed, s.offsets_lsb, gains_text(&s));
+    let step = scenarios::current_step(&s, 2.0 * PlantScale::current_plant().current).map_err(|e| e.to_string())?;
     let p = step.prepared;
     println!(
         "\nOffset calibration (CiA 402 transition 3, {} ticks = {:.1} ms):",
@@ -225,8 +241,14 @@ fn current_step(args: &Args, dir: &Path) -> Result<(), String> {
     );
     write(&step.trace, &plot, dir, "step")?;
 
-    let sweep = scenarios::bandwidth(&s, 2.0, 1.0, &SWEEP_FREQUENCIES_HZ).map_err(|e| e.to_string())?;
-    println!("\nClosed-loop frequency response, q reference 2 A + 1 A sine (no zero crossing), rotor locked:");
+    let sc = PlantScale::current_plant();
+    let sweep = scenarios::bandwidth(&s, 2.0 * sc.current, 1.0 * sc.current, &SWEEP_FREQUENCIES_HZ)
+        .map_err(|e| e.to_string())?;
+    println!(
+        "\nClosed-loop frequency response, q reference {:.2} A + {:.2} A sine (no zero crossing), rotor locked:",
+        2.0 * sc.current,
+        1.0 * sc.current
+    );
     println!("  {:>8}  {:>8}  {:>9}", "f [Hz]", "gain[dB]", "phase[deg]");
     for pt in &sweep.points {
         println!("  {:8.0}  {:8.2}  {:9.1}", pt.freq_hz, pt.gain_db(), pt.phase_deg);
@@ -267,9 +289,17 @@ fn print_spin(name: &str, f: &SpinStepFigures) {
 
 fn spinning(args: &Args, dir: &Path) -> Result<(), String> {
     let s = setup(args);
-    let cfg = SpinConfig::default();
+    let sc = PlantScale::current_plant();
+    let d = SpinConfig::default();
+    let cfg = SpinConfig {
+        speed_rpm: d.speed_rpm * sc.speed,
+        base_a: d.base_a * sc.current,
+        high_a: d.high_a * sc.current,
+        load_nm: d.load_nm * sc.torque,
+        ..d
+    };
     println!(
-        "spinning: reference plant (seed {}), free shaft at {:.0} rpm, q current {:.1} A -> {:.1} A with a {:.2} N m load step, back after {:.0} ms; {}",
+        "spinning: plant (seed {}), free shaft at {:.0} rpm, q current {:.1} A -> {:.1} A with a {:.2} N m load step, back after {:.0} ms; {}",
         s.seed, cfg.speed_rpm, cfg.base_a, cfg.high_a, cfg.load_nm, cfg.phase_ms, gains_text(&s)
     );
     let r = scenarios::spinning(&s, &cfg).map_err(|e| e.to_string())?;
@@ -309,9 +339,18 @@ fn seconds_plot(trace: &Trace, title: &str, signals: &[(&str, &str)], y_label: &
 }
 
 fn csp(args: &Args, dir: &Path) -> Result<(), String> {
-    let cfg = CspConfig { seed: args.seed, position_gains: args.position_gains, ..CspConfig::default() };
+    let sc = PlantScale::current_plant();
+    let d = CspConfig::default();
+    let cfg = CspConfig {
+        seed: args.seed,
+        position_gains: args.position_gains,
+        revolutions: d.revolutions * sc.speed,
+        max_rpm: d.max_rpm * sc.speed,
+        peak_rpm_per_s: d.peak_rpm_per_s * sc.speed,
+        ..d
+    };
     println!(
-        "csp: reference plant (seed {}), CiA 402 CSP, set-points every {:.1} ms (0x60C2 the same), {} revolutions, \
+        "csp: plant (seed {}), CiA 402 CSP, set-points every {:.1} ms (0x60C2 the same), {} revolutions, \
          jerk-limited (sin² ramps) up to {:.0} rpm and {:.0} rpm/s",
         cfg.seed,
         cfg.cycle_periods as f64 * 0.04,
@@ -347,8 +386,9 @@ fn csp(args: &Args, dir: &Path) -> Result<(), String> {
 }
 
 fn csv_sweep(args: &Args, dir: &Path) -> Result<(), String> {
-    println!("csv-sweep: reference plant (seed {}), CiA 402 CSV", args.seed);
-    let (step, trace) = motion::csv_step(args.seed, 100.0).map_err(|e| e.to_string())?;
+    println!("csv-sweep: plant (seed {}), CiA 402 CSV", args.seed);
+    let (step, trace) =
+        motion::csv_step(args.seed, 100.0 * PlantScale::current_plant().speed).map_err(|e| e.to_string())?;
     println!("  velocity step 0 -> {:.0} rpm (plant's true speed):", step.step_rpm);
     println!("    overshoot          {:6.2} %   (bound <= 10 %)", step.overshoot_pct);
     println!("    settling to +-2 %  {:6.1} ms", step.settle_ms);
@@ -419,10 +459,10 @@ fn print_quick_stop(name: &str, f: &regeneration::QuickStopFigures) {
 }
 
 fn ppm(args: &Args, dir: &Path) -> Result<(), String> {
-    println!(
-        "ppm: reference plant (seed {}), CiA 402 PPM, absolute moves from rest, position window 0x6067 = 10 inc",
-        args.seed
-    );
+    let sc = PlantScale::current_plant();
+    let stop_rpm = (5000.0 * sc.speed).round() as i32;
+    let stop_rpm_per_s = (f64::from(QUICK_STOP_RPM_PER_S) * sc.speed).round() as u32;
+    println!("ppm: plant (seed {}), CiA 402 PPM, absolute moves from rest, position window 0x6067 = 10 inc", args.seed);
     let mut worst = i64::MIN;
     let mut bus_peak = 0.0_f64;
     for (name, profile_type, distance, p) in [
@@ -431,7 +471,15 @@ fn ppm(args: &Args, dir: &Path) -> Result<(), String> {
         ("trapezoidal, 40 rev, 5000 rpm, 20000/30000 rpm/s", 0, FAST_DISTANCE_INC, Profile::FAST),
         ("sin², 40 rev, 5000 rpm, 20000/30000 rpm/s", 1, FAST_DISTANCE_INC, Profile::FAST),
     ] {
-        let (f, trace) = profile::ppm_move(args.seed, profile_type, distance, &p).map_err(|e| e.to_string())?;
+        let scaled = |x: u32| (f64::from(x) * sc.speed).round() as u32;
+        let p = Profile {
+            velocity_rpm: scaled(p.velocity_rpm),
+            acceleration_rpm_per_s: scaled(p.acceleration_rpm_per_s),
+            deceleration_rpm_per_s: scaled(p.deceleration_rpm_per_s),
+        };
+        let (f, trace) =
+            profile::ppm_move(args.seed, profile_type, (f64::from(distance) * sc.speed).round() as i32, &p)
+                .map_err(|e| e.to_string())?;
         println!("  {name}:");
         println!(
             "    profile {} ticks; bit 10 {} tick(s) after the profile's end (bound <= 2); final error {} inc; peak \
@@ -457,12 +505,12 @@ fn ppm(args: &Args, dir: &Path) -> Result<(), String> {
     }
     println!();
     println!(
-        "  quick stop from 5000 rpm (PVM, 0x605A = 6, 0x6085 = {QUICK_STOP_RPM_PER_S} rpm/s: a {:.0} ms ramp), trip at \
+        "  quick stop from {stop_rpm} rpm (PVM, 0x605A = 6, 0x6085 = {stop_rpm_per_s} rpm/s: a {:.0} ms ramp), trip at \
          56 V:",
-        5000.0 / f64::from(QUICK_STOP_RPM_PER_S) * 1000.0
+        f64::from(stop_rpm) / f64::from(stop_rpm_per_s) * 1000.0
     );
     let (limiter, trace) =
-        regeneration::quick_stop(args.seed, PlantParams::reference(), None, true, 5000, QUICK_STOP_RPM_PER_S)
+        regeneration::quick_stop(args.seed, scenarios::scenario_plant(), None, true, stop_rpm, stop_rpm_per_s)
             .map_err(|e| format!("quick stop, limiter alone: {e}"))?;
     print_quick_stop("limiter alone (reference plant, no chopper)", &limiter);
     write(
@@ -473,11 +521,11 @@ fn ppm(args: &Args, dir: &Path) -> Result<(), String> {
     )?;
     let (chopper, trace) = regeneration::quick_stop(
         args.seed,
-        PlantParams::reference_with_chopper(),
+        PlantParams { chopper_resistance_ohm: 10.0, ..scenarios::scenario_plant() },
         Some(ChopperRating::REFERENCE),
         true,
-        5000,
-        QUICK_STOP_RPM_PER_S,
+        stop_rpm,
+        stop_rpm_per_s,
     )
     .map_err(|e| format!("quick stop with the chopper: {e}"))?;
     print_quick_stop("chopper preset (10 ohm, 50 W, 10 s) and limiter", &chopper);
@@ -501,7 +549,7 @@ fn ppm(args: &Args, dir: &Path) -> Result<(), String> {
 
 fn homing_matrix(args: &Args, dir: &Path) -> Result<(), String> {
     println!(
-        "homing: reference plant (seed {}), CiA 402 HMM, every method of 0x60E3 from each side of its reference \
+        "homing: plant (seed {}), CiA 402 HMM, every method of 0x60E3 from each side of its reference \
          (switch search {} rpm, zero search {} rpm)",
         args.seed,
         homing::SWITCH_SEARCH_RPM,
@@ -533,7 +581,7 @@ fn homing_matrix(args: &Args, dir: &Path) -> Result<(), String> {
 
 fn fault_matrix(args: &Args, dir: &Path) -> Result<(), String> {
     println!(
-        "fault-matrix: reference plant (seed {}), every fault of the table injected where it matters; detection, \
+        "fault-matrix: plant (seed {}), every fault of the table injected where it matters; detection, \
          0x603F/0x1001/0x1003/EMCY, the reaction and the reset checked",
         args.seed
     );
@@ -568,7 +616,7 @@ fn fault_matrix(args: &Args, dir: &Path) -> Result<(), String> {
 
 fn duty_cycle(args: &Args, dir: &Path) -> Result<(), String> {
     println!(
-        "duty-cycle: reference plant (seed {}), {} s of CSV velocity steps at the current limit with regeneration and load \
+        "duty-cycle: plant (seed {}), {} s of CSV velocity steps at the current limit with regeneration and load \
          steps, reference sensor noise",
         args.seed,
         duty_cycle::DURATION_S
@@ -632,7 +680,7 @@ fn ethercat(args: &Args) -> Result<(), String> {
     if cfg!(debug_assertions) {
         println!("note: a debug build; real masters' timeouts want `cargo run --release`");
     }
-    let mut runner = EthercatRunner::new(config)?;
+    let mut runner = EthercatRunner::with_plant(config, scenarios::scenario_plant())?;
     if e.sto_open {
         runner.node.sim.plant.set_sto_inputs(firmware::hal::sto::StoInputs::DEMANDED);
         println!("  STO-IN1 and STO-IN2 de-energised (Safe Torque Off active from power-up)");
@@ -645,7 +693,7 @@ fn ethercat(args: &Args) -> Result<(), String> {
         ClockMode::RealTime => println!("ethercat: serving the simulated drive on {iface}, real time"),
     }
     println!(
-        "  reference plant (seed {}), ESC local clock {:+} ppm and drive clock {:+} ppm against the master, stop: {}",
+        "  plant (seed {}), ESC local clock {:+} ppm and drive clock {:+} ppm against the master, stop: {}",
         args.seed,
         e.clock_error_ppm,
         e.drive_clock_error_ppm,
@@ -803,24 +851,64 @@ fn main() -> ExitCode {
         }
     };
     let dir = args.out.clone().unwrap_or_else(|| PathBuf::from("out").join(&args.scenario));
-    let result = match args.scenario.as_str() {
-        "current-step" => current_step(&args, &dir),
-        "spinning" => spinning(&args, &dir),
-        "csp" => csp(&args, &dir),
-        "csv-sweep" => csv_sweep(&args, &dir),
-        "ppm" => ppm(&args, &dir),
-        "homing" => homing_matrix(&args, &dir),
-        "fault-matrix" => fault_matrix(&args, &dir),
-        "duty-cycle" => duty_cycle(&args, &dir),
-        "bench" => bench(&args),
-        "ethercat" => ethercat(&args),
-        other => Err(format!("unknown scenario {other}\n{USAGE}")),
+    let params = match &args.plant {
+        None => PlantParams::reference(),
+        Some(path) => match PlantParams::from_toml_file(path) {
+            Ok(p) => p,
+            Err(e) => {
+                eprintln!("drive-sim: {e}");
+                return ExitCode::from(2);
+            }
+        },
     };
+    if args.scenario != "bench" {
+        print_plant(args.plant.as_deref(), &params);
+    }
+    let result = scenarios::with_plant(params, || run_scenario(&args, &dir));
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("drive-sim: {e}");
             ExitCode::FAILURE
         }
+    }
+}
+
+/// One line on the plant in use and how it scales the scenarios.
+fn print_plant(file: Option<&Path>, p: &PlantParams) {
+    let sc = PlantScale::of(p);
+    println!(
+        "plant: {} ({} V, {} pole pairs, kt {:.4} Nm/A, {} / {} A, {} rpm, gear {}:1, {} counts/rev; scale: speed x{:.3}, \
+         current x{:.3}, torque x{:.3}, inertia x{:.3})",
+        file.map_or("reference (PlantParams::reference())".to_owned(), |f| f.display().to_string()),
+        p.source_voltage_v,
+        p.pole_pairs,
+        p.torque_constant_nm_per_a(),
+        p.nominal_current_a,
+        p.peak_current_a,
+        p.max_speed_rpm,
+        p.gear_ratio,
+        p.encoder_counts_per_rev,
+        sc.speed,
+        sc.current,
+        sc.torque,
+        sc.inertia
+    );
+}
+
+/// Runs the scenario of `args` (on the plant [`scenarios::with_plant`] chose).
+fn run_scenario(args: &Args, dir: &Path) -> Result<(), String> {
+    match args.scenario.as_str() {
+        "current-step" => current_step(args, dir),
+        "spinning" => spinning(args, dir),
+        "csp" => csp(args, dir),
+        "csv-sweep" => csv_sweep(args, dir),
+        "ppm" => ppm(args, dir),
+        "homing" => homing_matrix(args, dir),
+        "fault-matrix" => fault_matrix(args, dir),
+        "duty-cycle" => duty_cycle(args, dir),
+        "bench" => bench(args),
+        "ethercat" => ethercat(args),
+        other => Err(format!("unknown scenario {other}\n{USAGE}\n{PLANT_HELP}")),
     }
 }

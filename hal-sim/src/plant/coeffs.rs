@@ -1,6 +1,7 @@
 //! The constants of one period ([`Coeffs`]), read from the parameters, the winding temperature and the brake at
 //! the start of each period, and the DC source that feeds the bus.
 
+use super::drivetrain::Drivetrain;
 use super::Plant;
 
 /// Constants of one period, copied out of the parameters so the integrator borrows nothing.
@@ -20,12 +21,16 @@ pub(super) struct Coeffs {
     pub(super) r_switch: f64,
     /// Diode forward drop, in V.
     pub(super) v_diode: f64,
-    /// Total inertia on the shaft, in kg m^2.
+    /// Inertia on the motor shaft, in kg m^2: the rotor plus the reflected load when rigid, the rotor alone when
+    /// the load sits on a compliant coupling.
     pub(super) j: f64,
     /// Viscous friction, in N m s/rad.
     pub(super) b_visc: f64,
-    /// Coulomb friction, holding brake included, in N m.
+    /// Coulomb friction at the motor shaft, holding brake (and, when rigid, the reflected load friction) included,
+    /// in N m.
     pub(super) t_coulomb: f64,
+    /// The gear, the coupling and the load side.
+    pub(super) drive: Drivetrain,
     /// Open-circuit voltage of the DC source, in V.
     pub(super) v_source: f64,
     /// Internal resistance of the DC source, in ohm.
@@ -62,6 +67,12 @@ impl Plant {
     /// The constants of a period starting now.
     pub(super) fn coeffs(&self) -> Coeffs {
         let p = &self.params;
+        let drive = Drivetrain::new(p);
+        let (j, load_friction) = if drive.compliant {
+            (p.rotor_inertia_kg_m2, 0.0)
+        } else {
+            (p.total_inertia_kg_m2(), p.load_coulomb_friction_nm / (drive.efficiency * drive.ratio))
+        };
         Coeffs {
             p: f64::from(p.pole_pairs),
             psi: p.flux_linkage_wb,
@@ -70,9 +81,10 @@ impl Plant {
             r: self.phase_resistance() + p.switch_resistance_ohm,
             r_switch: p.switch_resistance_ohm,
             v_diode: p.diode_drop_v,
-            j: p.total_inertia_kg_m2(),
+            j,
             b_visc: p.viscous_friction_nm_s_rad,
-            t_coulomb: p.coulomb_friction_nm + self.io.brake_friction_nm(&p.io),
+            t_coulomb: p.coulomb_friction_nm + self.io.brake_friction_nm(&p.io) + load_friction,
+            drive,
             v_source: p.source_voltage_v,
             r_source: p.source_resistance_ohm,
             source_sinks: p.source_sinks_current,

@@ -6,7 +6,7 @@ use super::coeffs::Coeffs;
 use super::electrical::{
     abc_to_dq, back_emf, dq_to_abc, remove_phase_current, rk4, LegDrive, SegmentAngle, ZERO_CURRENT_A,
 };
-use super::mechanics::SegmentMotion;
+use super::mechanics::ShaftSegment;
 use super::{PeriodAverages, Plant};
 
 impl Plant {
@@ -18,15 +18,17 @@ impl Plant {
         let e = back_emf(k.p * self.omega_m, k.psi, angle.sin, angle.cos);
         let v = self.v_bus;
         let conducting = conducting_diodes(&mut i, e, v, k.v_diode, disconnected);
-        let bridge = DiodeBridge::new(k, conducting, angle, self.segment_motion(k), self.last_load_nm);
-        let omega_before = self.omega_m;
-        let s0 = [i[0], i[1], i[2], self.omega_m, self.theta_m, v];
-        let s1 = rk4(&s0, h, |s: &[f64; 6]| bridge.derivatives(s));
+        let bridge = DiodeBridge::new(k, conducting, angle, self.shaft_segment(k));
+        let (omega_before, omega_l_before) = (self.omega_m, self.omega_l);
+        let s0 = [i[0], i[1], i[2], self.omega_m, self.theta_m, v, self.omega_l, self.theta_l];
+        let s1 = rk4(&s0, h, |s: &[f64; 8]| bridge.derivatives(s));
         let i1 = bridge.block_reverse_currents(&s1);
         self.omega_m = s1[3];
         self.theta_m = s1[4];
         self.v_bus = s1[5];
-        self.clamp_speed(bridge.mode, omega_before);
+        self.omega_l = s1[6];
+        self.theta_l = s1[7];
+        self.end_segment(k, &bridge.shaft, omega_before, omega_l_before);
         let (sn1, cs1) = angle.sin_cos_at(k.p * self.theta_m);
         [self.i_d, self.i_q] = abc_to_dq(i1, sn1, cs1);
         bridge.accumulate_averages(acc, h, &s0, &s1, i1);
@@ -124,14 +126,12 @@ struct DiodeBridge<'a> {
     inv_n: f64,
     /// The electrical angle at the segment start.
     angle: SegmentAngle,
-    /// How the shaft moves in the segment.
-    mode: SegmentMotion,
-    /// Load torque over the segment, in N m.
-    load: f64,
+    /// How the motor shaft and the load move in the segment.
+    shaft: ShaftSegment,
 }
 
 impl<'a> DiodeBridge<'a> {
-    fn new(k: &'a Coeffs, conducting: [Option<bool>; 3], angle: SegmentAngle, mode: SegmentMotion, load: f64) -> Self {
+    fn new(k: &'a Coeffs, conducting: [Option<bool>; 3], angle: SegmentAngle, shaft: ShaftSegment) -> Self {
         let l = 0.5 * (k.ld + k.lq);
         let n_on = conducting.iter().filter(|x| x.is_some()).count();
         let mask = conducting.map(|c| if c.is_some() { 1.0 } else { 0.0 });
@@ -141,12 +141,12 @@ impl<'a> DiodeBridge<'a> {
             None => LegDrive::default(),
         });
         let inv_n = if n_on > 0 { 1.0 / n_on as f64 } else { 0.0 };
-        Self { k, l, conducting, n_on, mask, drive, inv_n, angle, mode, load }
+        Self { k, l, conducting, n_on, mask, drive, inv_n, angle, shaft }
     }
 
     /// Neutral voltage of a state: mean over the conducting phases of (pole - R i - e).
     #[inline(always)]
-    fn neutral(&self, s: &[f64; 6], e: &[f64; 3]) -> f64 {
+    fn neutral(&self, s: &[f64; 8], e: &[f64; 3]) -> f64 {
         let (k, mask, drive) = (self.k, self.mask, self.drive);
         let mut sum = 0.0;
         for x in 0..3 {
@@ -155,30 +155,32 @@ impl<'a> DiodeBridge<'a> {
         sum * self.inv_n
     }
 
-    /// The derivatives of the state `[i_a, i_b, i_c, omega_m, theta_m, V_bus]`.
+    /// The derivatives of the state `[i_a, i_b, i_c, omega_m, theta_m, V_bus, omega_l, theta_l]`.
     #[inline(always)]
-    fn derivatives(&self, s: &[f64; 6]) -> [f64; 6] {
+    fn derivatives(&self, s: &[f64; 8]) -> [f64; 8] {
         let (k, mask, drive) = (self.k, self.mask, self.drive);
         let (sn, cs) = self.angle.sin_cos_at(k.p * s[4]);
         let e = back_emf(k.p * s[3], k.psi, sn, cs);
         let v_n = self.neutral(s, &e);
-        let mut d = [0.0; 6];
+        let mut d = [0.0; 8];
         let mut i_dc = 0.0;
         for x in 0..3 {
             d[x] = mask[x] * (drive[x].a * s[5] + drive[x].b - k.r * s[x] - e[x] - v_n) / self.l;
             i_dc += mask[x] * drive[x].c * s[x];
         }
         let [i_d, i_q] = abc_to_dq([s[0], s[1], s[2]], sn, cs);
-        let (dw, dth) = k.shaft_derivatives(self.mode, k.torque(i_d, i_q), self.load, s[3]);
+        let [dw, dth, dwl, dthl] = k.mechanical_derivatives(&self.shaft, k.torque(i_d, i_q), [s[3], s[4], s[6], s[7]]);
         d[3] = dw;
         d[4] = dth;
+        d[6] = dwl;
+        d[7] = dthl;
         d[5] = (k.bus_inflow(s[5]) - i_dc) / k.c_bus;
         d
     }
 
     /// The phase currents at the end of the segment from the integrated state `s1`. Diodes block reverse current:
     /// a conducting phase whose current reached or crossed zero stops.
-    fn block_reverse_currents(&self, s1: &[f64; 6]) -> [f64; 3] {
+    fn block_reverse_currents(&self, s1: &[f64; 8]) -> [f64; 3] {
         let conducting = self.conducting;
         let mut i1 = [s1[0], s1[1], s1[2]];
         for x in 0..3 {
@@ -208,13 +210,13 @@ impl<'a> DiodeBridge<'a> {
     /// Adds the segment of length `h` to the period integrals `acc`, at its midpoint between the states `s0` and
     /// `s1` (as integrated) with the phase currents `i1` at its end (after the diodes stopped any). Open phases
     /// float at e + v_n; all open: neutral at mid-bus.
-    fn accumulate_averages(&self, acc: &mut PeriodAverages, h: f64, s0: &[f64; 6], s1: &[f64; 6], i1: [f64; 3]) {
+    fn accumulate_averages(&self, acc: &mut PeriodAverages, h: f64, s0: &[f64; 8], s1: &[f64; 8], i1: [f64; 3]) {
         let (k, mask, drive) = (self.k, self.mask, self.drive);
         let (sn_mid, cs_mid) = self.angle.sin_cos_at(k.p * 0.5 * (s0[4] + s1[4]));
         let e_mid = back_emf(k.p * 0.5 * (s0[3] + s1[3]), k.psi, sn_mid, cs_mid);
         let v_mid = 0.5 * (s0[5] + s1[5]);
-        let mut s_mid = [0.0; 6];
-        for x in 0..6 {
+        let mut s_mid = [0.0; 8];
+        for x in 0..8 {
             s_mid[x] = 0.5 * (s0[x] + if x < 3 { i1[x] } else { s1[x] });
         }
         let v_n = if self.n_on >= 2 { self.neutral(&s_mid, &e_mid) } else { 0.5 * v_mid };

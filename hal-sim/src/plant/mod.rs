@@ -46,7 +46,9 @@
 //! * **Mechanics**: `J dw/dt = T_e - T_load - b w - T_c sgn(w)`, with stiction: a rotor at rest stays at rest
 //!   while `|T_e - T_load| <= T_c`, and the speed is clamped to zero when it would change sign. The rotor can be
 //!   locked or driven at a fixed speed by an ideal dynamometer ([`Mechanics`]). A positive load torque opposes
-//!   positive rotation.
+//!   positive rotation. The load torque acts at the output of a gear (ratio, backlash, efficiency) on a load that
+//!   is either rigidly coupled (one mass, `T_load` and the load inertia reflected to the shaft) or on a compliant
+//!   coupling (two masses, the load's angle and speed integrated with the rest): see `drivetrain`.
 //! * **Inverter**: each leg follows the centre-aligned pattern of its compare value with dead time
 //!   ([`inverter::LegPattern`]): pole at the bus voltage (high switch), at 0 (low switch) or, both switches off, at
 //!   `-V_diode` for a positive phase current or `V_bus + V_diode` for a negative one (the diode's side is chosen
@@ -81,7 +83,8 @@
 //! instant; each interval is split into equal segments no longer than `T / substeps_per_period` (8 by default:
 //! 5 us, so a period has about 14 to 20 segments). The pole voltages are therefore constant on each segment apart
 //! from the bus voltage, which is part of the state, and each segment is one classical Runge-Kutta (RK4) step of
-//! the joint state (`i_d, i_q, w, theta, V_bus`). The fastest dynamics are the bus (`R_source C` = 23.5 us, at
+//! the joint state (`i_d, i_q, w, theta, V_bus`, and the load's `w_l, theta_l`, integrated only on a compliant
+//! coupling: the coupling's resonance, 60 Hz for the geared preset, is slow against the 5 us step). The fastest dynamics are the bus (`R_source C` = 23.5 us, at
 //! least 4.7 steps per time constant: RK4 local error about `(h / tau)^5 / 120` = 3e-6 relative) and the winding
 //! (`L / R` = 0.61 ms, over 120 steps per time constant). Against a 128-sub-step run of 0.24 s of switching and
 //! coasting, the default differs by at most 1.2e-4 A in the currents, 0.6 mV on the bus and 1.4e-4 rad/s in speed:
@@ -102,8 +105,10 @@
 //! digital I/O and the noise source.
 
 mod coeffs;
+mod drivetrain;
 mod electrical;
 pub mod faults;
+pub mod file;
 mod freewheel;
 pub mod inverter;
 pub mod io;
@@ -116,6 +121,7 @@ mod sto;
 mod switching;
 mod thermal;
 
+pub use file::PlantFileError;
 pub use io::{BrakeParams, InputSource, InputWiring, IoParams};
 pub use params::PlantParams;
 
@@ -164,11 +170,15 @@ pub struct PlantState {
     pub omega_m_rad_s: f64,
     /// Mechanical speed, in rpm.
     pub speed_rpm: f64,
+    /// Angle of the load at the gear output, unwrapped, in rad (`theta_m / gear_ratio` when rigidly coupled).
+    pub load_angle_rad: f64,
+    /// Speed of the load at the gear output, in rad/s.
+    pub load_speed_rad_s: f64,
     /// Electrical speed, in rad/s.
     pub omega_e_rad_s: f64,
     /// Electromagnetic torque, in N m.
     pub torque_nm: f64,
-    /// Load torque acting on the shaft (constant plus profile, last evaluated), in N m.
+    /// Load torque acting at the gear output (constant plus profile, last evaluated), in N m.
     pub load_torque_nm: f64,
     /// DC-bus (capacitor) voltage, in V.
     pub bus_voltage_v: f64,
@@ -203,8 +213,8 @@ pub struct PeriodAverages {
     pub copper_loss_w: f64,
 }
 
-/// A load-torque profile: `f(time_s, theta_m_rad, omega_m_rad_s) -> N m`, evaluated at the start of every
-/// integration segment.
+/// A load-torque profile: `f(time_s, theta_l_rad, omega_l_rad_s) -> N m` at the gear output, from the load's angle
+/// and speed (the motor's for the direct-drive reference plant), evaluated at the start of every integration segment.
 pub type LoadProfile = Box<dyn FnMut(f64, f64, f64) -> f64 + Send>;
 
 /// The simulated plant: PMSM, mechanics, inverter, DC bus, thermal nodes and sensors. See the module docs.
@@ -218,6 +228,10 @@ pub struct Plant {
     i_q: f64,
     omega_m: f64,
     theta_m: f64,
+    /// Load speed at the gear output, in rad/s (see `drivetrain`).
+    omega_l: f64,
+    /// Load angle at the gear output, in rad.
+    theta_l: f64,
     v_bus: f64,
     t_winding: f64,
     t_housing: f64,
@@ -272,6 +286,8 @@ impl Plant {
             i_q: 0.0,
             omega_m: 0.0,
             theta_m: 0.0,
+            omega_l: 0.0,
+            theta_l: 0.0,
             v_bus: params.source_voltage_v,
             t_winding: params.ambient_c,
             t_housing: params.ambient_c,
@@ -446,6 +462,8 @@ impl Plant {
             theta_e_rad: (pp * self.theta_m).rem_euclid(2.0 * PI),
             omega_m_rad_s: self.omega_m,
             speed_rpm: self.omega_m * 60.0 / (2.0 * PI),
+            load_angle_rad: self.theta_l,
+            load_speed_rad_s: self.omega_l,
             omega_e_rad_s: pp * self.omega_m,
             torque_nm: k.torque(self.i_d, self.i_q),
             load_torque_nm: self.last_load_nm,
@@ -489,13 +507,16 @@ impl Plant {
 
     // ---- Hooks: mechanics and load ----
 
-    /// Choose how the shaft moves (free, locked, driven at a speed).
+    /// Choose how the shaft moves (free, locked, driven at a speed). A load on a compliant coupling stays free.
     pub fn set_mechanics(&mut self, mechanics: Mechanics) {
         self.mechanics = mechanics;
         match mechanics {
             Mechanics::Free => {}
             Mechanics::Locked => self.omega_m = 0.0,
             Mechanics::Driven { speed_rad_s } => self.omega_m = speed_rad_s,
+        }
+        if !self.params.coupling_is_compliant() {
+            self.follow_motor(self.params.gear_ratio);
         }
     }
 
@@ -510,22 +531,38 @@ impl Plant {
     }
 
     /// Set the rotor's mechanical angle (rad, unwrapped) and speed (rad/s) at once, e.g. as an initial condition.
-    /// The encoder follows without producing index latches for the jump.
+    /// The encoder follows without producing index latches for the jump; the load follows through the gear with the
+    /// coupling relaxed (in the middle of the backlash).
     pub fn set_rotor_state(&mut self, theta_m_rad: f64, omega_m_rad_s: f64) {
         self.theta_m = theta_m_rad;
         self.omega_m = omega_m_rad_s;
+        self.follow_motor(self.params.gear_ratio);
         self.last_count = self.count_now();
         self.pending_index = None;
     }
 
-    /// Set a constant external load torque, in N m (positive opposes positive rotation). A load profile, if set,
-    /// adds to it.
+    /// Set the load's angle (rad at the output, unwrapped) and speed (rad/s), e.g. to start a free oscillation of
+    /// a compliant coupling. With a rigid coupling the load follows the motor again at the next segment.
+    pub fn set_load_state(&mut self, theta_l_rad: f64, omega_l_rad_s: f64) {
+        self.theta_l = theta_l_rad;
+        self.omega_l = omega_l_rad_s;
+    }
+
+    /// The total count of the load encoder now (`PlantParams::load_encoder_counts_per_rev` counts per output turn,
+    /// count 0 at load angle 0), or `None` without one. The drive does not read it yet (dual-loop work to come).
+    pub fn load_encoder_count(&self) -> Option<i64> {
+        let cpr = self.params.load_encoder_counts_per_rev;
+        (cpr > 0).then(|| sensors::encoder_count(self.theta_l, cpr, 0))
+    }
+
+    /// Set a constant external load torque at the gear output, in N m (positive opposes positive rotation). A load
+    /// profile, if set, adds to it.
     pub fn set_load_torque(&mut self, torque_nm: f64) {
         self.load_torque_nm = torque_nm;
     }
 
-    /// Set a load-torque profile `f(time_s, theta_m_rad, omega_m_rad_s) -> N m`, added to the constant load torque
-    /// and evaluated at the start of every integration segment; `None` removes it.
+    /// Set a load-torque profile `f(time_s, theta_l_rad, omega_l_rad_s) -> N m` (see [`LoadProfile`]), added to the
+    /// constant load torque and evaluated at the start of every integration segment; `None` removes it.
     pub fn set_load_profile(&mut self, profile: Option<LoadProfile>) {
         self.load_profile = profile;
     }

@@ -15,7 +15,10 @@ use super::io::IoParams;
 /// amplitude-invariant one (`i_q` equals the phase-current amplitude of a pure q current), so the torque is
 /// `1.5 * p * (psi * i_q + (Ld - Lq) * i_d * i_q)`; the mechanical angle is zero when the rotor d axis (magnet north)
 /// is aligned with the phase A axis, and the electrical angle is `pole_pairs * mechanical angle`.
-#[derive(Clone, Debug, PartialEq)]
+///
+/// A plant file ([`super::file`]) names these fields as its keys; every field but `io` can be given there.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct PlantParams {
     // ---- DC supply and bus ----
     /// Open-circuit voltage of the DC source, in V.
@@ -58,15 +61,30 @@ pub struct PlantParams {
     /// Permanent-magnet flux linkage (amplitude), in Wb (V s/rad electrical).
     pub flux_linkage_wb: f64,
 
-    // ---- Mechanics ----
+    // ---- Mechanics (see `drivetrain` for the gear, the coupling and the load side) ----
     /// Rotor inertia, in kg m^2.
     pub rotor_inertia_kg_m2: f64,
-    /// Load inertia rigidly coupled to the rotor, in kg m^2.
+    /// Load inertia at the gear output (the load side of the coupling), in kg m^2. With a rigid coupling the motor
+    /// sees `load_inertia_kg_m2 / gear_ratio^2` on its shaft.
     pub load_inertia_kg_m2: f64,
-    /// Viscous friction, in N m s/rad.
+    /// Viscous friction at the motor shaft, in N m s/rad.
     pub viscous_friction_nm_s_rad: f64,
-    /// Coulomb (and breakaway) friction, in N m.
+    /// Coulomb (and breakaway) friction at the motor shaft, in N m.
     pub coulomb_friction_nm: f64,
+    /// Gear reduction: motor turns per output turn (1 = direct drive).
+    pub gear_ratio: f64,
+    /// Total backlash of the gear, at the output, in degrees (0 = none). Needs a compliant coupling
+    /// (`coupling_stiffness_nm_per_rad > 0`): the dead band sits in series with the coupling's spring.
+    pub gear_backlash_deg: f64,
+    /// Gear efficiency in (0, 1]: the motor delivers `T_out / (efficiency * ratio)` to drive a torque `T_out` at
+    /// the output and receives `efficiency * T_out / ratio` when the output drives it back.
+    pub gear_efficiency: f64,
+    /// Stiffness of the coupling between the gear output and the load, in N m/rad (0 = rigid: one mass).
+    pub coupling_stiffness_nm_per_rad: f64,
+    /// Damping of the coupling (in parallel with its spring), in N m s/rad.
+    pub coupling_damping_nm_s_per_rad: f64,
+    /// Coulomb (and breakaway) friction of the load, at the output, in N m.
+    pub load_coulomb_friction_nm: f64,
 
     // ---- Ratings (not used by the simulation; for tests and presets) ----
     /// Nominal (continuous) current, in A (q-current amplitude).
@@ -102,6 +120,8 @@ pub struct PlantParams {
     pub encoder_offset_counts: i64,
     /// Encoder count (modulo `encoder_counts_per_rev`) whose quadrature state carries the index pulse.
     pub index_count: u32,
+    /// Quadrature counts per revolution of a second encoder on the load (at the output); 0 = none fitted.
+    pub load_encoder_counts_per_rev: u32,
     /// Electrical angle at which Hall 1 rises (for positive rotation), in rad; Hall 2 and Hall 3 follow at
     /// +120 and +240 degrees electrical.
     pub hall_offset_rad: f64,
@@ -132,7 +152,9 @@ pub struct PlantParams {
     pub substeps_per_period: u32,
 
     // ---- Digital I/O ----
-    /// Limit and home switches on the inputs, and the holding brake (see [`super::io`]).
+    /// Limit and home switches on the inputs, and the holding brake (see [`super::io`]). Not part of a plant file:
+    /// the switches belong to the scenario's axis, not to the motor; a file always gets [`IoParams::reference`].
+    #[serde(skip, default = "IoParams::reference")]
     pub io: IoParams,
 }
 
@@ -153,6 +175,7 @@ impl PlantParams {
     /// | R temperature coefficient | 0.0039 /K from 25 degC | copper (physics); R = 0.26 ohm at 25 degC |
     /// | Rotor / load inertia | 44 g cm^2 / 3 x 44 g cm^2 | ARCHITECTURE |
     /// | Viscous / Coulomb friction | 2e-6 Nm s/rad / 3 mNm | ARCHITECTURE |
+    /// | Gear, coupling, load friction, load encoder | none: direct drive, rigid, 0, none | ARCHITECTURE (load rigidly coupled) |
     /// | Nominal / peak current, max speed, winding limit | 3.2 A / 10 A, 5,000 rpm, 125 degC | ARCHITECTURE |
     /// | Winding / housing time constants | 20 s / 600 s | ARCHITECTURE |
     /// | Thermal resistances | 5 K/W winding-housing, 20 K/W housing-ambient | derived: nominal current's copper loss 1.5 R I_N^2 = 4.0 W heats the winding by 100 K (25 -> 125 degC) => 25 K/W in total; the 1:4 split is an assumption |
@@ -191,6 +214,12 @@ impl PlantParams {
             load_inertia_kg_m2: 3.0 * rotor_inertia_kg_m2,
             viscous_friction_nm_s_rad: 2.0e-6,
             coulomb_friction_nm: 3.0e-3,
+            gear_ratio: 1.0,
+            gear_backlash_deg: 0.0,
+            gear_efficiency: 1.0,
+            coupling_stiffness_nm_per_rad: 0.0,
+            coupling_damping_nm_s_per_rad: 0.0,
+            load_coulomb_friction_nm: 0.0,
             nominal_current_a: 3.2,
             peak_current_a: 10.0,
             max_speed_rpm: 5000.0,
@@ -205,6 +234,7 @@ impl PlantParams {
             encoder_counts_per_rev: 4096,
             encoder_offset_counts: 0,
             index_count: 0,
+            load_encoder_counts_per_rev: 0,
             hall_offset_rad: 0.0,
             shunt_gain_lsb_per_a: [4096.0 / 33.0; 3],
             shunt_offset_lsb: [37.0, -24.0, 12.0],
@@ -244,9 +274,25 @@ impl PlantParams {
         1.5 * f64::from(self.pole_pairs) * self.flux_linkage_wb
     }
 
-    /// Total inertia seen by the shaft (rotor + load), in kg m^2.
+    /// Total inertia seen by the motor shaft with the load rigidly coupled (rotor + load / ratio^2), in kg m^2.
     pub fn total_inertia_kg_m2(&self) -> f64 {
-        self.rotor_inertia_kg_m2 + self.load_inertia_kg_m2
+        self.rotor_inertia_kg_m2 + self.load_inertia_kg_m2 / (self.gear_ratio * self.gear_ratio)
+    }
+
+    /// Whether the load sits on a compliant coupling (a two-mass system) rather than rigidly on the gear output.
+    pub fn coupling_is_compliant(&self) -> bool {
+        self.coupling_stiffness_nm_per_rad > 0.0
+    }
+
+    /// First resonance of the free two-mass system (motor and load on the coupling, no friction), in Hz:
+    /// `sqrt(k (1 / J_load + 1 / (J_rotor N^2))) / 2 pi` with the rotor reflected to the output; 0 when rigid.
+    pub fn coupling_resonance_hz(&self) -> f64 {
+        if !self.coupling_is_compliant() {
+            return 0.0;
+        }
+        let rotor_at_output = self.rotor_inertia_kg_m2 * self.gear_ratio * self.gear_ratio;
+        (self.coupling_stiffness_nm_per_rad * (1.0 / self.load_inertia_kg_m2 + 1.0 / rotor_at_output)).sqrt()
+            / (2.0 * PI)
     }
 
     /// Electrical time constant of the winding alone, `Lq / R`, in s (0.635 ms for the reference plant).

@@ -9,7 +9,7 @@ use super::electrical::{
     ZERO_CURRENT_A,
 };
 use super::inverter::{LegPattern, LegState, OutputShort};
-use super::mechanics::SegmentMotion;
+use super::mechanics::ShaftSegment;
 use super::{PeriodAverages, Plant};
 
 impl Plant {
@@ -51,21 +51,12 @@ impl Plant {
         if let Some(x) = open {
             legs[x] = LegDrive::default();
         }
-        let segment = SwitchingSegment {
-            k,
-            legs,
-            inverter_legs,
-            open,
-            short,
-            angle,
-            mode: self.segment_motion(k),
-            load: self.last_load_nm,
-        };
-        let omega_before = self.omega_m;
-        let s0 = [self.i_d, self.i_q, self.omega_m, self.theta_m, self.v_bus];
-        let s1 = rk4(&s0, h, |s: &[f64; 5]| segment.derivatives(s));
-        [self.i_d, self.i_q, self.omega_m, self.theta_m, self.v_bus] = s1;
-        self.clamp_speed(segment.mode, omega_before);
+        let segment = SwitchingSegment { k, legs, inverter_legs, open, short, angle, shaft: self.shaft_segment(k) };
+        let (omega_before, omega_l_before) = (self.omega_m, self.omega_l);
+        let s0 = [self.i_d, self.i_q, self.omega_m, self.theta_m, self.v_bus, self.omega_l, self.theta_l];
+        let s1 = rk4(&s0, h, |s: &[f64; 7]| segment.derivatives(s));
+        [self.i_d, self.i_q, self.omega_m, self.theta_m, self.v_bus, self.omega_l, self.theta_l] = s1;
+        self.end_segment(k, &segment.shaft, omega_before, omega_l_before);
         let (sn1, cs1) = angle.sin_cos_at(k.p * s1[3]);
         let mut i1 = dq_to_abc(self.i_d, self.i_q, sn1, cs1);
         let stopped = stopped_phases(&legs, off, floating, open, i1);
@@ -186,18 +177,16 @@ struct SwitchingSegment<'a> {
     short: Option<OutputShort>,
     /// The electrical angle at the segment start.
     angle: SegmentAngle,
-    /// How the shaft moves in the segment.
-    mode: SegmentMotion,
-    /// Load torque over the segment, in N m.
-    load: f64,
+    /// How the motor shaft and the load move in the segment.
+    shaft: ShaftSegment,
 }
 
 impl SwitchingSegment<'_> {
-    /// The derivatives of the state `[i_d, i_q, omega_m, theta_m, V_bus]`.
+    /// The derivatives of the state `[i_d, i_q, omega_m, theta_m, V_bus, omega_l, theta_l]`.
     #[inline(always)]
-    fn derivatives(&self, s: &[f64; 5]) -> [f64; 5] {
+    fn derivatives(&self, s: &[f64; 7]) -> [f64; 7] {
         let (k, legs, inverter_legs) = (self.k, self.legs, self.inverter_legs);
-        let [i_d, i_q, omega, theta, v] = *s;
+        let [i_d, i_q, omega, theta, v, omega_l, theta_l] = *s;
         let (sn, cs) = self.angle.sin_cos_at(k.p * theta);
         let mut u = [legs[0].a * v + legs[0].b, legs[1].a * v + legs[1].b, legs[2].a * v + legs[2].b];
         if let Some(x) = self.open {
@@ -216,8 +205,9 @@ impl SwitchingSegment<'_> {
             i_dc += inverter_legs[0].c * s[0] + inverter_legs[1].c * s[1] + inverter_legs[2].c * s[2];
         }
         let dv = (k.bus_inflow(v) - i_dc) / k.c_bus;
-        let (dw, dth) = k.shaft_derivatives(self.mode, k.torque(i_d, i_q), self.load, omega);
-        [di_d, di_q, dw, dth, dv]
+        let [dw, dth, dwl, dthl] =
+            k.mechanical_derivatives(&self.shaft, k.torque(i_d, i_q), [omega, theta, omega_l, theta_l]);
+        [di_d, di_q, dw, dth, dv, dwl, dthl]
     }
 
     /// Adds the segment of length `h` to the period integrals `acc` (trapezoidal in the bus voltage and currents),
@@ -227,8 +217,8 @@ impl SwitchingSegment<'_> {
         &self,
         acc: &mut PeriodAverages,
         h: f64,
-        s0: &[f64; 5],
-        s1: &[f64; 5],
+        s0: &[f64; 7],
+        s1: &[f64; 7],
         i0: [f64; 3],
         i1: [f64; 3],
     ) {

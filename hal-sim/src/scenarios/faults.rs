@@ -655,16 +655,20 @@ fn prepare(situation: Situation, seed: u64) -> Result<Bench, SimError> {
             let mut flash = SimFlash::params();
             flash.fill_random(0x5EED);
             let mut store = firmware::od::store::ParamStore::new(flash);
-            let mut sim = Simulation::reference(seed);
+            let params = super::scenario_plant();
+            let mut sim = Simulation::new(params.clone(), seed, DriveConfig::DEFAULT);
             sim.replace_drive(firmware::drive::Drive::boot(DriveConfig::DEFAULT, &mut store).0);
+            super::write_motor_data(&mut sim, &params);
             Bench::new(sim)
         }
         Situation::WatchdogRestart => {
             let mut store = firmware::od::store::ParamStore::new(SimFlash::params());
-            let mut sim = Simulation::reference(seed);
+            let params = super::scenario_plant();
+            let mut sim = Simulation::new(params.clone(), seed, DriveConfig::DEFAULT);
             let (mut drive, _) = firmware::drive::Drive::boot(DriveConfig::DEFAULT, &mut store);
             drive.report_reset(firmware::hal::reset::ResetCause::from_rcc_csr(RCC_CSR_AFTER_IWDG_RESET));
             sim.replace_drive(drive);
+            super::write_motor_data(&mut sim, &params);
             Bench::new(sim)
         }
     };

@@ -5,7 +5,12 @@
 //! This module holds the current-loop scenarios and the start every scenario shares; [`motion`] (CSP, CSV),
 //! [`profile`] (PPM, PVM), [`regeneration`] (a quick stop from full speed against the bus), [`homing`], [`faults`] (the fault matrix) and [`duty_cycle`] hold the others.
 //!
-//! All scenarios start the same way ([`prepare`]): the reference plant with chosen shunt offsets, the rotor at a
+//! The plant is the reference unless a caller chose another for the scenarios it runs on its thread
+//! ([`with_plant`], `drive-sim --plant FILE`); the drive is then configured for it as a commissioning engineer
+//! would ([`write_motor_data`]), and the callers scale their moves, steps and loads with its ratings
+//! ([`PlantScale`]).
+//!
+//! All scenarios start the same way ([`prepare`]): the scenario plant with chosen shunt offsets, the rotor at a
 //! non-special angle, CiA 402 transition 3 (offset calibration) and 4 (enable), then a commissioning run on the
 //! free shaft until the commutation is indexed (Hall start, Hall edge, index pulse with the learned offset), so the
 //! current loop works in the true rotor frame. Figures are computed from the plant's true currents at the sample
@@ -19,6 +24,7 @@ pub mod profile;
 pub mod regeneration;
 
 use core::f64::consts::PI;
+use std::cell::RefCell;
 use std::time::Instant;
 
 use firmware::drive::DriveConfig;
@@ -27,6 +33,68 @@ use firmware::hal::power::PWM_FREQUENCY_HZ;
 use crate::plant::{Mechanics, PlantParams, PERIOD_S};
 use crate::sim::trace::Trace;
 use crate::sim::{SimError, Simulation};
+
+thread_local! {
+    /// The plant the scenarios of this thread run on (`None`: the reference), set by [`with_plant`].
+    static SCENARIO_PLANT: RefCell<Option<PlantParams>> = const { RefCell::new(None) };
+}
+
+/// Runs `f` with every scenario it starts on this thread built on `params` instead of the reference plant
+/// (`drive-sim --plant FILE`); the previous choice is restored afterwards.
+pub fn with_plant<R>(params: PlantParams, f: impl FnOnce() -> R) -> R {
+    let previous = SCENARIO_PLANT.with(|p| p.replace(Some(params)));
+    let result = f();
+    SCENARIO_PLANT.with(|p| *p.borrow_mut() = previous);
+    result
+}
+
+/// The plant the scenarios of this thread run on: the one of [`with_plant`], else the reference.
+pub fn scenario_plant() -> PlantParams {
+    SCENARIO_PLANT.with(|p| p.borrow().clone()).unwrap_or_else(PlantParams::reference)
+}
+
+/// Configures the drive for the plant `params` from its ratings, as a commissioning engineer would before the
+/// first enable ([`Simulation::commission_motor_data`], which keeps them across a reboot of the drive): every scenario
+/// calls it when it builds its simulation.
+pub fn write_motor_data(sim: &mut Simulation, params: &PlantParams) {
+    sim.commission_motor_data(params);
+}
+
+/// How a plant's ratings scale the scenarios' moves, steps and loads against the reference plant, so that each
+/// scenario means the same on every plant (`drive-sim` help): speeds, accelerations and distances in revolutions
+/// by the maximum speed (a move keeps its timing), currents by the peak current, load torques (at the output) by
+/// the peak torque at the output `kt * I_peak * N * eta`, inertias by the inertia at the motor shaft.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PlantScale {
+    /// `max_speed_rpm` over the reference's 5,000 rpm.
+    pub speed: f64,
+    /// `peak_current_a` over the reference's 10 A.
+    pub current: f64,
+    /// Peak torque at the output over the reference's 0.335 N m.
+    pub torque: f64,
+    /// Inertia at the motor shaft (rotor + load / N^2) over the reference's 176 g cm^2.
+    pub inertia: f64,
+}
+
+impl PlantScale {
+    /// The scale of `params` (all 1 exactly for the reference plant).
+    pub fn of(params: &PlantParams) -> Self {
+        let r = PlantParams::reference();
+        let peak_torque =
+            |p: &PlantParams| p.torque_constant_nm_per_a() * p.peak_current_a * p.gear_ratio * p.gear_efficiency;
+        Self {
+            speed: params.max_speed_rpm / r.max_speed_rpm,
+            current: params.peak_current_a / r.peak_current_a,
+            torque: peak_torque(params) / peak_torque(&r),
+            inertia: params.total_inertia_kg_m2() / r.total_inertia_kg_m2(),
+        }
+    }
+
+    /// The scale of the scenario plant ([`scenario_plant`]).
+    pub fn current_plant() -> Self {
+        Self::of(&scenario_plant())
+    }
+}
 
 /// Gains of 0x30A0 used by the scenarios unless told otherwise: `None` keeps the dictionary defaults
 /// (1,555,000 uV/A and 2,450,000 uV/(A ms), designed for a 1.5 kHz crossover).
@@ -43,7 +111,7 @@ pub struct Setup {
     pub gains: Gains,
     /// Mechanical angle the rotor starts at, rad.
     pub start_angle_rad: f64,
-    /// q current of the commissioning run, A.
+    /// q current of the commissioning run on the reference plant, A (scaled by [`PlantScale::current`] on another).
     pub commissioning_a: f64,
 }
 
@@ -76,19 +144,23 @@ pub fn angle_error_deg(sim: &Simulation) -> f64 {
 /// Builds the simulation, calibrates, enables and commissions (see the module documentation). The shaft is free
 /// and turning slowly at the end; the q reference is zero.
 pub fn prepare(setup: &Setup) -> Result<(Simulation, Prepared), SimError> {
-    prepare_plant(PlantParams::reference(), setup)
+    prepare_plant(scenario_plant(), setup)
 }
 
-/// [`prepare`] on the plant `params` (its shunt offsets replaced by the setup's).
+/// [`prepare`] on the plant `params` (its shunt offsets replaced by the setup's), the drive configured for it
+/// ([`write_motor_data`]).
 pub fn prepare_plant(mut params: PlantParams, setup: &Setup) -> Result<(Simulation, Prepared), SimError> {
     params.shunt_offset_lsb = setup.offsets_lsb;
-    let mut sim = Simulation::new(params, setup.seed, DriveConfig::DEFAULT);
+    let mut sim = Simulation::new(params.clone(), setup.seed, DriveConfig::DEFAULT);
+    write_motor_data(&mut sim, &params);
     sim.plant.set_rotor_state(setup.start_angle_rad, 0.0);
     if let Some((p, i)) = setup.gains {
         sim.set_current_gains(p, i);
     }
     sim.run(10);
-    let calibration_ticks = sim.commission(setup.commissioning_a)?;
+    // The commissioning current is the reference plant's; another plant gets the same share of its peak current.
+    let commissioning_a = setup.commissioning_a * PlantScale::of(&params).current;
+    let calibration_ticks = sim.commission(commissioning_a)?;
     let (est, residual) = offsets_of(&sim, setup);
     let angle_error_deg = angle_error_deg(&sim);
     Ok((
@@ -100,9 +172,10 @@ pub fn prepare_plant(mut params: PlantParams, setup: &Setup) -> Result<(Simulati
 /// Only the offset calibration (CiA 402 transition 3) with the rotor at rest: the ticks it took, the estimated
 /// offsets and the largest residual ([`Prepared::angle_error_deg`] is NaN: no commissioning).
 pub fn offset_calibration(setup: &Setup) -> Result<Prepared, SimError> {
-    let mut params = PlantParams::reference();
+    let mut params = scenario_plant();
     params.shunt_offset_lsb = setup.offsets_lsb;
-    let mut sim = Simulation::new(params, setup.seed, DriveConfig::DEFAULT);
+    let mut sim = Simulation::new(params.clone(), setup.seed, DriveConfig::DEFAULT);
+    write_motor_data(&mut sim, &params);
     sim.run(10);
     let calibration_ticks = sim.switch_on()?;
     let (est, residual) = offsets_of(&sim, setup);

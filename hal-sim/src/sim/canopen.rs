@@ -395,11 +395,24 @@ impl CanopenRunner {
     /// `config.nodes` reference drives (at least one), node-IDs 1.., booted (their boot-up messages are on the bus
     /// after the first period; those of the nodes in the bootloader's fallback at once).
     pub fn new(config: CanopenConfig) -> Self {
+        Self::with_plant(config, &crate::plant::PlantParams::reference())
+    }
+
+    /// [`Self::new`] with every drive on the plant `params` (`drive-sim canopen --plant FILE`), its motor data
+    /// written from the plant's ratings ([`Simulation::commission_motor_data`]) when it is not the reference plant.
+    pub fn with_plant(config: CanopenConfig, params: &crate::plant::PlantParams) -> Self {
         let mut bus = CanBus::new(config.bit_rate);
         let master = bus.attach();
         let drives = (1..=config.nodes.max(1))
             .map(|id| {
-                let sim = Simulation::reference(config.seed.wrapping_add(u64::from(id)));
+                let mut sim = Simulation::new(
+                    params.clone(),
+                    config.seed.wrapping_add(u64::from(id)),
+                    firmware::drive::DriveConfig::DEFAULT,
+                );
+                if *params != crate::plant::PlantParams::reference() {
+                    sim.commission_motor_data(params);
+                }
                 // The factory image in slot A, or (`empty_slot_nodes`) nothing: the bootloader's fallback.
                 let program = if config.empty_slot(id) { update::blank_program() } else { update::factory_program() };
                 CanDrive::power_on(id, bus.attach(), sim, program)

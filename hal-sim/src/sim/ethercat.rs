@@ -201,12 +201,21 @@ impl EthercatRunner {
     /// The reference plant (noise seed from `config`), the default drive, the ESC with the drive's SII image
     /// and its clock error set, and the slave in INIT.
     pub fn new(config: EthercatConfig) -> Result<Self, String> {
+        Self::with_plant(config, crate::plant::PlantParams::reference())
+    }
+
+    /// [`Self::new`] on the plant `params` (`drive-sim ethercat --plant FILE`), the drive's motor data written
+    /// from its ratings ([`Simulation::commission_motor_data`]) when it is not the reference plant.
+    pub fn with_plant(config: EthercatConfig, params: crate::plant::PlantParams) -> Result<Self, String> {
         let mut esc = Esc::with_drive_sii()?;
         esc.set_clock_error_ppb(config.clock_error_ppb);
         let mut program = update::factory_program();
         let last_boot = update::reset(&mut program);
-        let mut sim = Simulation::reference(config.seed);
+        let mut sim = Simulation::new(params.clone(), config.seed, firmware::drive::DriveConfig::DEFAULT);
         update::use_table(&mut sim.drive, update::table_for(program.mode()));
+        if params != crate::plant::PlantParams::reference() {
+            sim.commission_motor_data(&params);
+        }
         let node = SlaveNode {
             sim,
             slave: EthercatSlave::new(),

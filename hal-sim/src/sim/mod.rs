@@ -65,6 +65,8 @@ pub struct Simulation {
     cmd: PwmCommand,
     measurements: Measurements,
     ticks: u64,
+    /// The plant whose motor data [`Self::commission_motor_data`] wrote, written again into a rebooted drive.
+    motor_data: Option<PlantParams>,
 }
 
 impl Simulation {
@@ -79,6 +81,7 @@ impl Simulation {
             cmd: PwmCommand::OFF,
             measurements: Measurements::default(),
             ticks: 0,
+            motor_data: None,
         }
     }
 
@@ -171,6 +174,39 @@ impl Simulation {
         self.tier1 = Tier1State::new(drive.settings());
         self.published = None;
         self.drive = drive;
+        if let Some(params) = self.motor_data.take() {
+            self.commission_motor_data(&params);
+        }
+    }
+
+    /// Configures the drive for the plant `params` from its ratings, as a commissioning engineer would before the
+    /// first enable, and again after every [`Self::replace_drive`] (a reboot): motor data 0x3001 (nominal current,
+    /// output current limit = the peak current capped at the object's 12 A, pole pairs, winding thermal time
+    /// constant, torque constant), 0x3002 (phase resistance and q inductance, informative), the encoder 0x3010:01
+    /// (lines = counts / 4), the highest current 0x6073 (peak over nominal, per mille), and the speeds 0x6080 (max
+    /// motor speed) and 0x607F (max profile velocity). The gains stay the dictionary's, tuned for the reference
+    /// plant (auto-tuning is issue 18 items 3-5). For the reference plant every value equals the dictionary
+    /// default, so nothing changes.
+    pub fn commission_motor_data(&mut self, params: &PlantParams) {
+        let milli = |a: f64| (a * 1000.0).round().clamp(1.0, f64::from(u32::MAX)) as u32;
+        let per_mille = (params.peak_current_a / params.nominal_current_a * 1000.0).round().clamp(1.0, 65_535.0);
+        let max_rpm = params.max_speed_rpm.round().clamp(1.0, 25_000.0) as u32;
+        let d = self.drive.dictionary_mut();
+        d.set(h::MOTOR_NOMINAL_CURRENT, milli(params.nominal_current_a));
+        d.set(h::MOTOR_OUTPUT_CURRENT_LIMIT, milli(params.peak_current_a).min(12_000));
+        d.set(h::MOTOR_POLE_PAIRS, u8::try_from(params.pole_pairs).unwrap_or(u8::MAX));
+        d.set(
+            h::MOTOR_THERMAL_TIME_CONSTANT,
+            (params.winding_time_constant_s * 10.0).round().clamp(1.0, 5400.0) as u16,
+        );
+        d.set(h::MOTOR_TORQUE_CONSTANT, (params.torque_constant_nm_per_a() * 1e6).round().clamp(1.0, 1e7) as u32);
+        d.set(h::MOTOR_PHASE_RESISTANCE, milli(params.phase_resistance_ohm));
+        d.set(h::MOTOR_PHASE_INDUCTANCE, (params.lq_h * 1e6).round().clamp(1.0, 65_535.0) as u16);
+        d.set(h::ENCODER_PULSES, params.encoder_counts_per_rev / 4);
+        d.set(h::MAX_CURRENT, per_mille as u16);
+        d.set(h::MAX_MOTOR_SPEED, max_rpm);
+        d.set(h::MAX_PROFILE_VELOCITY, max_rpm);
+        self.motor_data = Some(params.clone());
     }
 
     /// Whether the plant's rotor is locked (a stop cannot be seen in the speed then).

@@ -3,8 +3,10 @@
 //!
 //! ```text
 //! drive-sim canopen --port N [--nodes K] [--bit-rate BPS] [--lock-step] [--sync-us N] [--seconds S]
-//!                   [--idle-exit-ms N] [--seed N] [--no-image ID]... [--sto-open ID]...
+//!                   [--idle-exit-ms N] [--seed N] [--no-image ID]... [--sto-open ID]... [--plant FILE]
 //! ```
+//! `--plant FILE` puts every node on the plant of a plant file (`hal_sim::plant::file`) with its motor data
+//! written from the plant's ratings; without it, the reference plant.
 //! `--port 0` picks a free port; the chosen one is printed as `port=N` before anything else, so a test can read
 //! it. It runs until `--seconds` of wall time, or until `--idle-exit-ms` without a client frame once a client
 //! had connected and left, and then prints its figures as `key=value` lines.
@@ -20,10 +22,11 @@ use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
 use hal_sim::can::socketcand::SocketcandServer;
+use hal_sim::plant::PlantParams;
 use hal_sim::sim::canopen::{CanClock, CanopenConfig, CanopenRunner};
 
 const USAGE: &str = "usage: drive-sim canopen --port N [--nodes K] [--bit-rate BPS] [--lock-step] [--sync-us N] \
-                     [--seconds S] [--idle-exit-ms N] [--seed N] [--no-image ID]... [--sto-open ID]...";
+                     [--seconds S] [--idle-exit-ms N] [--seed N] [--no-image ID]... [--sto-open ID]... [--plant FILE]";
 
 struct Args {
     port: u16,
@@ -32,11 +35,19 @@ struct Args {
     idle_exit_ms: Option<u64>,
     /// Node-IDs whose STO inputs are de-energised from power-up.
     sto_open: Vec<u8>,
+    /// `--plant FILE`: every node's plant.
+    plant: PlantParams,
 }
 
 fn parse(args: &[String]) -> Result<Args, String> {
-    let mut out =
-        Args { port: 0, config: CanopenConfig::default(), seconds: None, idle_exit_ms: None, sto_open: Vec::new() };
+    let mut out = Args {
+        port: 0,
+        config: CanopenConfig::default(),
+        seconds: None,
+        idle_exit_ms: None,
+        sto_open: Vec::new(),
+        plant: PlantParams::reference(),
+    };
     let mut port = None;
     let mut it = args.iter();
     while let Some(a) = it.next() {
@@ -67,6 +78,10 @@ fn parse(args: &[String]) -> Result<Args, String> {
             "--seconds" => out.seconds = Some(value("--seconds")?.parse().map_err(|e| format!("--seconds: {e}"))?),
             "--idle-exit-ms" => {
                 out.idle_exit_ms = Some(value("--idle-exit-ms")?.parse().map_err(|e| format!("--idle-exit-ms: {e}"))?);
+            }
+            "--plant" => {
+                out.plant =
+                    PlantParams::from_toml_file(std::path::Path::new(&value("--plant")?)).map_err(|e| e.to_string())?;
             }
             "--seed" => out.config.seed = value("--seed")?.parse().map_err(|e| format!("--seed: {e}"))?,
             "--no-image" => {
@@ -119,7 +134,7 @@ pub fn run(args: &[String]) -> Result<(), String> {
         },
     );
     println!("  python: can.Bus(interface='socketcand', host='127.0.0.1', port={}, channel='can0')", local.port());
-    let mut runner = CanopenRunner::new(args.config);
+    let mut runner = CanopenRunner::with_plant(args.config, &args.plant);
     for d in runner.drives.iter().filter(|d| d.in_fallback()) {
         println!("  node {}: slot A holds no valid image ({:?}): bootloader fallback", d.node.node_id(), d.last_boot);
     }
