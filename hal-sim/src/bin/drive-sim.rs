@@ -512,10 +512,10 @@ fn ppm(args: &Args, dir: &Path) -> Result<(), String> {
     let (limiter, trace) =
         regeneration::quick_stop(args.seed, scenarios::scenario_plant(), None, true, stop_rpm, stop_rpm_per_s)
             .map_err(|e| format!("quick stop, limiter alone: {e}"))?;
-    print_quick_stop("limiter alone (reference plant, no chopper)", &limiter);
+    print_quick_stop("limiter alone (no chopper)", &limiter);
     write(
         &trace,
-        &seconds_plot(&trace, "Quick stop from 5000 rpm, limiter alone", &[("bus_v", "bus [V]")], "V"),
+        &seconds_plot(&trace, &format!("Quick stop from {stop_rpm} rpm, limiter alone"), &[("bus_v", "bus [V]")], "V"),
         dir,
         "quick_stop",
     )?;
@@ -528,10 +528,15 @@ fn ppm(args: &Args, dir: &Path) -> Result<(), String> {
         stop_rpm_per_s,
     )
     .map_err(|e| format!("quick stop with the chopper: {e}"))?;
-    print_quick_stop("chopper preset (10 ohm, 50 W, 10 s) and limiter", &chopper);
+    print_quick_stop("with a braking chopper (10 ohm, 50 W, 10 s) and the limiter", &chopper);
     write(
         &trace,
-        &seconds_plot(&trace, "Quick stop from 5000 rpm, chopper and limiter", &[("bus_v", "bus [V]")], "V"),
+        &seconds_plot(
+            &trace,
+            &format!("Quick stop from {stop_rpm} rpm, chopper and limiter"),
+            &[("bus_v", "bus [V]")],
+            "V",
+        ),
         dir,
         "quick_stop_chopper",
     )?;
