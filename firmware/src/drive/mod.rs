@@ -936,6 +936,17 @@ impl Drive {
             self.axis.position_sensor_changed();
         }
         self.change_settings(|s| s.commutation = commutation);
+        self.sync_main_sensor_resolution();
+    }
+
+    /// Writes 0x3000:05 (main sensor resolution, read-only: the drive is its single writer) as 4 x 0x3010:01,
+    /// the increments per revolution the encoder counts and the motion units (rpm, rpm/s, the loop gains) convert
+    /// with. Any resolution the dictionary allows is exact, power of two or not: 16..=2,500,000 pulses are
+    /// 64..=10,000,000 increments ([`EncoderConfig::from_od`] clamps to the same range).
+    pub(crate) fn sync_main_sensor_resolution(&mut self) {
+        let pulses = self.dictionary.get(h::ENCODER_PULSES);
+        let counts = EncoderConfig::from_od(pulses, 0, 1).counts_per_rev;
+        self.dictionary.set(h::MAIN_SENSOR_RESOLUTION, counts);
     }
 
     // ---------------------------------------------------------------------------------------------------------
