@@ -3,9 +3,10 @@
 //! figures.
 //!
 //! # A run ([`homing_run_with`])
-//! 1. [`prepare_motion`] in PPM (0x6060 = 1); the master moves the axis to the start position of the run with a
-//!    profile-position move (0x607A, controlword 0x0F then 0x1F, statusword bit 12 acknowledge, bit 10 target
-//!    reached) while no switch is wired yet, so no limit switch is met on the way.
+//! 1. [`prepare_motion_on`] (the reference plant, or its encoder replaced: [`HomingConfig::counts_per_rev`]) in
+//!    PPM (0x6060 = 1); the master moves the axis to the start position of the run with a profile-position move
+//!    (0x607A, controlword 0x0F then 0x1F, statusword bit 12 acknowledge, bit 10 target reached) while no switch
+//!    is wired yet, so no limit switch is met on the way.
 //! 2. 0x6060 = 6 (the controlword stays 0x0F); once 0x6061 shows 6 the switches (plant inputs 1-3: negative limit,
 //!    positive limit, home switch, the 0x3142 defaults) and the end stop are placed around the standing axis, and
 //!    the master writes 0x6098, 0x6099:01/02, 0x609A, 0x30B0, 0x607C, 0x30B1, 0x30B2, 0x30B3.
