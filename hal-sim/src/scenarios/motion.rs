@@ -444,8 +444,8 @@ pub fn hall_only_velocity(seed: u64, rpm: f64, observer: bool) -> Result<HallVel
     sim.run_slow_ticks(3);
     {
         let d = sim.drive.dictionary_mut();
+        // No encoder: the drive counts the Halls, 0x3000:05 = 6 x 7 pole pairs = 42 from the switch-on.
         d.set(h::SENSORS_CONFIGURATION, 0x0004_0000);
-        d.set(h::MAIN_SENSOR_RESOLUTION, 42);
         d.set(h::CONTROL_STRUCTURE, if observer { 0x0001_0121 } else { 0x0001_0111 });
         // Gains for Hall feedback, after EPOS4's tuned Hall-only case (S1 Tab 2-17 L1433-1455: a 7-pole-pair
         // motor like the reference one, with twice its inertia): K_P 0.139 A s/rad and K_I 10.5 A/rad scaled to

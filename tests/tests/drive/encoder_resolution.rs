@@ -37,7 +37,7 @@ fn rad_per_s(rpm: f64) -> f64 {
 /// 0x3010:01 takes any line count of its range, 0x3000:05 (read-only) follows as 4 x lines at once and from the
 /// stored value at boot; a line count out of range is refused with the precise abort (CiA 301 §7.2.4.3.17:
 /// 0x0609_0032 below 16, 0x0609_0031 above 2,500,000) and changes nothing, and 0x3000:05 itself refuses a write
-/// (0x0601_0002, read-only).
+/// (0x0601_0002, read-only). With the Halls as the only position sensor it is 6 x pole pairs instead.
 #[test]
 fn main_sensor_resolution_follows_the_encoder_lines() {
     let mut store = ParamStore::new(SimFlash::params());
@@ -59,6 +59,11 @@ fn main_sensor_resolution_follows_the_encoder_lines() {
     drive.sdo_write(0x1010, 1, &SAVE_SIGNATURE.to_le_bytes(), PRE_OP, &mut store).expect("save");
     let rebooted = Drive::boot(DriveConfig::DEFAULT, &mut store).0;
     assert_eq!(rebooted.dictionary().get(h::MAIN_SENSOR_RESOLUTION), 5_000, "derived from the stored lines at boot");
+    // Without the encoder (0x3000:01 sensor 1 type 0, read-only: set as a configuration would) the Halls count:
+    // 6 x 7 pole pairs = 42 increments per revolution, whatever 0x3010:01 holds.
+    drive.dictionary_mut().set(h::SENSORS_CONFIGURATION, 0x0004_0000);
+    drive.sdo_write(0x3010, 1, &2_500_u32.to_le_bytes(), PRE_OP, &mut store).expect("2,500 lines");
+    assert_eq!(drive.dictionary().get(h::MAIN_SENSOR_RESOLUTION), 42, "Hall increments per revolution");
 }
 
 /// Position over many revolutions both ways, exact: the shaft is driven (ideal dynamometer, power stage off: the
