@@ -7,7 +7,10 @@ use crate::control::angle::AngleDelta;
 /// Encoder parameters, from the dictionary when the power stage is switched on.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct EncoderConfig {
-    /// Counts (quadrature increments) per mechanical revolution: 4 x 0x3010:01.
+    /// Counts (quadrature increments) per mechanical revolution: 4 x 0x3010:01, any value in 64..=10,000,000,
+    /// power of two or not (2,000 / 4,000 / 5,000 / 10,000 for 500 / 1,000 / 1,250 / 2,500 lines). Nothing
+    /// depends on it dividing the 16-bit counter's 2^16: the counter is only differenced, and the electrical count
+    /// is kept in `[0, cpr)` by one conditional add or subtract of `cpr` per tick (no mask, no division in tier 1).
     pub counts_per_rev: u32,
     /// Pole pairs, 0x3001:03.
     pub pole_pairs: u8,
@@ -194,7 +197,9 @@ mod tests {
 
     #[test]
     fn encoder_counts_to_electrical_angle() {
-        for (cpr_pulses, pp) in [(1024u32, 7u8), (1024, 1), (500, 4), (2048, 12), (16, 1), (1000, 255)] {
+        for (cpr_pulses, pp) in
+            [(1024u32, 7u8), (1024, 1), (500, 4), (2048, 12), (16, 1), (1000, 255), (1250, 7), (2500, 7)]
+        {
             let cfg = EncoderConfig::from_od(cpr_pulses, 0x0001, pp);
             let cpr = i64::from(cfg.counts_per_rev);
             let mut enc = Encoder::new(cfg);

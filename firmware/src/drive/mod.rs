@@ -936,6 +936,24 @@ impl Drive {
             self.axis.position_sensor_changed();
         }
         self.change_settings(|s| s.commutation = commutation);
+        self.sync_main_sensor_resolution();
+    }
+
+    /// Writes 0x3000:05 (main sensor resolution, read-only: the drive is its single writer), the increments per
+    /// revolution of the position sensor, which the motion units (rpm, rpm/s, the loop gains) convert with: with
+    /// the encoder as sensor 1 (0x3000:01 bits 7..0 = 1), 4 x 0x3010:01; any resolution the dictionary allows is
+    /// exact, power of two or not (16..=2,500,000 lines are 64..=10,000,000 increments, the range
+    /// [`EncoderConfig::from_od`] clamps to). Without the encoder the Halls count the position, 6 x pole pairs
+    /// increments per revolution ([`hall_position`], EPOS4 S1 L1433-1455).
+    pub(crate) fn sync_main_sensor_resolution(&mut self) {
+        let d = &self.dictionary;
+        let pole_pairs = d.get(h::MOTOR_POLE_PAIRS);
+        let counts = if d.get(h::SENSORS_CONFIGURATION) & 0xFF == 1 {
+            EncoderConfig::from_od(d.get(h::ENCODER_PULSES), 0, pole_pairs).counts_per_rev
+        } else {
+            u32::from(pole_pairs.max(1)).saturating_mul(6)
+        };
+        self.dictionary.set(h::MAIN_SENSOR_RESOLUTION, counts);
     }
 
     // ---------------------------------------------------------------------------------------------------------

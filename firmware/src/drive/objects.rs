@@ -219,7 +219,12 @@ impl Drive {
         store: &mut ParamStore<F>,
     ) -> Result<(), SdoAbort> {
         let mut objects = self.objects(store);
-        self.dictionary.write(index, sub, data, ctx, &mut objects)
+        self.dictionary.write(index, sub, data, ctx, &mut objects)?;
+        // 0x3000:05 is derived from 0x3010:01 (a write of it, or a 0x1011 restore / 0x1010 reload replacing it):
+        // it follows at once, so the velocity and acceleration units of the next slow tick use the new
+        // resolution, not only after the next switch-on.
+        self.sync_main_sensor_resolution();
+        Ok(())
     }
 }
 

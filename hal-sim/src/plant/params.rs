@@ -113,8 +113,11 @@ pub struct PlantParams {
     pub power_stage_to_ambient_k_per_w: f64,
 
     // ---- Position sensors ----
-    /// Encoder quadrature counts per mechanical revolution (4 x lines). Must divide 65,536 for the 16-bit counter
-    /// to stay consistent with the index over wraps (true for any power of two up to 2^16).
+    /// Encoder quadrature counts per mechanical revolution (4 x lines): any value, power of two or not (2,000,
+    /// 4,000, 5,000, 10,000 for the common 500 / 1,000 / 1,250 / 2,500-line encoders). The 16-bit counter wraps
+    /// at 2^16 independently of the revolution and the index is the total count congruent to `index_count`
+    /// ([`super::sensors`]), as on a real encoder. [`crate::sim::Simulation`] writes `counts / 4` to 0x3010:01,
+    /// so for the drive to match it is a multiple of 4 in 64..=10,000,000 (0x3010:01 = 16..=2,500,000 lines).
     pub encoder_counts_per_rev: u32,
     /// Encoder count at mechanical angle 0 (the counter's value when the d axis is aligned with phase A).
     pub encoder_offset_counts: i64,

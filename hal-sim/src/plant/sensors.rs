@@ -23,7 +23,9 @@ pub fn encoder_count(theta_m_rad: f64, counts_per_rev: u32, offset_counts: i64) 
     (theta_m_rad / (2.0 * PI) * f64::from(counts_per_rev)).floor() as i64 + offset_counts
 }
 
-/// The 16-bit encoder-mode timer counter for a total count (wraps like the hardware counter).
+/// The 16-bit encoder-mode timer counter for a total count (wraps like the hardware counter: at 2^16, whatever
+/// the counts per revolution; for a resolution that does not divide 2^16 the counter value at the index differs
+/// from turn to turn, as on the hardware).
 pub fn counter_register(total_count: i64) -> u16 {
     // Deliberate truncation: the timer counter keeps the low 16 bits.
     total_count as u16
@@ -85,6 +87,32 @@ mod tests {
         assert_eq!(index_entry(1, -1, 4096, 4095), Some(-1));
         assert_eq!(counter_register(-1), 0xFFFF);
         assert_eq!(encoder_count(-1e-9, 4096, 0), -1);
+    }
+
+    /// A resolution that does not divide 2^16 (5,000 counts, 1,250 lines) with the index at count 17: over 40
+    /// turns both ways the index is entered once per turn, exactly `cpr` apart, and the 16-bit counter at the
+    /// index differs from turn to turn (65,536 mod 5,000 = 536) while the wrapped difference of two latches is
+    /// still one turn.
+    #[test]
+    fn index_entries_at_a_resolution_that_does_not_divide_the_counter() {
+        let cpr = 5_000_u32;
+        let mut latches = Vec::new();
+        let mut previous = -3;
+        for now in (-2..200_000_i64).step_by(7).chain((-3..200_000).rev().step_by(11)) {
+            if let Some(n) = index_entry(previous, now, cpr, 17) {
+                latches.push(n);
+            }
+            previous = now;
+        }
+        assert_eq!(latches.len(), 80, "40 turns forward, 40 back");
+        assert!(latches.iter().all(|n| n.rem_euclid(5_000) == 17));
+        assert!(latches.windows(2).all(|w| (w[1] - w[0]).abs() == 5_000 || w[1] == w[0]));
+        let counters: Vec<u16> = latches.iter().map(|&n| counter_register(n)).collect();
+        assert_eq!(counters[0], 17);
+        assert_eq!(counters[14], (14 * 5_000 + 17 - 65_536) as u16, "wrapped past 2^16");
+        assert!(counters.windows(2).all(|w| w[1].wrapping_sub(w[0]) as i16 == 5_000
+            || w[0] == w[1]
+            || w[1].wrapping_sub(w[0]) as i16 == -5_000));
     }
 
     #[test]

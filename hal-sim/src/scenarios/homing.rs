@@ -3,9 +3,10 @@
 //! figures.
 //!
 //! # A run ([`homing_run_with`])
-//! 1. [`prepare_motion`] in PPM (0x6060 = 1); the master moves the axis to the start position of the run with a
-//!    profile-position move (0x607A, controlword 0x0F then 0x1F, statusword bit 12 acknowledge, bit 10 target
-//!    reached) while no switch is wired yet, so no limit switch is met on the way.
+//! 1. [`prepare_motion_on`] (the reference plant, or its encoder replaced: [`HomingConfig::counts_per_rev`]) in
+//!    PPM (0x6060 = 1); the master moves the axis to the start position of the run with a profile-position move
+//!    (0x607A, controlword 0x0F then 0x1F, statusword bit 12 acknowledge, bit 10 target reached) while no switch
+//!    is wired yet, so no limit switch is met on the way.
 //! 2. 0x6060 = 6 (the controlword stays 0x0F); once 0x6061 shows 6 the switches (plant inputs 1-3: negative limit,
 //!    positive limit, home switch, the 0x3142 defaults) and the end stop are placed around the standing axis, and
 //!    the master writes 0x6098, 0x6099:01/02, 0x609A, 0x30B0, 0x607C, 0x30B1, 0x30B2, 0x30B3.
@@ -18,7 +19,8 @@
 //! drive's raw encoder position 0x6063 is the same count minus the count the plant showed at the drive's first
 //! sample (its encoder starts at 0 there; 651 for the scenarios' start angle of 1 rad): [`encoder_offset`]
 //! measures that difference from the counter sample the drive last took, before and after the run.
-//! The encoder index is the quadrature state `n`, `n` a multiple of 4,096 (`PlantParams::index_count` = 0,
+//! The encoder index is the quadrature state `n`, `n` a multiple of the counts per revolution (4,096 on the
+//! reference plant, [`HomingConfig::counts_per_rev`]) (`PlantParams::index_count` = 0,
 //! `sensors::index_entry`); it is latched as `n` in both directions. Each run is placed around one index `I`
 //! (the one that puts the start nearest the axis after commissioning) with the approach direction `F` of the
 //! method (CiA 402 figures, [`truth`]; written independently of the firmware's catalogue):
@@ -67,8 +69,8 @@ use core::f64::consts::PI;
 
 use firmware::od::generated::handles as h;
 
-use super::motion::prepare_motion;
-use crate::plant::{InputSource, PERIOD_S};
+use super::motion::prepare_motion_on;
+use crate::plant::{InputSource, PlantParams, PERIOD_S};
 use crate::sim::{SimError, Simulation};
 
 /// 0x6099:01 speed for switch search used by the runs, rpm.
@@ -104,7 +106,7 @@ pub const END_STOP_STIFFNESS_NM_PER_RAD: f64 = 5_000.0;
 /// the stop (with a ratio of 1 it rebounded by a count, and the threshold was crossed while it did).
 pub const END_STOP_DAMPING_RATIO: f64 = 4.0;
 
-/// Increments per revolution of the reference encoder.
+/// Increments per revolution of the reference encoder ([`HomingConfig::counts_per_rev`] sets another).
 const CPR: i64 = 4096;
 /// «Enable operation».
 const ENABLE_OPERATION: u16 = 0x000F;
@@ -376,10 +378,15 @@ pub fn geometry(truth: &Truth, start: Start, index: i64, displacement: i64) -> O
 /// stop by `x` rad at `w` rad/s: `max(0, k x + c w)`. The plant holds the load over each integration segment
 /// (at most 5 us): with `w_n = sqrt(k / j)` = 16,900 rad/s, `w_n h` = 0.08 and `2 zeta w_n h` = 0.7, well inside
 /// the stability of that explicit step.
-pub fn end_stop_load(positive: bool, stop_counts: f64, j: f64) -> impl FnMut(f64, f64, f64) -> f64 + Send {
+pub fn end_stop_load(
+    positive: bool,
+    stop_counts: f64,
+    counts_per_rev: f64,
+    j: f64,
+) -> impl FnMut(f64, f64, f64) -> f64 + Send {
     let k = END_STOP_STIFFNESS_NM_PER_RAD;
     let c = 2.0 * END_STOP_DAMPING_RATIO * (k * j).sqrt();
-    let stop_rad = stop_counts / CPR as f64 * 2.0 * PI;
+    let stop_rad = stop_counts / counts_per_rev * 2.0 * PI;
     move |_t, theta, omega| {
         if positive && theta > stop_rad {
             (k * (theta - stop_rad) + c * omega).max(0.0)
@@ -425,6 +432,9 @@ pub struct HomingConfig {
     pub timeout_s: f64,
     /// Standing time after bit 12 or 13 before the final values are read, s.
     pub settle_s: f64,
+    /// The plant's encoder counts per revolution (the drive's 0x3010:01 follows, [`Simulation::new`]); the
+    /// reference 4,096. The switches and the index gap are placed in counts, within one revolution of 2,000.
+    pub counts_per_rev: u32,
 }
 
 impl HomingConfig {
@@ -446,6 +456,7 @@ impl HomingConfig {
             missing_reference: false,
             timeout_s: 3.0,
             settle_s: SETTLE_S,
+            counts_per_rev: CPR as u32,
         }
     }
 }
@@ -566,6 +577,7 @@ fn position_axis(sim: &mut Simulation, count: i64) -> Result<(), SimError> {
 /// Wires the switches and the end stop of `g` into the plant (`missing`: without the reference switch or stop).
 fn place(sim: &mut Simulation, truth: &Truth, g: &Geometry, missing: bool) {
     let j = sim.plant.params().total_inertia_kg_m2();
+    let cpr = f64::from(sim.plant.params().encoder_counts_per_rev);
     let io = &mut sim.plant.params_mut().io;
     io.set_negative_limit(g.negative_limit.map(|b| b - 1));
     io.set_positive_limit(g.positive_limit);
@@ -580,7 +592,7 @@ fn place(sim: &mut Simulation, truth: &Truth, g: &Geometry, missing: bool) {
     }
     match g.end_stop {
         Some((positive, at)) if !missing => {
-            sim.plant.set_load_profile(Some(Box::new(end_stop_load(positive, at, j))));
+            sim.plant.set_load_profile(Some(Box::new(end_stop_load(positive, at, cpr, j))));
         }
         _ => sim.plant.set_load_profile(None),
     }
@@ -613,12 +625,14 @@ pub fn homing_run_with(cfg: &HomingConfig) -> Result<HomingResult, RunError> {
         _ => -OFFSET_MOVE_INC,
     });
     let disp = displacement(&truth, offset_move);
-    let mut sim = prepare_motion(cfg.seed, 1)?;
+    let plant = PlantParams { encoder_counts_per_rev: cfg.counts_per_rev, ..PlantParams::reference() };
+    let mut sim = prepare_motion_on(plant, cfg.seed, 1)?;
+    let cpr = i64::from(cfg.counts_per_rev);
     // The index that puts the start nearest the axis.
     let probe = geometry(&truth, cfg.start, 0, disp).ok_or(no_start)?;
     let enc_offset = encoder_offset(&sim);
     let here = sim.plant.true_encoder_count();
-    let index = (here - probe.start + CPR / 2).div_euclid(CPR) * CPR;
+    let index = (here - probe.start + cpr / 2).div_euclid(cpr) * cpr;
     let mut g = geometry(&truth, cfg.start, index, disp).ok_or(no_start)?;
     position_axis(&mut sim, g.start)?;
 

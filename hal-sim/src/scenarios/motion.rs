@@ -11,8 +11,8 @@ use core::f64::consts::PI;
 
 use firmware::od::generated::handles as h;
 
-use super::{prepare, Setup};
-use crate::plant::PERIOD_S;
+use super::{prepare_plant, Setup};
+use crate::plant::{PlantParams, PERIOD_S};
 use crate::sim::trace::Trace;
 use crate::sim::{SimError, Simulation};
 
@@ -24,7 +24,13 @@ const PERIODS_PER_SLOW_TICK: u64 = 10;
 /// Builds the reference simulation, commissions it (see the module documentation) and enables it in `mode`
 /// (0x6060) through the controlword, with the rotor at rest.
 pub fn prepare_motion(seed: u64, mode: i8) -> Result<Simulation, SimError> {
-    let (mut sim, _) = prepare(&Setup { seed, ..Setup::default() })?;
+    prepare_motion_on(PlantParams::reference(), seed, mode)
+}
+
+/// [`prepare_motion`] on the plant `params` (the drive's encoder objects follow its encoder,
+/// [`Simulation::new`]).
+pub fn prepare_motion_on(params: PlantParams, seed: u64, mode: i8) -> Result<Simulation, SimError> {
+    let (mut sim, _) = prepare_plant(params, &Setup { seed, ..Setup::default() })?;
     let theta = sim.plant.state().theta_m_rad;
     sim.plant.set_rotor_state(theta, 0.0);
     sim.run(250);
@@ -270,7 +276,12 @@ fn demand_rpm(sim: &Simulation) -> f64 {
 
 /// CSV: a step of the target velocity from 0 to `step_rpm` (set-points every 1 ms, no interpolation), 300 ms.
 pub fn csv_step(seed: u64, step_rpm: f64) -> Result<(VelocityStepFigures, Trace), SimError> {
-    let mut sim = prepare_motion(seed, 9)?;
+    csv_step_on(PlantParams::reference(), seed, step_rpm)
+}
+
+/// [`csv_step`] on the plant `params`.
+pub fn csv_step_on(params: PlantParams, seed: u64, step_rpm: f64) -> Result<(VelocityStepFigures, Trace), SimError> {
+    let mut sim = prepare_motion_on(params, seed, 9)?;
     {
         let d = sim.drive.dictionary_mut();
         d.set(h::INTERPOLATION_TIME_PERIOD_VALUE, 0);
@@ -433,8 +444,8 @@ pub fn hall_only_velocity(seed: u64, rpm: f64, observer: bool) -> Result<HallVel
     sim.run_slow_ticks(3);
     {
         let d = sim.drive.dictionary_mut();
+        // No encoder: the drive counts the Halls, 0x3000:05 = 6 x 7 pole pairs = 42 from the switch-on.
         d.set(h::SENSORS_CONFIGURATION, 0x0004_0000);
-        d.set(h::MAIN_SENSOR_RESOLUTION, 42);
         d.set(h::CONTROL_STRUCTURE, if observer { 0x0001_0121 } else { 0x0001_0111 });
         // Gains for Hall feedback, after EPOS4's tuned Hall-only case (S1 Tab 2-17 L1433-1455: a 7-pole-pair
         // motor like the reference one, with twice its inertia): K_P 0.139 A s/rad and K_I 10.5 A/rad scaled to

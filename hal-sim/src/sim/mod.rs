@@ -70,9 +70,14 @@ pub struct Simulation {
 }
 
 impl Simulation {
-    /// A simulation of `params` (noise seeded with `seed`) and a drive with `config`.
+    /// A simulation of `params` (noise seeded with `seed`) and a drive with `config`. The drive is commissioned
+    /// for the plant's encoder as a user would: 0x3010:01 holds its lines, `encoder_counts_per_rev / 4` (the
+    /// dictionary default 1,024 for the reference plant), so any resolution the dictionary allows runs as the
+    /// reference one does.
     pub fn new(params: PlantParams, seed: u64, config: DriveConfig) -> Self {
-        let drive = Drive::new(config);
+        let mut dictionary = firmware::od::access::Dictionary::new(config.node_id);
+        dictionary.set(h::ENCODER_PULSES, params.encoder_counts_per_rev / 4);
+        let drive = Drive::with_dictionary(config, dictionary);
         Self {
             plant: Plant::new(params, seed),
             tier1: Tier1State::new(drive.settings()),

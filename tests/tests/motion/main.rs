@@ -3,6 +3,7 @@
 //! One test binary for the area; each module is one of its test files.
 
 mod cyclic;
+mod encoder_resolution;
 mod homing;
 mod observer;
 mod profile;
