@@ -148,8 +148,6 @@ pub struct Axis {
     internal_limit: bool,
     referenced: bool,
     standstill: bool,
-    /// [`AxisInputs::braking_limited`] of this step.
-    braking_limited: bool,
     remote: bool,
     drive_fault_seen: bool,
     previous_controlword: Controlword,
@@ -198,7 +196,6 @@ impl Axis {
             internal_limit: false,
             referenced: false,
             standstill: false,
-            braking_limited: false,
             remote: false,
             drive_fault_seen: false,
             previous_controlword: Controlword(0),
@@ -365,8 +362,7 @@ impl Axis {
                 position: input.pins.index.position.wrapping_add(self.offset),
             },
         };
-        self.braking_limited = input.braking_limited;
-        let (step, position) = self.motion(out.motion, out.mode.active, cw, &feedback, d);
+        let (step, position) = self.motion(out.motion, out.mode.active, cw, &feedback, input.braking_limited, d);
 
         // 7. Limits and loops.
         let demand = match step {
@@ -527,13 +523,15 @@ impl Axis {
     }
 
     /// Step 6: the motion for the machine's request; `None` when the drive function is off. Returns the position
-    /// actual value in the coordinates after the step (homing may move them).
+    /// actual value in the coordinates after the step (homing may move them). `braking_limited`:
+    /// [`AxisInputs::braking_limited`].
     fn motion(
         &mut self,
         motion: Motion,
         mode: Mode,
         cw: Controlword,
         fb: &AxisFeedback,
+        braking_limited: bool,
         d: &Dictionary,
     ) -> (Option<ModeStep>, i32) {
         // Bit 11 is recomputed every step: the mode (target clamped, speed limited) and the loops set it.
@@ -599,7 +597,7 @@ impl Axis {
                     };
                     return (Some(step), fb.position);
                 }
-                if self.braking_limited && !self.generator.is_done() {
+                if braking_limited && !self.generator.is_done() {
                     // The bus-voltage limiter could not give the braking the ramp asks for (no chopper, or not
                     // enough): the ramp starts again from the actual motion, as a drive's DC-link limiter stretches
                     // its ramp-down, instead of running ahead into a following error the bus forbids correcting.

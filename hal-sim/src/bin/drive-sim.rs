@@ -521,7 +521,7 @@ fn ppm(args: &Args, dir: &Path) -> Result<(), String> {
     )?;
     let (chopper, trace) = regeneration::quick_stop(
         args.seed,
-        PlantParams { chopper_resistance_ohm: 10.0, ..scenarios::scenario_plant() },
+        scenarios::scenario_plant().with_chopper(),
         Some(ChopperRating::REFERENCE),
         true,
         stop_rpm,

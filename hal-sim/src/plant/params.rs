@@ -253,11 +253,17 @@ impl PlantParams {
         }
     }
 
-    /// The reference plant with a braking chopper: a 10 ohm resistor across the bus while the drive's chopper
+    /// This plant with a braking chopper: a 10 ohm resistor across the bus while the drive's chopper
     /// output conducts (5 A and 250 W at 50 V: a typical 50 W, 10 ohm braking resistor of this power class, whose
-    /// rating the drive knows from 0x3203, not the plant). Everything else is the reference.
+    /// rating the drive knows from 0x3203, not the plant). Everything else stays.
+    #[must_use]
+    pub fn with_chopper(self) -> Self {
+        Self { chopper_resistance_ohm: 10.0, ..self }
+    }
+
+    /// The reference plant with [`Self::with_chopper`]'s braking chopper.
     pub fn reference_with_chopper() -> Self {
-        Self { chopper_resistance_ohm: 10.0, ..Self::reference() }
+        Self::reference().with_chopper()
     }
 
     /// The reference plant with ideal sensors: no ADC noise and no shunt offsets (for tests that check the

@@ -658,7 +658,7 @@ fn prepare(situation: Situation, seed: u64) -> Result<Bench, SimError> {
             let params = super::scenario_plant();
             let mut sim = Simulation::new(params.clone(), seed, DriveConfig::DEFAULT);
             sim.replace_drive(firmware::drive::Drive::boot(DriveConfig::DEFAULT, &mut store).0);
-            super::write_motor_data(&mut sim, &params);
+            sim.commission_motor_data(&params);
             Bench::new(sim)
         }
         Situation::WatchdogRestart => {
@@ -668,7 +668,7 @@ fn prepare(situation: Situation, seed: u64) -> Result<Bench, SimError> {
             let (mut drive, _) = firmware::drive::Drive::boot(DriveConfig::DEFAULT, &mut store);
             drive.report_reset(firmware::hal::reset::ResetCause::from_rcc_csr(RCC_CSR_AFTER_IWDG_RESET));
             sim.replace_drive(drive);
-            super::write_motor_data(&mut sim, &params);
+            sim.commission_motor_data(&params);
             Bench::new(sim)
         }
     };

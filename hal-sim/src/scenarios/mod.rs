@@ -7,7 +7,7 @@
 //!
 //! The plant is the reference unless a caller chose another for the scenarios it runs on its thread
 //! ([`with_plant`], `drive-sim --plant FILE`); the drive is then configured for it as a commissioning engineer
-//! would ([`write_motor_data`]), and the callers scale their moves, steps and loads with its ratings
+//! would ([`Simulation::commission_motor_data`], which keeps them across a reboot of the drive), and the callers scale their moves, steps and loads with its ratings
 //! ([`PlantScale`]).
 //!
 //! All scenarios start the same way ([`prepare`]): the scenario plant with chosen shunt offsets, the rotor at a
@@ -51,13 +51,6 @@ pub fn with_plant<R>(params: PlantParams, f: impl FnOnce() -> R) -> R {
 /// The plant the scenarios of this thread run on: the one of [`with_plant`], else the reference.
 pub fn scenario_plant() -> PlantParams {
     SCENARIO_PLANT.with(|p| p.borrow().clone()).unwrap_or_else(PlantParams::reference)
-}
-
-/// Configures the drive for the plant `params` from its ratings, as a commissioning engineer would before the
-/// first enable ([`Simulation::commission_motor_data`], which keeps them across a reboot of the drive): every scenario
-/// calls it when it builds its simulation.
-pub fn write_motor_data(sim: &mut Simulation, params: &PlantParams) {
-    sim.commission_motor_data(params);
 }
 
 /// How a plant's ratings scale the scenarios' moves, steps and loads against the reference plant, so that each
@@ -148,11 +141,11 @@ pub fn prepare(setup: &Setup) -> Result<(Simulation, Prepared), SimError> {
 }
 
 /// [`prepare`] on the plant `params` (its shunt offsets replaced by the setup's), the drive configured for it
-/// ([`write_motor_data`]).
+/// ([`Simulation::commission_motor_data`]).
 pub fn prepare_plant(mut params: PlantParams, setup: &Setup) -> Result<(Simulation, Prepared), SimError> {
     params.shunt_offset_lsb = setup.offsets_lsb;
     let mut sim = Simulation::new(params.clone(), setup.seed, DriveConfig::DEFAULT);
-    write_motor_data(&mut sim, &params);
+    sim.commission_motor_data(&params);
     sim.plant.set_rotor_state(setup.start_angle_rad, 0.0);
     if let Some((p, i)) = setup.gains {
         sim.set_current_gains(p, i);
@@ -175,7 +168,7 @@ pub fn offset_calibration(setup: &Setup) -> Result<Prepared, SimError> {
     let mut params = scenario_plant();
     params.shunt_offset_lsb = setup.offsets_lsb;
     let mut sim = Simulation::new(params.clone(), setup.seed, DriveConfig::DEFAULT);
-    write_motor_data(&mut sim, &params);
+    sim.commission_motor_data(&params);
     sim.run(10);
     let calibration_ticks = sim.switch_on()?;
     let (est, residual) = offsets_of(&sim, setup);
