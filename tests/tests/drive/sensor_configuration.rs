@@ -1,7 +1,8 @@
 //! 0x3000:01 sensors configuration (issue 18 "0x3000:01 (sensor configuration, saved) ... take effect"): written
-//! over SDO with the power stage off, it selects what the drive builds its commutation and position from: encoder
-//! + Halls (Hall start, encoder position), encoder only (forced alignment at enable), Halls only (Hall commutation,
-//! the Halls count the position). Any other combination aborts; 0x1010 saves it and the next boot runs with it.
+//! over SDO with the power stage off, it selects what the drive builds its commutation and position from: the
+//! encoder and the Halls (Hall start, encoder position), the encoder only (forced alignment at enable), the Halls
+//! only (Hall commutation, the Halls count the position). Any other combination aborts; 0x1010 saves it and the
+//! next boot runs with it.
 
 use firmware::drive::commutation::CommutationMethod;
 use firmware::drive::{Drive, DriveConfig};
