@@ -911,11 +911,13 @@ impl Drive {
         let d = &self.dictionary;
         let encoder =
             EncoderConfig::from_od(d.get(h::ENCODER_PULSES), d.get(h::ENCODER_TYPE), d.get(h::MOTOR_POLE_PAIRS));
-        // 0x3000:01 bits 23..16: sensor 3 type, 4 = digital Hall sensor; bits 7..0: sensor 1, 1 = incremental
-        // encoder (device.toml).
+        // 0x3000:01 (rw, saved, power-disabled; the dictionary accepts only the combinations below): bits 23..16
+        // sensor 3 type, 4 = digital Hall sensor; bits 7..0 sensor 1, 1 = incremental encoder. Encoder + Halls:
+        // Hall start, encoder position; encoder only: forced alignment at enable; Halls only: Hall commutation and
+        // the Halls count the position (device.toml).
         let sensors = d.get(h::SENSORS_CONFIGURATION);
-        let encoder_present = sensors & 0xFF == 1;
-        let method = if (sensors >> 16) & 0xFF == 4 {
+        let encoder_present = sensor_1_is_encoder(sensors);
+        let method = if sensor_3_is_hall(sensors) {
             CommutationMethod::Hall
         } else {
             CommutationMethod::ForcedAlignment(self.config.alignment)
@@ -936,6 +938,16 @@ impl Drive {
             self.axis.position_sensor_changed();
         }
         self.change_settings(|s| s.commutation = commutation);
+        self.sync_sensor_objects();
+    }
+
+    /// Writes the objects derived from 0x3000:01 and the encoder: 0x3000:03 (commutation sensors: bits 7..4 = 3
+    /// with the Halls, bits 3..0 = 1 with the encoder) and 0x3000:05 (below).
+    pub(crate) fn sync_sensor_objects(&mut self) {
+        let sensors = self.dictionary.get(h::SENSORS_CONFIGURATION);
+        let absolute = if sensor_3_is_hall(sensors) { 0x30 } else { 0 };
+        let relative = u32::from(sensor_1_is_encoder(sensors));
+        self.dictionary.set(h::COMMUTATION_SENSORS, absolute | relative);
         self.sync_main_sensor_resolution();
     }
 
@@ -945,10 +957,10 @@ impl Drive {
     /// exact, power of two or not (16..=2,500,000 lines are 64..=10,000,000 increments, the range
     /// [`EncoderConfig::from_od`] clamps to). Without the encoder the Halls count the position, 6 x pole pairs
     /// increments per revolution ([`hall_position`], EPOS4 S1 L1433-1455).
-    pub(crate) fn sync_main_sensor_resolution(&mut self) {
+    fn sync_main_sensor_resolution(&mut self) {
         let d = &self.dictionary;
         let pole_pairs = d.get(h::MOTOR_POLE_PAIRS);
-        let counts = if d.get(h::SENSORS_CONFIGURATION) & 0xFF == 1 {
+        let counts = if sensor_1_is_encoder(d.get(h::SENSORS_CONFIGURATION)) {
             EncoderConfig::from_od(d.get(h::ENCODER_PULSES), 0, pole_pairs).counts_per_rev
         } else {
             u32::from(pole_pairs.max(1)).saturating_mul(6)
@@ -1022,4 +1034,14 @@ impl Drive {
     pub fn dictionary_mut(&mut self) -> &mut Dictionary {
         &mut self.dictionary
     }
+}
+
+/// 0x3000:01 bits 7..0, sensor 1 type: 1 = digital incremental encoder (0x3010).
+const fn sensor_1_is_encoder(sensors: u32) -> bool {
+    sensors & 0xFF == 1
+}
+
+/// 0x3000:01 bits 23..16, sensor 3 type: 4 = digital Hall sensor (0x301A).
+const fn sensor_3_is_hall(sensors: u32) -> bool {
+    (sensors >> 16) & 0xFF == 4
 }

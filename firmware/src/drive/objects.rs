@@ -220,10 +220,10 @@ impl Drive {
     ) -> Result<(), SdoAbort> {
         let mut objects = self.objects(store);
         self.dictionary.write(index, sub, data, ctx, &mut objects)?;
-        // 0x3000:05 is derived from 0x3010:01 (a write of it, or a 0x1011 restore / 0x1010 reload replacing it):
-        // it follows at once, so the velocity and acceleration units of the next slow tick use the new
-        // resolution, not only after the next switch-on.
-        self.sync_main_sensor_resolution();
+        // 0x3000:05 is derived from 0x3010:01 and 0x3000:01, 0x3000:03 from 0x3000:01 (a write of them, or a
+        // 0x1011 restore / 0x1010 reload replacing them): they follow at once, so the velocity and acceleration
+        // units of the next slow tick use the new resolution, not only after the next switch-on.
+        self.sync_sensor_objects();
         Ok(())
     }
 }

@@ -27,6 +27,7 @@
 //!   probe latches the last one rather than the first.
 //! * Homing clears all probe states and positions (IDX L6362): [`TouchProbes::clear`].
 
+use crate::motion::polarity::Polarity;
 use crate::od::access::Dictionary;
 use crate::od::generated::handles as h;
 use crate::sensors::latch::{PinLatches, DIGITAL_INPUTS};
@@ -292,13 +293,16 @@ impl TouchProbes {
         u16::from_le_bytes([p1.status, p2.status])
     }
 
+    /// Publishes the probes; the positions in the master's coordinates (position polarity 0x607E bit 7,
+    /// [`crate::motion::polarity`]: they are positions like 0x6064).
     fn publish(&self, d: &mut Dictionary) {
         let [p1, p2] = &self.probes;
+        let polarity = Polarity::from_0x607e(d.get(h::POLARITY));
         d.set(h::TOUCH_PROBE_STATUS, self.status());
-        d.set(h::TOUCH_PROBE_1_POSITIVE_VALUE, p1.positive_value);
-        d.set(h::TOUCH_PROBE_1_NEGATIVE_VALUE, p1.negative_value);
-        d.set(h::TOUCH_PROBE_2_POSITIVE_VALUE, p2.positive_value);
-        d.set(h::TOUCH_PROBE_2_NEGATIVE_VALUE, p2.negative_value);
+        d.set(h::TOUCH_PROBE_1_POSITIVE_VALUE, polarity.position(p1.positive_value));
+        d.set(h::TOUCH_PROBE_1_NEGATIVE_VALUE, polarity.position(p1.negative_value));
+        d.set(h::TOUCH_PROBE_2_POSITIVE_VALUE, polarity.position(p2.positive_value));
+        d.set(h::TOUCH_PROBE_2_NEGATIVE_VALUE, polarity.position(p2.negative_value));
         d.set(h::TOUCH_PROBE_1_POSITIVE_COUNTER, p1.positive_counter);
         d.set(h::TOUCH_PROBE_1_NEGATIVE_COUNTER, p1.negative_counter);
         d.set(h::TOUCH_PROBE_2_POSITIVE_COUNTER, p2.positive_counter);

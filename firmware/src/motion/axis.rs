@@ -231,15 +231,18 @@ impl Axis {
     }
 
     /// A master set-point arrived (SYNC, SM2 event): latches 0x607A, 0x60FF, 0x6071 and the offsets for the
-    /// cyclic modes' interpolation.
+    /// cyclic modes' interpolation, in the axis's direction (polarity 0x607E: positions by bit 7, the target
+    /// velocity by bit 6, the velocity offset by the bit of the mode 0x6060 asks for, [`super::polarity`]).
     pub fn setpoint_received(&mut self, d: &Dictionary) {
-        let scale = &self.params.scale;
+        let (scale, polarity) = (&self.params.scale, self.params.polarity);
+        let position_mode = d.get(h::MODES_OF_OPERATION) == Mode::CyclicSyncPosition.code();
         self.cyclic.push(CyclicSetpoint {
-            target_position: d.get(h::TARGET_POSITION),
-            target_velocity: scale.velocity_from_rpm(i64::from(d.get(h::TARGET_VELOCITY))),
+            target_position: polarity.position(d.get(h::TARGET_POSITION)),
+            target_velocity: scale.velocity_from_rpm(polarity.velocity_rpm(d.get(h::TARGET_VELOCITY))),
             target_torque: d.get(h::TARGET_TORQUE),
-            position_offset: d.get(h::POSITION_OFFSET),
-            velocity_offset: scale.velocity_from_rpm(i64::from(d.get(h::VELOCITY_OFFSET))),
+            position_offset: polarity.position(d.get(h::POSITION_OFFSET)),
+            velocity_offset: scale
+                .velocity_from_rpm(polarity.velocity_offset_rpm(d.get(h::VELOCITY_OFFSET), position_mode)),
             torque_offset: d.get(h::TORQUE_OFFSET),
         });
     }
@@ -407,10 +410,10 @@ impl Axis {
     /// increments per second, EPOS3 L7006) and 0x30D3:01 (0x606C through a 5 Hz low-pass, stepped here once per
     /// slow period). The drive runs it in the background step, outside the slow tick's budget.
     pub fn publish_velocity_actual_values(&mut self, d: &mut Dictionary) {
-        let velocity = self.velocity();
-        d.set(h::VELOCITY_SENSOR_ACTUAL_VALUE, sat_i32(velocity.to_inc_per_s()));
+        let (velocity, polarity) = (self.velocity(), self.params.polarity);
+        d.set(h::VELOCITY_SENSOR_ACTUAL_VALUE, polarity.shown_velocity(sat_i32(velocity.to_inc_per_s())));
         self.velocity_average = average_velocity(self.velocity_average, velocity);
-        d.set(h::VELOCITY_ACTUAL_VALUE_AVERAGED, self.params.rpm(self.velocity_average));
+        d.set(h::VELOCITY_ACTUAL_VALUE_AVERAGED, polarity.shown_velocity(self.params.rpm(self.velocity_average)));
     }
 
     /// Plans the profile move, velocity command or buffered move the next step takes into force
@@ -664,7 +667,7 @@ impl Axis {
         };
         let step = match mode {
             Mode::ProfilePosition => {
-                let (target, clamped) = self.monitor.clamp_position(d.get(h::TARGET_POSITION));
+                let (target, clamped) = self.monitor.clamp_position(p.polarity.position(d.get(h::TARGET_POSITION)));
                 self.internal_limit = clamped;
                 let input = PpmInput {
                     controlword: cw,
@@ -678,7 +681,7 @@ impl Axis {
             Mode::ProfileVelocity => {
                 let input = PvmInput {
                     controlword: cw,
-                    target_velocity: p.scale.velocity_from_rpm(i64::from(d.get(h::TARGET_VELOCITY))),
+                    target_velocity: p.scale.velocity_from_rpm(p.polarity.velocity_rpm(d.get(h::TARGET_VELOCITY))),
                     params: p.profile,
                     halt_deceleration,
                     windows: p.windows,
@@ -697,7 +700,9 @@ impl Axis {
                     zero_search_speed: p.homing_zero_speed,
                     acceleration: p.homing_acceleration,
                     offset_move_distance: d.get(h::HOME_OFFSET_MOVE_DISTANCE),
-                    home_position: d.get(h::HOME_POSITION).wrapping_add(d.get(h::HOME_OFFSET)),
+                    // The reference 0x6064 reads after homing, in the axis's coordinates (polarity bit 7; the
+                    // homing moves keep the motor's direction: Gamma L1659 "no influence on homing mode").
+                    home_position: p.polarity.position(d.get(h::HOME_POSITION).wrapping_add(d.get(h::HOME_OFFSET))),
                     current_threshold_ma: u32::from(d.get(h::HOMING_CURRENT_THRESHOLD)),
                     search_distance_limit: (limit != 0).then_some(limit),
                     halt_deceleration,
@@ -822,14 +827,17 @@ impl Axis {
         };
         d.set(h::STATUSWORD, Statusword::encode(out.state, flags).0);
         d.set(h::MODES_OF_OPERATION_DISPLAY, out.mode.display);
+        // The master's values through the polarity 0x607E; the internal ones (0x60FC, 0x6063) keep the motor's
+        // direction ([`super::polarity`]).
+        let polarity = self.params.polarity;
         let demand = self.last_setpoint.position_i32();
-        d.set(h::POSITION_DEMAND_VALUE, demand);
+        d.set(h::POSITION_DEMAND_VALUE, polarity.position(demand));
         d.set(h::POSITION_DEMAND_INTERNAL_VALUE, demand);
         d.set(h::POSITION_ACTUAL_INTERNAL_VALUE, position.wrapping_sub(self.offset));
-        d.set(h::POSITION_ACTUAL_VALUE, position);
-        d.set(h::FOLLOWING_ERROR_ACTUAL_VALUE, demand.wrapping_sub(position));
-        d.set(h::VELOCITY_DEMAND_VALUE, self.params.rpm(self.last_setpoint.velocity));
-        d.set(h::VELOCITY_ACTUAL_VALUE, self.params.rpm(velocity));
+        d.set(h::POSITION_ACTUAL_VALUE, polarity.position(position));
+        d.set(h::FOLLOWING_ERROR_ACTUAL_VALUE, polarity.position(demand.wrapping_sub(position)));
+        d.set(h::VELOCITY_DEMAND_VALUE, polarity.shown_velocity(self.params.rpm(self.last_setpoint.velocity)));
+        d.set(h::VELOCITY_ACTUAL_VALUE, polarity.shown_velocity(self.params.rpm(velocity)));
         self.faults.publish(d);
     }
 }

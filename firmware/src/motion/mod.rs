@@ -14,7 +14,7 @@
 //! Files: [`profile_position`] (PPM, 0x6060 = 1), [`profile_velocity`] (PVM, 3), [`homing`] (HMM, 6) hold the
 //! modes; [`axis`] ties them, the cyclic modes (8, 9, 10), the stops of the CiA 402 machine, the position and
 //! velocity loops and the monitoring together for [`crate::drive::Drive::slow_tick`]; [`torque_ramp`] is CST's
-//! slow-down ramp (torque slope 0x6087).
+//! slow-down ramp (torque slope 0x6087); [`polarity`] is 0x607E, the sign of the values exchanged with the master.
 
 pub mod axis;
 pub mod cyclic;
@@ -22,6 +22,7 @@ pub mod homing;
 pub mod loops;
 pub mod monitor;
 pub mod params;
+pub mod polarity;
 pub mod profile_position;
 pub mod profile_velocity;
 pub mod torque_ramp;

@@ -12,6 +12,7 @@
 //!   the end of the stop trajectory (the CiA 402 machine applies the timeout 0x30E0:03).
 //! - Speed: velocity demands beyond 0x6080 (and 0x3000:06) are clamped, with bit 11.
 
+use super::polarity::Polarity;
 use crate::cia402::Ticks;
 use crate::control::trajectory::{MotionScale, Velocity};
 use crate::od::access::Dictionary;
@@ -36,6 +37,7 @@ struct MonitorObjects {
     max_motor_speed: u32,
     max_system_speed: u32,
     inc_per_rev: u32,
+    polarity: u8,
 }
 
 impl MonitorObjects {
@@ -50,6 +52,7 @@ impl MonitorObjects {
             max_motor_speed: d.get(h::MAX_MOTOR_SPEED),
             max_system_speed: d.get(h::MAX_SYSTEM_SPEED),
             inc_per_rev: d.get(h::MAIN_SENSOR_RESOLUTION),
+            polarity: d.get(h::POLARITY),
         }
     }
 }
@@ -65,7 +68,8 @@ pub struct MonitorConfig {
     pub standstill_window: Option<Velocity>,
     /// 0x30E0:02.
     pub standstill_time: Ticks,
-    /// 0x607D (min, max), `None` when both are 0.
+    /// 0x607D (min, max) in the axis's coordinates (mirrored by the position polarity 0x607E bit 7:
+    /// [`Polarity::limits`]), `None` when both are 0.
     pub software_limits: Option<(i32, i32)>,
     /// min(0x6080, 0x3000:06), magnitude.
     pub max_speed: Velocity,
@@ -110,7 +114,8 @@ impl Monitor {
             standstill_window: (o.standstill_window != u32::MAX)
                 .then(|| scale.velocity_from_rpm(i64::from(o.standstill_window))),
             standstill_time: ticks_from_ms(u32::from(o.standstill_time)),
-            software_limits: (o.limit_min != 0 || o.limit_max != 0).then_some((o.limit_min, o.limit_max)),
+            software_limits: (o.limit_min != 0 || o.limit_max != 0)
+                .then(|| Polarity::from_0x607e(o.polarity).limits(o.limit_min, o.limit_max)),
             max_speed: scale.velocity_from_rpm(i64::from(o.max_motor_speed.min(o.max_system_speed))),
         };
         self.objects = o;

@@ -3,9 +3,10 @@
 //!
 //! Objects: 0x3000:05 increments per revolution; 0x6081, 0x6083..0x6086, 0x607F, 0x60C5, 0x60C6 (profile);
 //! 0x6067, 0x6068, 0x606D..0x606F (windows); 0x6099, 0x609A (homing); 0x60C2 (interpolation period); 0x605A..0x605E
-//! and 0x6007 (option codes, raw).
+//! and 0x6007 (option codes, raw); 0x607E (polarity).
 
 use super::monitor::ticks_from_ms;
+use super::polarity::Polarity;
 use super::Windows;
 use crate::cia402::OptionCodes;
 use crate::control::interpolator::InterpolationPeriod;
@@ -77,6 +78,8 @@ pub struct MotionParams {
     pub period: InterpolationPeriod,
     /// The option codes (read every tick, they are plain copies).
     pub options: OptionCodes,
+    /// 0x607E (read every tick, a plain copy like the option codes).
+    pub polarity: Polarity,
     /// rpm per 2^-48 of a Q32 increments-per-tick velocity: `150,000 x 2^16 / N` (N increments per revolution).
     rpm_mantissa: i64,
     raw: Option<RawParams>,
@@ -111,6 +114,7 @@ impl MotionParams {
             homing_profile: profile,
             period: InterpolationPeriod::DISABLED,
             options: OptionCodes::DEFAULT,
+            polarity: Polarity::NONE,
             rpm_mantissa: 0,
             raw: None,
         };
@@ -143,6 +147,7 @@ impl MotionParams {
             fault_reaction: d.get(h::FAULT_REACTION_OPTION_CODE),
             abort_connection: d.get(h::ABORT_CONNECTION_OPTION_CODE),
         };
+        self.polarity = Polarity::from_0x607e(d.get(h::POLARITY));
         let raw = RawParams::read(d);
         if self.raw == Some(raw) {
             return;

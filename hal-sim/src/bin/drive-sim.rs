@@ -57,8 +57,12 @@ the reference-tuned ones. Scaling against the reference plant, so a scenario mea
 accelerations and distances in revolutions x max_speed_rpm / 5000 (a move keeps its timing); currents (steps, \
 sweep bias and amplitude, spinning base and high current) x peak_current_a / 10; load torques (at the output) x \
 kt * peak_current_a * gear_ratio * gear_efficiency / 0.335 N m. Scaled: current-step, spinning, csp, csv-sweep, ppm \
-(moves and quick stops). Not scaled (reference numbers): homing, fault-matrix, duty-cycle, bench, and the servers, \
-whose motion comes from the master.";
+(moves and quick stops), duty-cycle (velocity steps x max_speed_rpm / 5000, load torques x the peak torque at the \
+output / 0.335 N m, timing kept), homing (0x6099, 0x609A and the positioning move x max_speed_rpm / 5000; switch, \
+band and index placement, 0x30B1 and 0x30B3 x encoder_counts_per_rev / 4096 x max_speed_rpm / 5000, so a run keeps \
+its timing; 0x30B2 x peak_current_a / 10; the end stop's stiffness x the peak torque at the output, acting at the \
+output). Not scaled (reference numbers, on the chosen plant): fault-matrix (its injections are the power stage's, \
+which every preset shares), bench, and the servers, whose motion comes from the master.";
 
 const USAGE: &str =
     "usage: drive-sim <current-step | spinning | csp | csv-sweep | ppm | homing | fault-matrix | duty-cycle | bench | ethercat | canopen> [--plant FILE] [--seed N] [--default-gains | --gains P,I] \
@@ -553,12 +557,11 @@ fn ppm(args: &Args, dir: &Path) -> Result<(), String> {
 }
 
 fn homing_matrix(args: &Args, dir: &Path) -> Result<(), String> {
+    let cfg = homing::HomingConfig::new(args.seed, 1, homing::Start::Below);
     println!(
         "homing: plant (seed {}), CiA 402 HMM, every method of 0x60E3 from each side of its reference \
-         (switch search {} rpm, zero search {} rpm)",
-        args.seed,
-        homing::SWITCH_SEARCH_RPM,
-        homing::ZERO_SEARCH_RPM
+         (switch search {} rpm, zero search {} rpm, 0x609A {} rpm/s, distances x{:.3} of the reference's counts)",
+        args.seed, cfg.switch_search_rpm, cfg.zero_search_rpm, cfg.acceleration_rpm_s, cfg.distance_scale
     );
     let m = homing::homing_matrix(args.seed).map_err(|e| e.to_string())?;
     println!("  {:>6}  {:<10}  {:>9}  {:>9}  {:>10}", "method", "start", "outcome", "error", "homing [s]");

@@ -1,5 +1,11 @@
-//! The "no false trips" duty cycle (issue 5): 60 s of a machine's work on the reference plant with every
-//! protection armed, the reference sensor noise, and nothing that should trip.
+//! The "no false trips" duty cycle (issue 5): 60 s of a machine's work on the scenario plant (the reference
+//! unless `drive-sim --plant` chose another) with every protection armed, the reference sensor noise, and nothing
+//! that should trip.
+//!
+//! The numbers below are the reference plant's; on another plant the velocity steps scale with its maximum speed
+//! and the load torques with its peak torque at the output ([`PlantScale`]: `speed`, `torque`), so that each step
+//! is the same share of the plant's ratings: an acceleration at its current limit, a braking that feeds its
+//! kinetic energy back, a load of up to 30 % of its peak torque. The timing (0.6 s steps, 1.7 s loads) is kept.
 //!
 //! The master runs CSV with set-points every 1 ms. Every 0.6 s the target velocity steps through 2,000, 0,
 //! -2,000, 0, 1,500, -1,500, 2,000, -500 rpm (the reversals brake at the current limit, with the bus-voltage limiter 0x3202 on as by default: it acts only when the bus passes 51 V) (a step is an acceleration at the current limit: the velocity loop saturates
@@ -19,17 +25,18 @@ use firmware::fault::{EmcyMessage, FaultId};
 use firmware::od::generated::handles as h;
 
 use super::motion::prepare_motion;
+use super::PlantScale;
 use crate::sim::trace::Trace;
 use crate::sim::SimError;
 
 /// Length of the duty cycle, s.
 pub const DURATION_S: f64 = 60.0;
-/// Target velocities, rpm, one every [`STEP_PERIOD_S`].
+/// Target velocities on the reference plant, rpm, one every [`STEP_PERIOD_S`] (x [`PlantScale::speed`]).
 const VELOCITY_STEPS_RPM: [i32; 8] = [2_000, 0, -2_000, 0, 1_500, -1_500, 2_000, -500];
 /// Time between two velocity steps, s.
 const STEP_PERIOD_S: f64 = 0.6;
-/// Load torque magnitudes, Nm, one every [`LOAD_PERIOD_S`] (the peak torque is 0.335 Nm); the sign follows the
-/// speed so that the load resists the motion.
+/// Load torque magnitudes on the reference plant, Nm, one every [`LOAD_PERIOD_S`] (the peak torque is 0.335 Nm;
+/// x [`PlantScale::torque`], at the output); the sign follows the speed so that the load resists the motion.
 const LOAD_STEPS_NM: [f64; 4] = [0.1, 0.0, 0.05, 0.0];
 /// Time between two load steps, s.
 const LOAD_PERIOD_S: f64 = 1.7;
@@ -60,8 +67,9 @@ pub struct DutyCycleFigures {
     pub events: Vec<String>,
 }
 
-/// Runs the duty cycle with noise `seed`.
+/// Runs the duty cycle with noise `seed` on the scenario plant, scaled to its ratings.
 pub fn duty_cycle(seed: u64) -> Result<(DutyCycleFigures, Trace), SimError> {
+    let scale = PlantScale::current_plant();
     let mut sim = prepare_motion(seed, 9)?;
     let _ = std::iter::from_fn(|| sim.drive.poll_emcy()).count();
     let mut trace = Trace::new(&["t_s", "target_rpm", "speed_rpm", "iq_a", "bus_v", "i2t_pct"]);
@@ -72,13 +80,14 @@ pub fn duty_cycle(seed: u64) -> Result<(DutyCycleFigures, Trace), SimError> {
     for k in 0..periods {
         let t = k as f64 * crate::plant::PERIOD_S;
         if t >= step_index as f64 * STEP_PERIOD_S {
-            target = VELOCITY_STEPS_RPM[step_index % VELOCITY_STEPS_RPM.len()];
+            let reference_rpm = VELOCITY_STEPS_RPM[step_index % VELOCITY_STEPS_RPM.len()];
+            target = (f64::from(reference_rpm) * scale.speed).round() as i32;
             sim.drive.dictionary_mut().set(h::TARGET_VELOCITY, target);
             step_index += 1;
             f.moves += 1;
         }
         if t >= load_index as f64 * LOAD_PERIOD_S + LOAD_PERIOD_S / 2.0 {
-            load = LOAD_STEPS_NM[load_index % LOAD_STEPS_NM.len()];
+            load = LOAD_STEPS_NM[load_index % LOAD_STEPS_NM.len()] * scale.torque;
             load_index += 1;
         }
         // The load resists the motion: its sign follows the speed (a reversal never turns it into a drive).

@@ -1,6 +1,14 @@
-//! Homing mode (HMM, 0x6060 = 6) on the reference plant, driven through CiA 402 as a fieldbus master drives it,
-//! with the true reference computed from the plant's geometry. `tests/tests/motion/homing.rs` asserts these
-//! figures.
+//! Homing mode (HMM, 0x6060 = 6) on the scenario plant (the reference unless `drive-sim --plant` chose another),
+//! driven through CiA 402 as a fieldbus master drives it, with the true reference computed from the plant's
+//! geometry. `tests/tests/motion/homing.rs` asserts these figures.
+//!
+//! # Another plant
+//! The numbers below are the reference plant's. On another plant ([`HomingConfig::new`]) the speeds (0x6099,
+//! 0x609A and the positioning move) scale with its maximum speed ([`PlantScale::speed`]), the distances
+//! (switch, band and index placement, the offset move 0x30B1, the search limit 0x30B3) with its revolutions
+//! times the same factor ([`HomingConfig::distance_scale`]: a run keeps its timing), the current threshold
+//! 0x30B2 with its peak current, and the end stop's stiffness with its peak torque at the output (the stop acts
+//! on the load side, through the gear). The home error is still counted in the plant's encoder increments.
 //!
 //! # A run ([`homing_run_with`])
 //! 1. [`prepare_motion_on`] (the reference plant, or its encoder replaced: [`HomingConfig::counts_per_rev`]) in
@@ -70,6 +78,7 @@ use core::f64::consts::PI;
 use firmware::od::generated::handles as h;
 
 use super::motion::prepare_motion_on;
+use super::{scenario_plant, PlantScale};
 use crate::plant::{InputSource, PlantParams, PERIOD_S};
 use crate::sim::{SimError, Simulation};
 
@@ -279,9 +288,21 @@ pub struct Geometry {
 /// move `displacement`; `None` when the method cannot start there (the stop side of an end stop, beyond a band
 /// for a method without one).
 pub fn geometry(truth: &Truth, start: Start, index: i64, displacement: i64) -> Option<Geometry> {
+    geometry_scaled(truth, start, index, displacement, 1.0)
+}
+
+/// A reference distance in counts times `scale` ([`HomingConfig::distance_scale`]), at least one count.
+fn scaled(counts: i64, scale: f64) -> i64 {
+    ((counts as f64 * scale).round() as i64).max(1)
+}
+
+/// [`geometry`] with every distance of the placement (index gap, start distance, band width, limit margin, the
+/// quarter turn of 35/37) times `scale`.
+pub fn geometry_scaled(truth: &Truth, start: Start, index: i64, displacement: i64, scale: f64) -> Option<Geometry> {
     let f = truth.approach;
-    let gap = INDEX_GAP_INC;
-    let d = START_DISTANCE_INC;
+    let gap = scaled(INDEX_GAP_INC, scale);
+    let d = scaled(START_DISTANCE_INC, scale);
+    let band_width = scaled(BAND_WIDTH_INC, scale);
     let edge = index - f * gap;
     let mut g = Geometry {
         start: index,
@@ -322,11 +343,11 @@ pub fn geometry(truth: &Truth, start: Start, index: i64, displacement: i64) -> O
         }
         Family::Band { lower_edge, .. } => {
             let (lo, hi, active) =
-                if lower_edge { (edge, edge + BAND_WIDTH_INC, 1) } else { (edge - BAND_WIDTH_INC, edge, -1) };
+                if lower_edge { (edge, edge + band_width, 1) } else { (edge - band_width, edge, -1) };
             g.start = match start {
                 Start::Below => edge - d,
                 Start::Above => edge + d,
-                Start::Beyond => edge + active * (BAND_WIDTH_INC + d),
+                Start::Beyond => edge + active * (band_width + d),
             };
             g.home_switch = InputSource::Band { from_counts: lo, to_counts: hi - 1 };
             points.extend([lo, hi]);
@@ -356,7 +377,7 @@ pub fn geometry(truth: &Truth, start: Start, index: i64, displacement: i64) -> O
         }
         Family::Here => {
             g.edge = None;
-            g.start = index + CPR / 4;
+            g.start = index + scaled(CPR / 4, scale);
             g.reference = g.start;
             points.clear();
         }
@@ -365,8 +386,9 @@ pub fn geometry(truth: &Truth, start: Start, index: i64, displacement: i64) -> O
         return Some(g);
     }
     points.extend([g.start, g.reference + displacement]);
-    let lo = points.iter().copied().min().unwrap_or(index) - LIMIT_MARGIN_INC;
-    let hi = points.iter().copied().max().unwrap_or(index) + LIMIT_MARGIN_INC;
+    let margin = scaled(LIMIT_MARGIN_INC, scale);
+    let lo = points.iter().copied().min().unwrap_or(index) - margin;
+    let hi = points.iter().copied().max().unwrap_or(index) + margin;
     g.negative_limit = g.negative_limit.or(Some(lo));
     g.positive_limit = g.positive_limit.or(Some(hi));
     Some(g)
@@ -374,7 +396,9 @@ pub fn geometry(truth: &Truth, start: Start, index: i64, displacement: i64) -> O
 
 /// The load torque of an end stop at `stop_counts` (positive: blocks motion above it, else below), N m, for
 /// `Plant::set_load_profile`: a stiff one-sided spring-damper ([`END_STOP_STIFFNESS_NM_PER_RAD`],
-/// [`END_STOP_DAMPING_RATIO`] on the shaft's inertia `j`) that only pushes the shaft out of the stop. Beyond the
+/// [`END_STOP_DAMPING_RATIO`] on the shaft's inertia `j`) that only pushes the shaft out of the stop. On a plant
+/// with a gear, `counts_per_rev` is the counts per output revolution, `j` the inertia at the output and the
+/// stiffness [`END_STOP_STIFFNESS_NM_PER_RAD`] x [`PlantScale::torque`] (`end_stop_load_scaled`). Beyond the
 /// stop by `x` rad at `w` rad/s: `max(0, k x + c w)`. The plant holds the load over each integration segment
 /// (at most 5 us): with `w_n = sqrt(k / j)` = 16,900 rad/s, `w_n h` = 0.08 and `2 zeta w_n h` = 0.7, well inside
 /// the stability of that explicit step.
@@ -384,7 +408,19 @@ pub fn end_stop_load(
     counts_per_rev: f64,
     j: f64,
 ) -> impl FnMut(f64, f64, f64) -> f64 + Send {
-    let k = END_STOP_STIFFNESS_NM_PER_RAD;
+    end_stop_load_scaled(positive, stop_counts, counts_per_rev, j, 1.0)
+}
+
+/// [`end_stop_load`] with the stiffness times `torque_scale` (the plant's peak torque at the output over the
+/// reference's), so the stop yields the same share of a count under the current limit.
+pub fn end_stop_load_scaled(
+    positive: bool,
+    stop_counts: f64,
+    counts_per_rev: f64,
+    j: f64,
+    torque_scale: f64,
+) -> impl FnMut(f64, f64, f64) -> f64 + Send {
+    let k = END_STOP_STIFFNESS_NM_PER_RAD * torque_scale;
     let c = 2.0 * END_STOP_DAMPING_RATIO * (k * j).sqrt();
     let stop_rad = stop_counts / counts_per_rev * 2.0 * PI;
     move |_t, theta, omega| {
@@ -433,30 +469,40 @@ pub struct HomingConfig {
     /// Standing time after bit 12 or 13 before the final values are read, s.
     pub settle_s: f64,
     /// The plant's encoder counts per revolution (the drive's 0x3010:01 follows, [`Simulation::new`]); the
-    /// reference 4,096. The switches and the index gap are placed in counts, within one revolution of 2,000.
+    /// scenario plant's (the reference 4,096). The switches and the index gap are placed in counts, within one
+    /// revolution of 2,000 on the reference.
     pub counts_per_rev: u32,
+    /// Plant counts per reference count of the placement distances ([`geometry_scaled`]): the scenario plant's
+    /// revolutions (counts per revolution / 4,096) times [`PlantScale::speed`]; 1 on the reference plant.
+    pub distance_scale: f64,
 }
 
 impl HomingConfig {
-    /// The matrix's settings for `method` from `start`.
+    /// The matrix's settings for `method` from `start`, scaled to the scenario plant (module documentation,
+    /// "Another plant"; the reference values on the reference plant).
     pub fn new(seed: u64, method: i8, start: Start) -> Self {
+        let plant = scenario_plant();
+        let sc = PlantScale::of(&plant);
+        let speed = |x: u32| ((f64::from(x) * sc.speed).round() as u32).max(1);
+        let distance_scale = sc.speed * f64::from(plant.encoder_counts_per_rev) / CPR as f64;
         Self {
             seed,
             method,
             start,
-            switch_search_rpm: SWITCH_SEARCH_RPM,
-            zero_search_rpm: ZERO_SEARCH_RPM,
-            acceleration_rpm_s: HOMING_ACCELERATION_RPM_S,
+            switch_search_rpm: speed(SWITCH_SEARCH_RPM),
+            zero_search_rpm: speed(ZERO_SEARCH_RPM),
+            acceleration_rpm_s: speed(HOMING_ACCELERATION_RPM_S),
             home_position_inc: HOME_POSITION_INC,
             home_offset_inc: HOME_OFFSET_INC,
             offset_move_inc: None,
-            current_threshold_ma: CURRENT_THRESHOLD_MA,
+            current_threshold_ma: (f64::from(CURRENT_THRESHOLD_MA) * sc.current).round().clamp(1.0, 65_535.0) as u16,
             max_current_permille: None,
-            search_limit_inc: SEARCH_LIMIT_INC,
+            search_limit_inc: scaled(i64::from(SEARCH_LIMIT_INC), distance_scale) as u32,
             missing_reference: false,
             timeout_s: 3.0,
             settle_s: SETTLE_S,
-            counts_per_rev: CPR as u32,
+            counts_per_rev: plant.encoder_counts_per_rev,
+            distance_scale,
         }
     }
 }
@@ -550,14 +596,16 @@ fn ticks_until(sim: &mut Simulation, max: u64, mut done: impl FnMut(&Simulation)
     None
 }
 
-/// The master moves the axis to plant count `count` in PPM (absolute move) and waits for target reached.
-fn position_axis(sim: &mut Simulation, count: i64) -> Result<(), SimError> {
+/// The master moves the axis to plant count `count` in PPM (absolute move, at the positioning speeds times
+/// `speed_scale`) and waits for target reached.
+fn position_axis(sim: &mut Simulation, count: i64, speed_scale: f64) -> Result<(), SimError> {
     let target = count - encoder_offset(sim) + position_offset(sim);
+    let speed = |x: u32| ((f64::from(x) * speed_scale).round() as u32).max(1);
     {
         let d = sim.drive.dictionary_mut();
-        d.set(h::PROFILE_VELOCITY, POSITIONING_RPM);
-        d.set(h::PROFILE_ACCELERATION, POSITIONING_RPM_S);
-        d.set(h::PROFILE_DECELERATION, POSITIONING_RPM_S);
+        d.set(h::PROFILE_VELOCITY, speed(POSITIONING_RPM));
+        d.set(h::PROFILE_ACCELERATION, speed(POSITIONING_RPM_S));
+        d.set(h::PROFILE_DECELERATION, speed(POSITIONING_RPM_S));
         d.set(h::TARGET_POSITION, i32::try_from(target).unwrap_or(i32::MAX));
     }
     sim.set_controlword(ENABLE_OPERATION);
@@ -576,8 +624,11 @@ fn position_axis(sim: &mut Simulation, count: i64) -> Result<(), SimError> {
 
 /// Wires the switches and the end stop of `g` into the plant (`missing`: without the reference switch or stop).
 fn place(sim: &mut Simulation, truth: &Truth, g: &Geometry, missing: bool) {
-    let j = sim.plant.params().total_inertia_kg_m2();
-    let cpr = f64::from(sim.plant.params().encoder_counts_per_rev);
+    // The stop acts at the output: its counts per output revolution and the inertia there.
+    let params = sim.plant.params();
+    let torque_scale = PlantScale::of(params).torque;
+    let j = params.total_inertia_kg_m2() * params.gear_ratio * params.gear_ratio;
+    let cpr = f64::from(params.encoder_counts_per_rev) * params.gear_ratio;
     let io = &mut sim.plant.params_mut().io;
     io.set_negative_limit(g.negative_limit.map(|b| b - 1));
     io.set_positive_limit(g.positive_limit);
@@ -592,7 +643,7 @@ fn place(sim: &mut Simulation, truth: &Truth, g: &Geometry, missing: bool) {
     }
     match g.end_stop {
         Some((positive, at)) if !missing => {
-            sim.plant.set_load_profile(Some(Box::new(end_stop_load(positive, at, cpr, j))));
+            sim.plant.set_load_profile(Some(Box::new(end_stop_load_scaled(positive, at, cpr, j, torque_scale))));
         }
         _ => sim.plant.set_load_profile(None),
     }
@@ -619,22 +670,24 @@ pub fn homing_run(seed: u64, method: i8, start: Start) -> Result<HomingResult, R
 pub fn homing_run_with(cfg: &HomingConfig) -> Result<HomingResult, RunError> {
     let truth = truth(cfg.method).ok_or(RunError::UndefinedMethod(cfg.method))?;
     let no_start = RunError::NoSuchStart(cfg.method, cfg.start);
+    let offset_move_magnitude = scaled(i64::from(OFFSET_MOVE_INC), cfg.distance_scale) as i32;
     let offset_move = cfg.offset_move_inc.unwrap_or(match truth.family {
-        Family::EndStop { .. } => OFFSET_MOVE_INC,
-        _ if truth.approach > 0 => OFFSET_MOVE_INC,
-        _ => -OFFSET_MOVE_INC,
+        Family::EndStop { .. } => offset_move_magnitude,
+        _ if truth.approach > 0 => offset_move_magnitude,
+        _ => -offset_move_magnitude,
     });
     let disp = displacement(&truth, offset_move);
-    let plant = PlantParams { encoder_counts_per_rev: cfg.counts_per_rev, ..PlantParams::reference() };
+    let plant = PlantParams { encoder_counts_per_rev: cfg.counts_per_rev, ..scenario_plant() };
+    let speed_scale = PlantScale::of(&plant).speed;
     let mut sim = prepare_motion_on(plant, cfg.seed, 1)?;
     let cpr = i64::from(cfg.counts_per_rev);
     // The index that puts the start nearest the axis.
-    let probe = geometry(&truth, cfg.start, 0, disp).ok_or(no_start)?;
+    let probe = geometry_scaled(&truth, cfg.start, 0, disp, cfg.distance_scale).ok_or(no_start)?;
     let enc_offset = encoder_offset(&sim);
     let here = sim.plant.true_encoder_count();
     let index = (here - probe.start + cpr / 2).div_euclid(cpr) * cpr;
-    let mut g = geometry(&truth, cfg.start, index, disp).ok_or(no_start)?;
-    position_axis(&mut sim, g.start)?;
+    let mut g = geometry_scaled(&truth, cfg.start, index, disp, cfg.distance_scale).ok_or(no_start)?;
+    position_axis(&mut sim, g.start, speed_scale)?;
 
     // HMM with the controlword at «Enable operation» (no bit 4), then the switches and the homing objects.
     sim.set_mode(6);

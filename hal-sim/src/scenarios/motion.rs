@@ -11,7 +11,7 @@ use core::f64::consts::PI;
 
 use firmware::od::generated::handles as h;
 
-use super::{prepare_plant, Setup};
+use super::{prepare_plant, scenario_plant, Setup};
 use crate::plant::{PlantParams, PERIOD_S};
 use crate::sim::trace::Trace;
 use crate::sim::{SimError, Simulation};
@@ -21,10 +21,11 @@ pub const INC_PER_REV: f64 = 4096.0;
 /// PWM periods per slow tick.
 const PERIODS_PER_SLOW_TICK: u64 = 10;
 
-/// Builds the reference simulation, commissions it (see the module documentation) and enables it in `mode`
-/// (0x6060) through the controlword, with the rotor at rest.
+/// Builds the simulation of the scenario plant (the reference unless `drive-sim --plant` chose another:
+/// [`scenario_plant`]), commissions it (see the module documentation) and enables it in `mode` (0x6060) through
+/// the controlword, with the rotor at rest.
 pub fn prepare_motion(seed: u64, mode: i8) -> Result<Simulation, SimError> {
-    prepare_motion_on(PlantParams::reference(), seed, mode)
+    prepare_motion_on(scenario_plant(), seed, mode)
 }
 
 /// [`prepare_motion`] on the plant `params` (the drive's encoder objects follow its encoder,

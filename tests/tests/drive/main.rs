@@ -10,3 +10,4 @@ mod encoder_resolution;
 mod io;
 mod parameters;
 mod regeneration;
+mod sensor_configuration;

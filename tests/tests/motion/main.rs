@@ -6,4 +6,5 @@ mod cyclic;
 mod encoder_resolution;
 mod homing;
 mod observer;
+mod polarity;
 mod profile;
