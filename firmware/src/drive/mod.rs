@@ -61,6 +61,7 @@ pub mod commutation;
 pub mod encoder;
 mod fieldbus;
 pub mod hall_position;
+pub mod mechanical_identification;
 pub mod objects;
 pub mod protection;
 pub mod regeneration;
