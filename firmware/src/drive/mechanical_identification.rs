@@ -27,8 +27,10 @@
 //!   `J a = kt i_q - Tc sign(w) - B w`, the tent-weighted sums of i_q, sign(w) and w (the position increments) are the regressors of D2:
 //!   three coefficients give J, Tc and B (kt from the first fit). The position is exact (no velocity
 //!   differentiation), each block pair is one equation, and the relay makes current sign, speed sign and
-//!   speed independent regressors. On an elastic drivetrain the fit sees the total inertia (the motor-side
-//!   oscillation averages over the block pairs).
+//!   speed independent regressors. Only block pairs at a steady current demand count: while the current ramps,
+//!   an elastic coupling winds up and the motor runs ahead of (or behind) the load by the twist's rate, which on
+//!   the geared preset made the inertia 16 % too large; between the ramps the motor's mean acceleration is the
+//!   whole drivetrain's, and the fit sees the total inertia.
 //!
 //! Each fit accumulates its normal equations in `i128` ([`Regression3`]) and is solved once at the end by
 //! Cramer's rule on the equations scaled to 40 bits. Cost per slow tick: a few dozen 64-bit products; the solve
@@ -41,12 +43,17 @@ use crate::control::wide;
 /// Ticks per block of the mechanical fit (3.2 ms at 2.5 kHz): long enough that the second difference of the
 /// position is many counts, short enough for many equations per half cycle.
 pub const BLOCK_TICKS: u32 = 8;
+/// Ticks over which the speed for the relay and the limit is a position difference (3.2 ms).
+pub const SPEED_TICKS: u32 = 8;
 /// Ticks the probe holds one current level before it doubles it (100 ms).
 pub const PROBE_TICKS: u32 = 250;
 /// Doublings of the probe current: 1/16, 1/8, 1/4, 1/2, 1 of the test current limit.
 const PROBE_LEVELS: u32 = 4;
-/// The relay's half cycle the probe aims its current at (100 ms, 250 ticks): about 30 block pairs per half cycle.
-pub const HALF_CYCLE_TARGET_TICKS: u32 = 250;
+/// The relay's half cycle the probe and the first half cycles aim the current at (250 ms, 625 ticks): long
+/// against a coupling's period, so that its ringing after a reversal (whose mean acceleration over the half cycle
+/// is its speed change over the whole) is small against the acceleration; on the geared preset 100 ms gave a
+/// Coulomb friction 90 % off, 250 ms 35 %. The relay ends after about 2 to 3 s.
+pub const HALF_CYCLE_TARGET_TICKS: u32 = 625;
 /// Ticks of a full current reversal (+I to -I), 20 ms: longer than the period of a 60 Hz coupling resonance,
 /// which a step would ring at full amplitude.
 pub const RAMP_TICKS: u32 = 50;
@@ -56,6 +63,8 @@ pub const MIN_HALF_CYCLES: u16 = 8;
 pub const MIN_RELAY_TICKS: u32 = 2_500;
 /// Ticks the relay runs at most (3 s): with fewer than [`MIN_FIT_HALF_CYCLES`] by then, the step times out.
 pub const MAX_RELAY_TICKS: u32 = 7_500;
+/// Half cycles after which the relay adapts its current (the first ones).
+const ADAPTED_HALF_CYCLES: u16 = 3;
 /// Half cycles the fit needs at the least.
 const MIN_FIT_HALF_CYCLES: u16 = 2;
 /// The relay speed in per mille of the max system speed.
@@ -63,8 +72,8 @@ const RELAY_SPEED_PERMILLE: u64 = 500;
 /// The q voltage at which the relay reverses whatever the speed, in 1/64 of the bus voltage: 29/64 = 0.45, 78 %
 /// of the linear range of space-vector modulation (v_bus / sqrt 3), leaving the current loop its headroom.
 const HEADROOM_PER_64: i64 = 29;
-/// Samples of the position history for the speed: the speed is the position difference over [`BLOCK_TICKS`].
-const HISTORY: usize = BLOCK_TICKS as usize;
+/// Samples of the position history for the speed: the speed is the position difference over [`SPEED_TICKS`].
+const HISTORY: usize = SPEED_TICKS as usize;
 
 /// What the step needs to know (from 0x3001, 0x3002, 0x3010, 0x6080 and the procedure's own limits).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -190,6 +199,8 @@ struct BlockSums {
     s1: [i64; 3],
     /// The block's position difference (counts).
     travel: i64,
+    /// The current demand changed in the block or the tick before it.
+    ramping: bool,
 }
 
 impl BlockSums {
@@ -218,11 +229,11 @@ pub struct MechanicalIdentification {
     phase: Phase,
     /// Slow ticks since the start.
     ticks: u32,
-    /// The max system speed in counts per [`BLOCK_TICKS`].
+    /// The max system speed in counts per [`SPEED_TICKS`].
     speed_limit: i64,
-    /// The relay speed in counts per [`BLOCK_TICKS`].
+    /// The relay speed in counts per [`SPEED_TICKS`].
     relay_speed: i64,
-    /// Position history (ring) for the speed over [`BLOCK_TICKS`].
+    /// Position history (ring) for the speed over [`SPEED_TICKS`].
     history: [i32; HISTORY],
     history_at: usize,
     last_position: i32,
@@ -230,8 +241,12 @@ pub struct MechanicalIdentification {
     relay_current: i64,
     /// The q current demand in bits, ramped in the relay.
     demand: i64,
+    /// The demand of the tick before (for the mechanical fit's steady blocks).
+    previous_demand: i64,
     relay_ticks: u32,
     half_cycles: u16,
+    /// Relay tick and speed at the last reversal (the relay's start at first).
+    half_start: (u32, i64),
     /// Ticks into the current block and its sums; the previous complete block.
     block_tick: u32,
     block: BlockSums,
@@ -245,9 +260,9 @@ impl MechanicalIdentification {
     /// A step at its start; the first [`Self::step`] takes the rest position.
     #[must_use]
     pub fn new(config: &MechanicalConfig) -> Self {
-        // counts per BLOCK_TICKS at n rpm: n cpr BLOCK_TICKS / (60 f).
+        // counts per SPEED_TICKS at n rpm: n cpr SPEED_TICKS / (60 f).
         let per_block = |rpm: u64| -> i64 {
-            let num = rpm.saturating_mul(u64::from(config.counts_per_rev)).saturating_mul(u64::from(BLOCK_TICKS));
+            let num = rpm.saturating_mul(u64::from(config.counts_per_rev)).saturating_mul(u64::from(SPEED_TICKS));
             let den = 60u64.saturating_mul(u64::from(SLOW_TICK_HZ));
             i64::try_from(num.checked_div(den).unwrap_or(0)).unwrap_or(i64::MAX)
         };
@@ -264,8 +279,10 @@ impl MechanicalIdentification {
             last_position: 0,
             relay_current: 0,
             demand: 0,
+            previous_demand: 0,
             relay_ticks: 0,
             half_cycles: 0,
+            half_start: (0, 0),
             block_tick: 0,
             block: BlockSums::default(),
             previous_block: None,
@@ -335,7 +352,7 @@ impl MechanicalIdentification {
             >= i64::from(sample.v_bus.to_bits()).saturating_mul(HEADROOM_PER_64);
         match self.phase {
             Phase::Start { ticks } => {
-                self.phase = if ticks.saturating_add(1) >= BLOCK_TICKS {
+                self.phase = if ticks.saturating_add(1) >= SPEED_TICKS {
                     Phase::Probe { level: 0, ticks: 0, start_speed: speed }
                 } else {
                     Phase::Start { ticks: ticks.saturating_add(1) }
@@ -383,7 +400,7 @@ impl MechanicalIdentification {
         }
         let reached = speed >= probe_speed || headroom;
         let last_level = level >= PROBE_LEVELS;
-        if reached || (ticks >= PROBE_TICKS && last_level && gained >= i64::from(BLOCK_TICKS)) {
+        if reached || (ticks >= PROBE_TICKS && last_level && gained >= i64::from(SPEED_TICKS)) {
             // Acceleration a_p = gained / ticks (counts per block per tick) at `current`; the relay wants
             // a_r = 2 w / T: I = current a_r / a_p = current 2 w ticks / (T gained).
             let num = i128::from(current).saturating_mul(2).saturating_mul(i128::from(self.relay_speed));
@@ -392,6 +409,7 @@ impl MechanicalIdentification {
             let wanted = i64::try_from(num.checked_div(den).unwrap_or(0)).unwrap_or(limit);
             self.relay_current = wanted.clamp(limit >> (PROBE_LEVELS.saturating_add(1)), limit);
             self.phase = Phase::Relay { direction: 1 };
+            self.half_start = (0, speed);
             self.block_start = self.last_position;
             self.demand = current;
             return None;
@@ -423,12 +441,36 @@ impl MechanicalIdentification {
             speed.saturating_mul(direction) >= self.relay_speed || (headroom && speed.saturating_mul(direction) > 0);
         let direction = if reached {
             self.half_cycles = self.half_cycles.saturating_add(1);
+            if self.half_cycles <= ADAPTED_HALF_CYCLES {
+                self.adapt_relay_current(speed);
+            }
+            self.half_start = (self.relay_ticks, speed);
             direction.saturating_neg()
         } else {
             direction
         };
         self.phase = Phase::Relay { direction };
         self.ramp_towards(direction.saturating_mul(self.relay_current));
+    }
+
+    /// Scales the relay current by the half cycle's acceleration against the one wanted (2 w per
+    /// [`HALF_CYCLE_TARGET_TICKS`]): the probe's estimate is rough where friction or an elastic load (the motor
+    /// first turns alone through the backlash) falsify its short acceleration. At most a factor 2 per half cycle.
+    fn adapt_relay_current(&mut self, speed: i64) {
+        let (start_tick, start_speed) = self.half_start;
+        let ticks = self.relay_ticks.saturating_sub(start_tick);
+        let gained = speed.saturating_sub(start_speed).saturating_abs().max(1);
+        let current = self.relay_current;
+        let wanted = i128::from(current)
+            .saturating_mul(2)
+            .saturating_mul(i128::from(self.relay_speed))
+            .saturating_mul(i128::from(ticks))
+            .checked_div(i128::from(HALF_CYCLE_TARGET_TICKS).saturating_mul(i128::from(gained)))
+            .and_then(|w| i64::try_from(w).ok())
+            .unwrap_or(current);
+        let limit = i64::from(self.config.current_limit.to_bits());
+        let wanted = wanted.clamp(current / 2, current.saturating_mul(2));
+        self.relay_current = wanted.clamp(limit >> PROBE_LEVELS.saturating_add(1), limit);
     }
 
     /// Moves the demand towards `target` by at most a [`RAMP_TICKS`]-th of a full reversal.
@@ -448,7 +490,9 @@ impl MechanicalIdentification {
             let y = i64::from(sample.v_q.to_bits()).saturating_sub(resistance_drop);
             self.electrical.add([increment, i_q.signum(), 1], y);
         }
-        // Mechanics: block sums, one equation per pair of complete blocks.
+        // Mechanics: block sums, one equation per pair of complete blocks at a steady current demand.
+        self.block.ramping |= self.demand != self.previous_demand;
+        self.previous_demand = self.demand;
         self.block_tick = self.block_tick.saturating_add(1);
         let m = i64::from(self.block_tick);
         let values = [i_q, increment.signum(), increment];
@@ -461,7 +505,7 @@ impl MechanicalIdentification {
         if self.block_tick >= BLOCK_TICKS {
             self.block.travel = i64::from(position.wrapping_sub(self.block_start));
             self.block_start = position;
-            if let Some(previous) = self.previous_block {
+            if let Some(previous) = self.previous_block.filter(|p| !p.ramping && !self.block.ramping) {
                 let x = [0, 1, 2].map(|k| previous.rising(k).saturating_add(self.block.falling(k)));
                 self.mechanical.add(x, self.block.travel.saturating_sub(previous.travel));
             }
