@@ -63,6 +63,7 @@ pub mod encoder;
 mod fieldbus;
 pub mod hall_position;
 pub mod identification;
+pub mod mechanical_identification;
 pub mod objects;
 pub mod protection;
 pub mod regeneration;
