@@ -6,7 +6,10 @@
 //! (0xFF12..0xFF22): the power stage goes off at once.
 //!
 //! Steps (0x3204:02): 1-4 the electrical identification ([`super::identification`]); 5 the commutation restarts
-//! from what it found (Hall sector or forced alignment; the index applies the new offset); then done (8). The
+//! from what it found (Hall sector or forced alignment; the index applies the new offset); 6 the mechanical
+//! experiment in FOC ([`super::mechanical_identification`]: torque constant into 0x3001:05, total inertia into
+//! 0x30A3:05 and 0x3204:06, viscous friction into 0x30A3:04, Coulomb friction into 0x3204:05; skipped with
+//! 0x3204:01 bit 0); then done (8). The
 //! results: 0x3002:01 R, :02 Lq, :03 Ld; 0x3010:02 bit 4 (the counting direction, toggled when the encoder
 //! counts against the field), 0x3010:05 the electrical angle at the index (with an index), 0x301A:03 the Hall
 //! offset (with Halls), 0x3204:04 the pole pairs measured. They are persistent objects: 0x1010 keeps them (the
@@ -20,7 +23,11 @@ use super::identification::{
     ElectricalIdentification, ElectricalResult, IdentificationConfig, IdentificationError, IdentificationStatus,
     Injection, REFERENCE_SWITCH_RESISTANCE_OHM,
 };
+use super::mechanical_identification::{
+    MechanicalConfig, MechanicalError, MechanicalIdentification, MechanicalResult, MechanicalSample, MechanicalStatus,
+};
 use super::{DemandSource, Drive};
+use crate::fault::table::FaultId;
 use crate::control::frames::Amps;
 use crate::od::generated::handles as h;
 use crate::power_state::PowerState;
@@ -29,6 +36,8 @@ use crate::power_state::PowerState;
 const START_BIT: u16 = 1 << 4;
 /// The whole procedure's timeout, slow ticks (20 s: the limit; IDX 0xFF19).
 pub const TIMEOUT_TICKS: u32 = 50_000;
+/// 0x3204:01 bit 0: skip the mechanical step.
+const OPTION_SKIP_MECHANICAL: u16 = 1 << 0;
 /// Slow ticks the restarted commutation may take to become valid (a forced alignment takes 0.5 s).
 const COMMUTATION_TICKS: u32 = 5_000;
 
@@ -38,6 +47,8 @@ pub mod step {
     pub const IDLE: u8 = 0;
     /// The commutation restarts from the identified offsets.
     pub const COMMUTATION: u8 = 5;
+    /// The mechanical experiment (torque constant, inertia, friction).
+    pub const MECHANICAL: u8 = 6;
     /// Finished successfully.
     pub const DONE: u8 = 8;
     /// Failed (the fault tells why).
@@ -45,17 +56,18 @@ pub mod step {
 }
 
 /// Where the procedure is.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug)]
 enum Phase {
     Idle,
     Electrical(ElectricalIdentification),
     Commutation { ticks: u32 },
+    Mechanical(MechanicalIdentification),
     Done,
     Failed,
 }
 
 /// The procedure's state (owned by the tier-2 drive).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug)]
 pub struct AutoSetup {
     phase: Phase,
     last_start_bit: bool,
@@ -72,7 +84,7 @@ impl AutoSetup {
     /// Whether the procedure drives tier 1 now.
     #[must_use]
     pub const fn running(&self) -> bool {
-        matches!(self.phase, Phase::Electrical(_) | Phase::Commutation { .. })
+        matches!(self.phase, Phase::Electrical(_) | Phase::Commutation { .. } | Phase::Mechanical(_))
     }
 }
 
@@ -129,9 +141,34 @@ impl Drive {
                 // The commutation is valid once tier 1 runs with the new settings and has restarted.
                 let settled = report.settings_version == self.settings.version && report.stage.is_valid();
                 if settled {
-                    self.finish_auto_setup();
+                    if self.dictionary.get(h::IDENTIFICATION_OPTIONS) & OPTION_SKIP_MECHANICAL != 0 {
+                        self.finish_auto_setup();
+                    } else {
+                        self.start_mechanical();
+                    }
                 } else if waited > COMMUTATION_TICKS {
                     self.fail_auto_setup(IdentificationError::Timeout);
+                }
+            }
+            Phase::Mechanical(mechanical) => {
+                let s = &report.signals;
+                let sample = MechanicalSample {
+                    position: report.encoder_position,
+                    i_q: s.i_dq.q,
+                    v_q: s.v_dq.q,
+                    v_bus: s.v_bus,
+                };
+                let status = mechanical.step(&sample);
+                let progress = 900u16.saturating_add(mechanical.progress_per_mille() / 10);
+                self.dictionary.set(h::IDENTIFICATION_PROGRESS, progress.min(999));
+                match status {
+                    MechanicalStatus::Running { i_q_demand } => self.set_identification_current(i_q_demand),
+                    MechanicalStatus::Done(result) => {
+                        self.set_identification_current(Amps::ZERO);
+                        self.write_mechanical_results(&result);
+                        self.finish_auto_setup();
+                    }
+                    MechanicalStatus::Failed(e) => self.fail_mechanical(e),
                 }
             }
             Phase::Idle | Phase::Done | Phase::Failed => {}
@@ -222,6 +259,55 @@ impl Drive {
         }
         // The commutation restarts with what was found (tier 1 keeps injecting until the level changes).
         self.configure_commutation();
+    }
+
+    /// Step 6: the mechanical experiment in FOC with the commutation now known (d current 0).
+    fn start_mechanical(&mut self) {
+        let d = &self.dictionary;
+        let config = MechanicalConfig {
+            current_limit: Amps::from_milliamps(i32::try_from(d.get(h::MOTOR_NOMINAL_CURRENT)).unwrap_or(i32::MAX)),
+            max_speed_rpm: d.get(h::MAX_MOTOR_SPEED),
+            counts_per_rev: self.settings.commutation.encoder.counts_per_rev,
+            pole_pairs: d.get(h::MOTOR_POLE_PAIRS),
+            phase_resistance_milliohm: d.get(h::MOTOR_PHASE_RESISTANCE),
+            timeout_ticks: TIMEOUT_TICKS.saturating_sub(self.auto_setup.ticks),
+        };
+        self.auto_setup.phase = Phase::Mechanical(MechanicalIdentification::new(&config));
+        self.dictionary.set(h::IDENTIFICATION_STEP, step::MECHANICAL);
+    }
+
+    /// The q current of the mechanical step (d current 0), through the normal current loop.
+    fn set_identification_current(&mut self, i_q: Amps) {
+        self.source = DemandSource::Identification;
+        if i_q != self.setpoint.i_q || self.setpoint.i_d != Amps::ZERO {
+            self.setpoint.i_q = i_q;
+            self.setpoint.i_d = Amps::ZERO;
+            self.setpoint_changed();
+        }
+    }
+
+    fn write_mechanical_results(&mut self, r: &MechanicalResult) {
+        let d = &mut self.dictionary;
+        d.set(h::MOTOR_TORQUE_CONSTANT, r.torque_constant.max(1));
+        d.set(h::OBSERVER_INERTIA, r.inertia);
+        d.set(h::OBSERVER_FRICTION, r.viscous_friction);
+        d.set(h::IDENTIFICATION_TOTAL_INERTIA, r.inertia);
+        d.set(h::IDENTIFICATION_COULOMB_FRICTION, r.coulomb_friction);
+    }
+
+    fn fail_mechanical(&mut self, error: MechanicalError) {
+        let fault = match error {
+            MechanicalError::SpeedLimit => FaultId::AutoTuningMaxSpeed,
+            MechanicalError::Timeout => FaultId::AutoTuningTimeout,
+            MechanicalError::Obstructed => FaultId::AutoTuningTorqueInvalid,
+            MechanicalError::SampleMismatch => FaultId::AutoTuningSampleMismatch,
+            MechanicalError::InvalidConfig => FaultId::AutoTuningParameter,
+        };
+        self.auto_setup.phase = Phase::Failed;
+        self.dictionary.set(h::IDENTIFICATION_STEP, step::FAILED);
+        self.setpoint.i_q = Amps::ZERO;
+        self.setpoint.i_d = Amps::ZERO;
+        self.raise(fault, i32::from(error.code()));
     }
 
     fn finish_auto_setup(&mut self) {

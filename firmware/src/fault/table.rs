@@ -258,10 +258,12 @@ pub enum FaultId {
     AutoTuningTorqueInvalid = 43,
     /// Motor identification: the maximum speed 0x6080 was exceeded (IDX 0xFF22).
     AutoTuningMaxSpeed = 44,
+    /// Motor identification: the mechanical step's samples gave no physical plant (IDX 0xFF15).
+    AutoTuningSampleMismatch = 45,
 }
 
 /// Number of rows in [`FAULT_TABLE`].
-pub const FAULT_COUNT: usize = 45;
+pub const FAULT_COUNT: usize = 46;
 
 /// One row of the fault table.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -336,6 +338,7 @@ impl FaultId {
         Self::AutoTuningStandstill,
         Self::AutoTuningTorqueInvalid,
         Self::AutoTuningMaxSpeed,
+        Self::AutoTuningSampleMismatch,
     ];
 
     /// The stable fault number (the table row; EMCY manufacturer byte 3).
@@ -902,5 +905,16 @@ pub static FAULT_TABLE: [FaultInfo; FAULT_COUNT] = [
         S::Detail,
         "Auto tuning max system speed error",
         "IDX L7109, L7596 (7.2.61)",
+    ),
+    row(
+        FaultId::AutoTuningSampleMismatch,
+        0xFF15,
+        REG_GENERIC | REG_PROFILE,
+        D,
+        Event,
+        Tier::Supervision,
+        S::Detail,
+        "Auto tuning sample mismatch error",
+        "IDX L7100, L7540 (7.2.54)",
     ),
 ];
