@@ -27,8 +27,8 @@ use super::mechanical_identification::{
     MechanicalConfig, MechanicalError, MechanicalIdentification, MechanicalResult, MechanicalSample, MechanicalStatus,
 };
 use super::{DemandSource, Drive};
-use crate::fault::table::FaultId;
 use crate::control::frames::Amps;
+use crate::fault::table::FaultId;
 use crate::od::generated::handles as h;
 use crate::power_state::PowerState;
 
@@ -276,14 +276,13 @@ impl Drive {
         self.dictionary.set(h::IDENTIFICATION_STEP, step::MECHANICAL);
     }
 
-    /// The q current of the mechanical step (d current 0), through the normal current loop.
+    /// The q current of the mechanical step, through the loops' path: the current limits and the bus-voltage
+    /// limiter (which brakes with d current when the relay's reversals regenerate) act on it as on the loops'.
     fn set_identification_current(&mut self, i_q: Amps) {
-        self.source = DemandSource::Identification;
-        if i_q != self.setpoint.i_q || self.setpoint.i_d != Amps::ZERO {
-            self.setpoint.i_q = i_q;
-            self.setpoint.i_d = Amps::ZERO;
-            self.setpoint_changed();
-        }
+        self.source = DemandSource::Internal;
+        self.internal = i_q;
+        self.clamp_internal_demand();
+        self.update_demand();
     }
 
     fn write_mechanical_results(&mut self, r: &MechanicalResult) {

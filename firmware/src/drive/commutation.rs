@@ -329,6 +329,11 @@ impl Commutation {
         Some(AlignmentDemand { angle, i_d: Amps::from_bits(self.align_current), i_q })
     }
 
+    /// Sets the Hall offset (0x301A:03) for the next start.
+    pub fn set_hall_offset(&mut self, offset: ElectricalAngle) {
+        self.hall_offset = offset;
+    }
+
     /// The configured start method.
     #[must_use]
     pub const fn method(&self) -> CommutationMethod {

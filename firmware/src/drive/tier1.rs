@@ -131,10 +131,13 @@ impl Tier1State {
         let same = !sensor_changed
             && self.commutation.encoder().config() == &c.encoder
             && self.commutation.method() == c.method
-            && self.commutation.hall_offset() == c.hall_offset;
+            && (self.commutation.hall_offset() == c.hall_offset || self.setpoint.power.level.injects());
         // A configured offset wins over a learned one, a learned one over the construction-time default.
         let index_offset = c.configured_index_offset.or(self.commutation.index_offset()).or(c.default_index_offset);
         if same {
+            // The identification's Hall offset takes effect without a rebuild, which would restart the encoder's
+            // position in operation (the supervision and the axis expect that only at a switch-on).
+            self.commutation.set_hall_offset(c.hall_offset);
             self.commutation.set_index_offset(index_offset);
         } else {
             self.commutation = Commutation::new(c.method, c.encoder, c.hall_offset, index_offset);
