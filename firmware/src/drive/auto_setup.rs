@@ -97,10 +97,12 @@ impl Drive {
         if !self.axis.auto_setup_active() || self.state() != PowerState::OperationEnabled {
             if self.auto_setup.running() {
                 // Left the mode or the state: the identification stops where it is; the state machine's
-                // transition has already taken the power stage where it goes.
-                self.auto_setup.phase = Phase::Idle;
+                // transition has already taken the power stage where it goes. Another fault (a sensor's
+                // supervision) ends it as failed.
+                let failed = matches!(self.state(), PowerState::Fault(_)) || self.axis.faults().any_fault();
+                self.auto_setup.phase = if failed { Phase::Failed } else { Phase::Idle };
                 self.end_injection();
-                self.dictionary.set(h::IDENTIFICATION_STEP, step::IDLE);
+                self.dictionary.set(h::IDENTIFICATION_STEP, if failed { step::FAILED } else { step::IDLE });
             }
             return;
         }

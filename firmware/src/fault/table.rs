@@ -838,7 +838,7 @@ pub static FAULT_TABLE: [FaultInfo; FAULT_COUNT] = [
         Tier::Supervision,
         S::Detail,
         "Auto tuning current limit error",
-        "IDX L7096, L7516 (7.2.51)",
+        "IDX L7096, L7514 (7.2.51)",
     ),
     row(
         FaultId::AutoTuningIdentificationCurrent,
@@ -849,7 +849,7 @@ pub static FAULT_TABLE: [FaultInfo; FAULT_COUNT] = [
         Tier::Supervision,
         S::Detail,
         "Auto tuning identification current error",
-        "IDX L7097, L7524 (7.2.52); EPOS3's 0xFF13 (interpolation) is not used: this drive follows IDX",
+        "IDX L7097, L7522 (7.2.52); EPOS3's 0xFF13 (interpolation) is not used: this drive follows IDX",
     ),
     row(
         FaultId::AutoTuningParameter,
@@ -860,7 +860,7 @@ pub static FAULT_TABLE: [FaultInfo; FAULT_COUNT] = [
         Tier::Supervision,
         S::Detail,
         "Auto tuning parameter error",
-        "IDX L7103, L7548 (7.2.55)",
+        "IDX L7104, L7546 (7.2.55)",
     ),
     row(
         FaultId::AutoTuningTimeout,
@@ -871,7 +871,7 @@ pub static FAULT_TABLE: [FaultInfo; FAULT_COUNT] = [
         Tier::Supervision,
         S::Detail,
         "Auto tuning timeout error",
-        "IDX L7106, L7572 (7.2.58)",
+        "IDX L7107, L7570 (7.2.58)",
     ),
     row(
         FaultId::AutoTuningStandstill,
@@ -882,7 +882,7 @@ pub static FAULT_TABLE: [FaultInfo; FAULT_COUNT] = [
         Tier::Supervision,
         S::Detail,
         "Auto tuning standstill error",
-        "IDX L7107, L7580 (7.2.59)",
+        "IDX L7108, L7578 (7.2.59)",
     ),
     row(
         FaultId::AutoTuningTorqueInvalid,
@@ -893,7 +893,7 @@ pub static FAULT_TABLE: [FaultInfo; FAULT_COUNT] = [
         Tier::Supervision,
         S::Detail,
         "Auto tuning torque invalid error",
-        "IDX L7108, L7588 (7.2.60)",
+        "IDX L7109, L7586 (7.2.60)",
     ),
     row(
         FaultId::AutoTuningMaxSpeed,
@@ -904,7 +904,7 @@ pub static FAULT_TABLE: [FaultInfo; FAULT_COUNT] = [
         Tier::Supervision,
         S::Detail,
         "Auto tuning max system speed error",
-        "IDX L7109, L7596 (7.2.61)",
+        "IDX L7110, L7594 (7.2.61)",
     ),
     row(
         FaultId::AutoTuningSampleMismatch,
@@ -915,6 +915,6 @@ pub static FAULT_TABLE: [FaultInfo; FAULT_COUNT] = [
         Tier::Supervision,
         S::Detail,
         "Auto tuning sample mismatch error",
-        "IDX L7100, L7540 (7.2.54)",
+        "IDX L7103, L7538 (7.2.54)",
     ),
 ];

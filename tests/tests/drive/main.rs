@@ -7,6 +7,7 @@ mod cia402;
 mod commutation;
 mod current_loop;
 mod encoder_resolution;
+mod identification;
 mod io;
 mod parameters;
 mod regeneration;
