@@ -855,3 +855,139 @@ impl ElectricalIdentification {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::control::frames::{Abc, Dq, Volts};
+
+    const CONFIG: IdentificationConfig = IdentificationConfig {
+        pole_pairs: 7,
+        counts_per_rev: 4096,
+        encoder_present: true,
+        has_index: true,
+        halls_present: true,
+        nominal_current_a: 3.2,
+        current_limit_a: 10.0,
+        max_speed_rpm: 5000.0,
+        switch_resistance_ohm: REFERENCE_SWITCH_RESISTANCE_OHM,
+        timeout_ticks: 50_000,
+    };
+
+    fn amps(a: f32) -> Amps {
+        Amps::from_bits((a * 65_536.0) as i32)
+    }
+
+    /// A report of a drive holding `i_d` at angle 0 (phase A carries it, B and C half each, back) with `v_d`.
+    fn holding(i_d: f32, v_d: f32, saturated: bool) -> Tier1Report {
+        let mut r = Tier1Report::default();
+        r.signals.i_dq = Dq::new(amps(i_d), Amps::ZERO);
+        r.signals.i_abc = Abc { a: amps(i_d), b: amps(-i_d / 2.0), c: amps(-i_d / 2.0) };
+        r.signals.v_dq = Dq::new(Volts::from_bits((v_d * 65_536.0) as i32), Volts::ZERO);
+        r.signals.saturated = saturated;
+        r
+    }
+
+    fn demand(status: IdentificationStatus) -> f32 {
+        match status {
+            IdentificationStatus::Running(Injection::Current { i_d, .. }) => i_d.to_bits() as f32 / 65_536.0,
+            other => panic!("expected a current injection, got {other:?}"),
+        }
+    }
+
+    /// IDX 0xFF19: the identification ends at its timeout, whatever step it is in.
+    #[test]
+    fn the_timeout_ends_the_identification() {
+        let mut id = ElectricalIdentification::new(IdentificationConfig { timeout_ticks: 10, ..CONFIG });
+        for _ in 0..10 {
+            assert!(matches!(id.step(&holding(0.0, 0.0, false)), IdentificationStatus::Running(_)));
+        }
+        assert_eq!(id.step(&holding(0.0, 0.0, false)), IdentificationStatus::Failed(IdentificationError::Timeout));
+        assert_eq!(IdentificationError::Timeout.fault().info().code, 0xFF19);
+    }
+
+    /// IDX 0xFF20: an encoder that moves by more than 1/500 turn (8 counts of 4,096) before any current flows.
+    #[test]
+    fn a_moving_motor_fails_the_standstill_check() {
+        let mut id = ElectricalIdentification::new(CONFIG);
+        let mut r = holding(0.0, 0.0, false);
+        assert_eq!(demand(id.step(&r)), 0.0);
+        r.encoder_position = 8;
+        assert_eq!(demand(id.step(&r)), 0.0, "8 counts are allowed");
+        r.encoder_position = 9;
+        let status = id.step(&r);
+        assert_eq!(status, IdentificationStatus::Failed(IdentificationError::Standstill { counts: 9 }));
+        assert_eq!(IdentificationError::Standstill { counts: 9 }.fault().info().code, 0xFF20);
+    }
+
+    /// Runs the standstill check and the first level's ramp and settling with `report`, then its averaging;
+    /// returns the status after it.
+    fn first_level(id: &mut ElectricalIdentification, report: &Tier1Report) -> IdentificationStatus {
+        let mut status = id.step(report);
+        for _ in 0..(STANDSTILL_TICKS + RAMP_TICKS + SETTLE_TICKS + AVERAGE_TICKS + 2) {
+            status = id.step(report);
+            if !matches!(status, IdentificationStatus::Running(_)) {
+                break;
+            }
+        }
+        status
+    }
+
+    /// IDX 0xFF12: the voltage limit (saturated) holds the current at 0.5625 A, 59 % of the 30 % level's 0.96 A.
+    #[test]
+    fn a_current_the_voltage_limit_stops_is_the_current_limit_error() {
+        let mut id = ElectricalIdentification::new(CONFIG);
+        let status = first_level(&mut id, &holding(0.5625, 20.0, true));
+        assert_eq!(status, IdentificationStatus::Failed(IdentificationError::CurrentLimit { reached_ma: 562 }));
+        assert_eq!(IdentificationError::CurrentLimit { reached_ma: 0 }.fault().info().code, 0xFF12);
+    }
+
+    /// IDX 0xFF13: phase B carries nothing (open) while A and C do.
+    #[test]
+    fn a_phase_without_current_is_the_identification_current_error() {
+        let mut id = ElectricalIdentification::new(CONFIG);
+        let mut r = holding(0.96, 0.5, false);
+        r.signals.i_abc.b = Amps::ZERO;
+        let status = first_level(&mut id, &r);
+        assert_eq!(status, IdentificationStatus::Failed(IdentificationError::CurrentNotReached { phase: 2 }));
+        assert_eq!(IdentificationError::CurrentNotReached { phase: 2 }.fault().info().code, 0xFF13);
+    }
+
+    /// The two levels (30 % and 80 % of 3.2 A) with a dead-time voltage of 0.4 V on top of 0.27 ohm: R = dV/dI less
+    /// the switches' 10 mOhm, the dead time cancelled.
+    #[test]
+    fn the_resistance_is_the_slope_between_the_two_levels() {
+        let mut id = ElectricalIdentification::new(CONFIG);
+        let circuit = 0.27f32;
+        let mut status =
+            IdentificationStatus::Running(Injection::Current { angle: ElectricalAngle::ZERO, i_d: Amps::ZERO });
+        for _ in 0..5_000 {
+            let i = match status {
+                IdentificationStatus::Running(Injection::Current { i_d, .. }) => i_d.to_bits() as f32 / 65_536.0,
+                _ => break,
+            };
+            status = id.step(&holding(i, circuit * i + 0.4, false));
+        }
+        assert_eq!(id.step_in_progress(), Step::Inductance);
+        assert!((id.resistance_circuit - circuit).abs() < 1e-3, "{}", id.resistance_circuit);
+    }
+
+    /// Each error raises its IDX code (seed 002 L7096-7110).
+    #[test]
+    fn each_error_has_its_idx_code() {
+        let codes = [
+            (IdentificationError::CurrentLimit { reached_ma: 1 }, 0xFF12),
+            (IdentificationError::CurrentNotReached { phase: 1 }, 0xFF13),
+            (IdentificationError::PolePairs { measured_x100: 500 }, 0xFF16),
+            (IdentificationError::HallSequence { state: 7 }, 0xFF16),
+            (IdentificationError::NoEncoder, 0xFF16),
+            (IdentificationError::Timeout, 0xFF19),
+            (IdentificationError::Standstill { counts: 9 }, 0xFF20),
+            (IdentificationError::NoMovement { counts: 0 }, 0xFF21),
+            (IdentificationError::Overspeed { rpm: 6000 }, 0xFF22),
+        ];
+        for (error, code) in codes {
+            assert_eq!(error.fault().info().code, code, "{error:?}");
+        }
+    }
+}

@@ -10,7 +10,9 @@ use hal_sim::scenarios::faults::{cases, matrix_table, run_case};
 /// The identification's faults that no physical failure of the reference plant produces: 0xFF12 (the bus
 /// cannot drive the test current through the winding: no motor the drive supports), 0xFF15 (the mechanical step's
 /// samples give no physical plant), 0xFF19 (the procedure's 20 s timeout), 0xFF22 (above the maximum speed during
-/// the identification's slow movements). Their detection is tested in the firmware's unit tests.
+/// the identification's slow movements). Their detection is tested in the firmware's unit tests
+/// (`drive::identification`: 0xFF12, 0xFF19 and the mapping of 0xFF22; `drive::mechanical_identification`: 0xFF15,
+/// 0xFF19, 0xFF22).
 const NOT_INJECTED: [FaultId; 4] = [
     FaultId::AutoTuningCurrentLimit,
     FaultId::AutoTuningSampleMismatch,
