@@ -548,7 +548,7 @@ impl ElectricalIdentification {
             return self.current(previous + (target - previous) * share);
         }
         let s = &r.signals;
-        if t >= RAMP_TICKS + SETTLE_TICKS {
+        if t >= RAMP_TICKS + SETTLE_TICKS && t < RAMP_TICKS + SETTLE_TICKS + AVERAGE_TICKS {
             self.sum_i += s.i_dq.d.to_bits() as f32 * PER_BIT;
             self.sum_v += s.v_dq.d.to_bits() as f32 * PER_BIT;
             let abc = [s.i_abc.a, s.i_abc.b, s.i_abc.c];
