@@ -66,6 +66,7 @@ pub mod protection;
 pub mod regeneration;
 pub mod scaling;
 pub mod tier1;
+pub mod tuning;
 
 use crate::control::angle::ElectricalAngle;
 use crate::control::demand::{rated_torque_micro_nm, DemandScale};
