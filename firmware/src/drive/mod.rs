@@ -54,6 +54,7 @@
 //! the same period as the target. Off requests and the CST torque (the master's value, not a loop's output) are
 //! not held back.
 
+pub mod auto_tuning;
 pub mod blocks;
 pub mod calibration;
 pub mod chopper;

@@ -114,7 +114,7 @@ pub struct TuningPlant {
     pub viscous_friction_nm_s_per_rad: f32,
     /// Coulomb friction at the motor shaft, Nm. Checked only: no gain depends on it (the integral parts take it).
     pub coulomb_friction_nm: f32,
-    /// DC bus voltage, V.
+    /// DC bus voltage, V (0 = not known: only [`TuningDesign::current_linear_step_a`] uses it).
     pub bus_voltage_v: f32,
     /// Nominal (continuous) current, A. Checked only.
     pub nominal_current_a: f32,
@@ -408,14 +408,15 @@ fn check(p: &TuningPlant) -> Result<(), TuningError> {
         (p.lq_h, PlantValue::Lq),
         (p.torque_constant_nm_per_a, PlantValue::TorqueConstant),
         (p.inertia_kg_m2, PlantValue::Inertia),
-        (p.bus_voltage_v, PlantValue::BusVoltage),
         (p.nominal_current_a, PlantValue::NominalCurrent),
         (p.peak_current_a, PlantValue::PeakCurrent),
         (p.max_speed_rpm, PlantValue::MaxSpeed),
     ];
+    // The bus voltage enters only the design figure `current_linear_step_a`: 0 (not measured yet) is accepted.
     let not_negative = [
         (p.viscous_friction_nm_s_per_rad, PlantValue::ViscousFriction),
         (p.coulomb_friction_nm, PlantValue::CoulombFriction),
+        (p.bus_voltage_v, PlantValue::BusVoltage),
     ];
     // `!(x > 0)` is also true for NaN.
     if let Some((_, which)) = positive.iter().find(|(x, _)| !(*x > 0.0 && x.is_finite())) {
