@@ -39,7 +39,11 @@
 //!   for the geared preset, 1.2 kHz: unstable at 2.5 kHz). The design keeps that high-frequency crossover at
 //!   `wc_s`: `wc = wc_s / rho` on J (below the anti-resonance), i.e. the collocated velocity feedback acts on the
 //!   motor inertia as the rigid design does on the whole, and damps the resonance instead of exciting it.
-//! - `Kp = J wc / kt` (0x30A2:01), `Ki = Kp wc / 24` (0x30A2:02, the PI zero a factor 24 under the crossover),
+//! - `Kp = J wc / kt` (0x30A2:01), `Ki = Kp min(wc_s / 24, wc / 3)` (0x30A2:02): the PI zero a factor 24 under
+//!   the crossover the delay limits, `wc_s` (rigid: `wc / 24`); `wc / 24` with an elastic load's low crossover
+//!   left the geared preset's 100 rpm step 40 % short after 300 ms (the load's friction), so the zero sits at a
+//!   third of the low crossover there (18 deg of phase; `drive-sim csv-sweep`: 5.9 % overshoot, at 2/3 of it
+//!   18.9 %),
 //!   feed-forward `FFv = b / kt` (viscous friction b), `FFa = J / kt` (0x30A2:03/04, S1 L770-805).
 //! - Velocity filter 0x30A2:05 (control structure 0x3000:02 bits 7..4 = 1): `5.216 x wc_s / 2 pi` (395 Hz at
 //!   1000, the defaults' EPOS4 value): the filter stays at the same distance above the crossover that decides the
@@ -78,6 +82,8 @@ pub const REFERENCE_VELOCITY_CROSSOVER_RAD_S: f32 = 475.85;
 pub const STIFFNESS_RANGE_PERMILLE: core::ops::RangeInclusive<u16> = 100..=1500;
 /// Velocity PI: the zero `Ki / Kp` lies this factor under the crossover.
 const VELOCITY_INTEGRAL_RATIO: f32 = 24.0;
+/// Velocity PI: the zero at most this share of the (low) crossover.
+const VELOCITY_ZERO_MAX_OF_CROSSOVER: f32 = 1.0 / 3.0;
 /// Position PID: `Kp = Kd wc / 4`.
 const POSITION_PROPORTIONAL_RATIO: f32 = 4.0;
 /// Position PID: `Ki = Kp wc / 3.5`.
@@ -331,11 +337,14 @@ pub fn tune(plant: &TuningPlant, request: &TuningRequest) -> Result<TunedGains, 
     let j = plant.inertia_kg_m2;
     let kt = plant.torque_constant_nm_per_a;
     let kd = j * wc / kt;
+    // The PI zero: a factor 24 under the (motor-side) crossover, but at most 1/3 of the low crossover, where it
+    // takes 18 deg (rigid: wc_s / 24 always).
+    let velocity_zero = (wc_stiff / VELOCITY_INTEGRAL_RATIO).min(wc * VELOCITY_ZERO_MAX_OF_CROSSOVER);
     let ff_velocity = object(plant.viscous_friction_nm_s_per_rad / kt * 1e6, GainObject::FeedForwardVelocity)?;
     let ff_acceleration = object(j / kt * 1e6, GainObject::FeedForwardAcceleration)?;
     let velocity = VelocityGainObjects {
         p_ua_s_per_rad: object(kd * 1e6, GainObject::VelocityP)?,
-        i_ua_per_rad: object(kd * wc / VELOCITY_INTEGRAL_RATIO * 1e6, GainObject::VelocityI)?,
+        i_ua_per_rad: object(kd * velocity_zero * 1e6, GainObject::VelocityI)?,
         ff_velocity_ua_s_per_rad: ff_velocity,
         ff_acceleration_ua_s2_per_rad: ff_acceleration,
         filter_cutoff_hz: round(VELOCITY_FILTER_RATIO * wc_stiff / (2.0 * PI)).clamp(1, VELOCITY_FILTER_MAX_HZ),
