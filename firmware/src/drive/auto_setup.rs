@@ -9,7 +9,8 @@
 //! from what it found (Hall sector or forced alignment; the index applies the new offset); 6 the mechanical
 //! experiment in FOC ([`super::mechanical_identification`]: torque constant into 0x3001:05, total inertia into
 //! 0x30A3:05 and 0x3204:06, viscous friction into 0x30A3:04, Coulomb friction into 0x3204:05; skipped with
-//! 0x3204:01 bit 0); then done (8). The
+//! 0x3204:01 bit 0); 7 the auto-tuning from the results ([`super::auto_tuning`], the gains 0x30A0..0x30A3 for the
+//! stiffness 0x3205:02; skipped with bit 1); then done (8). The
 //! results: 0x3002:01 R, :02 Lq, :03 Ld; 0x3010:02 bit 4 (the counting direction, toggled when the encoder
 //! counts against the field), 0x3010:05 the electrical angle at the index (with an index), 0x301A:03 the Hall
 //! offset (with Halls), 0x3204:04 the pole pairs measured. They are persistent objects: 0x1010 keeps them (the
@@ -38,6 +39,8 @@ const START_BIT: u16 = 1 << 4;
 pub const TIMEOUT_TICKS: u32 = 50_000;
 /// 0x3204:01 bit 0: skip the mechanical step.
 const OPTION_SKIP_MECHANICAL: u16 = 1 << 0;
+/// 0x3204:01 bit 1: skip the auto-tuning.
+const OPTION_SKIP_TUNING: u16 = 1 << 1;
 /// Slow ticks the restarted commutation may take to become valid (a forced alignment takes 0.5 s).
 const COMMUTATION_TICKS: u32 = 5_000;
 
@@ -49,6 +52,8 @@ pub mod step {
     pub const COMMUTATION: u8 = 5;
     /// The mechanical experiment (torque constant, inertia, friction).
     pub const MECHANICAL: u8 = 6;
+    /// The auto-tuning of the gains.
+    pub const TUNING: u8 = 7;
     /// Finished successfully.
     pub const DONE: u8 = 8;
     /// Failed (the fault tells why).
@@ -168,7 +173,11 @@ impl Drive {
                     MechanicalStatus::Done(result) => {
                         self.set_identification_current(Amps::ZERO);
                         self.write_mechanical_results(&result);
-                        self.finish_auto_setup();
+                        if self.dictionary.get(h::IDENTIFICATION_OPTIONS) & OPTION_SKIP_TUNING == 0 {
+                            self.tune_from_results();
+                        } else {
+                            self.finish_auto_setup();
+                        }
                     }
                     MechanicalStatus::Failed(e) => self.fail_mechanical(e),
                 }
@@ -241,9 +250,9 @@ impl Drive {
 
     fn write_electrical_results(&mut self, r: &ElectricalResult) {
         let d = &mut self.dictionary;
-        let milli = |x: f32| (x * 1000.0 + 0.5).clamp(1.0, u32::MAX as f32) as u32;
+        let micro_ohm = (r.resistance_ohm * 1e6 + 0.5).clamp(1.0, u32::MAX as f32) as u32;
         let micro = |x: f32| (x * 1e6 + 0.5).clamp(1.0, f32::from(u16::MAX)) as u16;
-        d.set(h::MOTOR_PHASE_RESISTANCE, milli(r.resistance_ohm));
+        d.set(h::MOTOR_PHASE_RESISTANCE, micro_ohm);
         d.set(h::MOTOR_PHASE_INDUCTANCE, micro(r.lq_h));
         d.set(h::MOTOR_PHASE_INDUCTANCE_D, micro(r.ld_h));
         d.set(h::IDENTIFICATION_POLE_PAIRS, r.pole_pairs);
@@ -271,7 +280,8 @@ impl Drive {
             max_speed_rpm: d.get(h::MAX_MOTOR_SPEED),
             counts_per_rev: self.settings.commutation.encoder.counts_per_rev,
             pole_pairs: d.get(h::MOTOR_POLE_PAIRS),
-            phase_resistance_milliohm: d.get(h::MOTOR_PHASE_RESISTANCE),
+            // 0x3002:01 is in uOhm.
+            phase_resistance_milliohm: d.get(h::MOTOR_PHASE_RESISTANCE).saturating_add(500) / 1000,
             timeout_ticks: TIMEOUT_TICKS.saturating_sub(self.auto_setup.ticks),
         };
         self.auto_setup.phase = Phase::Mechanical(MechanicalIdentification::new(&config));
@@ -294,6 +304,24 @@ impl Drive {
         d.set(h::OBSERVER_FRICTION, r.viscous_friction);
         d.set(h::IDENTIFICATION_TOTAL_INERTIA, r.inertia);
         d.set(h::IDENTIFICATION_COULOMB_FRICTION, r.coulomb_friction);
+    }
+
+    /// Step 7: the auto-tuning from the identified plant and the requested stiffness 0x3205:02
+    /// ([`super::auto_tuning`]): the gains 0x30A0..0x30A3 are written and taken into force by the next background
+    /// step as any write of them. A plant the tuning refuses fails the procedure with 0xFF16 (its reason, as
+    /// 0x3205:05 shows it, in the detail).
+    fn tune_from_results(&mut self) {
+        self.dictionary.set(h::IDENTIFICATION_STEP, step::TUNING);
+        let values = self.dictionary.values_mut().bytes_mut();
+        match super::auto_tuning::run(&[super::auto_tuning::RUN], values) {
+            Ok(()) => self.finish_auto_setup(),
+            Err(_) => {
+                let reason = i32::from(self.dictionary.get(h::AUTO_TUNING_RESULT));
+                self.auto_setup.phase = Phase::Failed;
+                self.dictionary.set(h::IDENTIFICATION_STEP, step::FAILED);
+                self.raise(FaultId::AutoTuningParameter, reason);
+            }
+        }
     }
 
     fn fail_mechanical(&mut self, error: MechanicalError) {

@@ -55,6 +55,7 @@
 //! not held back.
 
 pub mod auto_setup;
+pub mod auto_tuning;
 pub mod blocks;
 pub mod calibration;
 pub mod chopper;
@@ -69,6 +70,7 @@ pub mod protection;
 pub mod regeneration;
 pub mod scaling;
 pub mod tier1;
+pub mod tuning;
 
 use crate::control::angle::ElectricalAngle;
 use crate::control::demand::{rated_torque_micro_nm, DemandScale};

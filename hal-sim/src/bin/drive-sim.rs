@@ -690,7 +690,9 @@ fn identify(args: &Args) -> Result<(), String> {
     println!("r_error_pct={}", pct(id.resistance_ohm, params.phase_resistance_ohm));
     println!("ld_error_pct={}", pct(id.ld_h, params.ld_h));
     println!("lq_error_pct={}", pct(id.lq_h, params.lq_h));
-    println!("kt_error_pct={}", pct(id.kt_nm_per_a, params.torque_constant_nm_per_a()));
+    // 0x3001:05 holds the commissioned value until the mechanical step writes it: an error only once it did.
+    let kt = if id.inertia_kg_m2 > 0.0 { id.kt_nm_per_a } else { 0.0 };
+    println!("kt_error_pct={}", pct(kt, params.torque_constant_nm_per_a()));
     println!("inertia_error_pct={}", pct(id.inertia_kg_m2, params.total_inertia_kg_m2()));
     println!("friction_error_pct={}", pct(id.coulomb_friction_nm, params.coulomb_friction_nm));
     println!("identify_s={:.3}", run.identify_s);

@@ -32,7 +32,7 @@ pub struct SdoFigures {
 /// The identified values as the master read them back (their objects' units converted to SI).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Identified {
-    /// 0x3002:01, ohm.
+    /// 0x3002:01 (uOhm), ohm.
     pub resistance_ohm: f64,
     /// 0x3002:02, H.
     pub lq_h: f64,
@@ -194,7 +194,7 @@ pub fn identify(params: &PlantParams, seed: u64, setup: impl FnOnce(&mut Simulat
     let identify_s = sim.time_s() - start_s;
     let mut read = |index: u16, sub: u8| master.upload(&mut sim, index, sub).unwrap_or(0);
     let identified = Identified {
-        resistance_ohm: f64::from(read(0x3002, 1)) / 1000.0,
+        resistance_ohm: f64::from(read(0x3002, 1)) * 1e-6,
         lq_h: f64::from(read(0x3002, 2)) * 1e-6,
         ld_h: f64::from(read(0x3002, 3)) * 1e-6,
         kt_nm_per_a: f64::from(read(0x3001, 5)) * 1e-6,

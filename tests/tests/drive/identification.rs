@@ -5,8 +5,8 @@
 //! Tolerances (issue 18 "What it must show"): R, Lq and kt within 3 %, Ld within 5 %, total inertia within 5 % on
 //! a rigid load; at most 20 s. Why these are right: 3 % of R or L moves the current loop's gains (designed from
 //! them) by 3 %, well inside its phase margin; Ld only matters for the reluctance torque and field weakening, so
-//! 5 %; the results go through their objects' units (mOhm, uH), whose rounding is part of the error (0.5 mOhm of
-//! the geared preset's 50 mOhm is 1 %).
+//! 5 %; the results go through their objects' units (uOhm, uH), whose rounding is part of the error (0.5 uH of
+//! the geared preset's 70 uH Ld is 0.7 %).
 
 use firmware::od::generated::handles as h;
 use hal_sim::plant::PlantParams;
