@@ -60,8 +60,10 @@ pub mod step {
     pub const FAILED: u8 = 255;
 }
 
-/// Where the procedure is.
+/// Where the procedure is (one of them at a time: the sizes of the identifications' states differ, and the drive
+/// holds one `Phase` for good, so boxing would only add the allocation the firmware does not have).
 #[derive(Clone, Debug)]
+#[allow(clippy::large_enum_variant)]
 enum Phase {
     Idle,
     Electrical(ElectricalIdentification),

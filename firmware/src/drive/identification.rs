@@ -479,7 +479,7 @@ impl ElectricalIdentification {
             + ((SKIPPED_HALVES + MEASURED_HALVES) * HALF_TICKS + 2 * (SQUARE_SETTLE_TICKS + SQUARE_MEASURE_TICKS))
                 as f32
             + (HOLD_TICKS + PAUSE_TICKS) as f32
-            + 2.0 * (2 * SPEED_RAMP_TICKS + self.cruise_ticks) as f32;
+            + 2.0 * (2.0 * SPEED_RAMP_TICKS as f32 + self.cruise_ticks as f32);
         ((self.total as f32 / planned * 1000.0) as u16).min(999)
     }
 
@@ -544,11 +544,11 @@ impl ElectricalIdentification {
         let previous = if self.level == 0 { 0.0 } else { self.level_current(0) };
         let t = self.t;
         if t < RAMP_TICKS {
-            let share = (t + 1) as f32 / RAMP_TICKS as f32;
+            let share = (t as f32 + 1.0) / RAMP_TICKS as f32;
             return self.current(previous + (target - previous) * share);
         }
         let s = &r.signals;
-        if t >= RAMP_TICKS + SETTLE_TICKS && t < RAMP_TICKS + SETTLE_TICKS + AVERAGE_TICKS {
+        if (RAMP_TICKS + SETTLE_TICKS..RAMP_TICKS + SETTLE_TICKS + AVERAGE_TICKS).contains(&t) {
             self.sum_i += s.i_dq.d.to_bits() as f32 * PER_BIT;
             self.sum_v += s.v_dq.d.to_bits() as f32 * PER_BIT;
             let abc = [s.i_abc.a, s.i_abc.b, s.i_abc.c];
@@ -565,7 +565,9 @@ impl ElectricalIdentification {
         // Angle 0: phase A carries the d current, B and C half of it each, back.
         for (phase, (sum, share)) in self.sum_abc.iter().zip([1.0f32, 0.5, 0.5]).enumerate() {
             if sum / n < 0.25 * share * target {
-                return IdentificationStatus::Failed(IdentificationError::CurrentNotReached { phase: phase as u8 + 1 });
+                return IdentificationStatus::Failed(IdentificationError::CurrentNotReached {
+                    phase: (phase as u8).saturating_add(1),
+                });
             }
         }
         if i < 0.9 * target {
@@ -606,7 +608,7 @@ impl ElectricalIdentification {
     }
 
     fn inductance_output(&self) -> IdentificationStatus {
-        let positive = self.half % 2 == 0;
+        let positive = self.half.is_multiple_of(2);
         let swing = if positive { self.amplitude_mv } else { self.amplitude_mv.wrapping_neg() };
         IdentificationStatus::Running(Injection::Voltage {
             angle: ElectricalAngle(self.angle),
@@ -626,7 +628,7 @@ impl ElectricalIdentification {
         if let Some(slot) = self.samples.get_mut(k as usize) {
             *slot = i;
         }
-        if k + 1 < HALF_TICKS {
+        if k.saturating_add(1) < HALF_TICKS {
             return self.inductance_output();
         }
         // Three samples of the half period that is ending: it is done.
@@ -634,7 +636,7 @@ impl ElectricalIdentification {
             let [i0, i1, i2] = self.samples;
             // Simpson's rule over the two sample spacings of one slow tick each.
             let integral = SLOW_TICK_S / 3.0 * (i0 + 4.0 * i1 + i2);
-            if self.half % 2 == 0 {
+            if self.half.is_multiple_of(2) {
                 self.sum_up_di += i2 - i0;
                 self.sum_up_int += integral;
             } else {
@@ -763,7 +765,7 @@ impl ElectricalIdentification {
         } else {
             end.saturating_sub(t) as f32 / SPEED_RAMP_TICKS as f32
         };
-        let speed = (self.top_speed as f32 * profile) as i64 * sign;
+        let speed = ((self.top_speed as f32 * profile) as i64).saturating_mul(sign);
         let measuring = t >= SPEED_RAMP_TICKS.saturating_add(SETTLE_AFTER_RAMP_TICKS) && t < cruise_end;
         if measuring {
             let moved = p.wrapping_sub(self.move_start);
