@@ -61,7 +61,7 @@ pub const RAMP_TICKS: u32 = 50;
 pub const MIN_HALF_CYCLES: u16 = 8;
 /// Ticks the relay runs at least (1 s).
 pub const MIN_RELAY_TICKS: u32 = 2_500;
-/// Ticks the relay runs at most (3 s): with fewer than [`MIN_FIT_HALF_CYCLES`] by then, the step times out.
+/// Ticks the relay runs at most (3 s): with fewer than `MIN_FIT_HALF_CYCLES` by then, the step times out.
 pub const MAX_RELAY_TICKS: u32 = 7_500;
 /// Half cycles after which the relay adapts its current (the first ones).
 const ADAPTED_HALF_CYCLES: u16 = 3;
@@ -622,7 +622,7 @@ impl Regression3 {
     }
 
     /// Solves by Cramer's rule on the equations scaled so that each diagonal entry (and y y) has at most
-    /// [`SCALED_BITS`] bits (column j divided by 2^e_j: off-diagonal entries are bounded by the diagonal's by
+    /// `SCALED_BITS` bits (column j divided by 2^e_j: off-diagonal entries are bounded by the diagonal's by
     /// Cauchy-Schwarz). `None` for singular equations.
     #[must_use]
     pub fn solve(&self) -> Option<Solution3> {
