@@ -66,7 +66,7 @@ pub enum Outcome {
         /// The PWM outputs were off at the end.
         power_off: bool,
     },
-    /// Neither within [`GIVE_UP_S`].
+    /// Neither within 30 s of simulated time (the drive's own timeout is 20 s).
     GaveUp,
 }
 
