@@ -117,6 +117,10 @@ pub enum CommutationError {
 pub enum CommutationStage {
     /// Not started.
     Unknown,
+    /// The identification procedure imposes the angle and the d/q injection (`crate::drive::identification`):
+    /// only the encoder is tracked, as before a start. Next to [`Self::Unknown`] so that the commutation's one
+    /// check for both stays a single compare.
+    Injecting,
     /// From the centre of a Hall sector: within +-30 degrees electrical.
     HallSector,
     /// From a Hall edge: within a fraction of one tick's travel (plus the Hall sensors' placement tolerance).

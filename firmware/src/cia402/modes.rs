@@ -36,6 +36,10 @@ pub enum Mode {
     CyclicSyncVelocity,
     /// Cyclic Synchronous Torque Mode, 10.
     CyclicSyncTorque,
+    /// Auto setup, -2 (0xFE): the motor identification (PD4-E "Auto setup", seed 003 p.25-27, p.76-77; started
+    /// by controlword bit 4, statusword bit 12 when done; `crate::drive::auto_setup`). A manufacturer mode: no
+    /// bit in 0x6502's CiA 402 part.
+    AutoSetup,
 }
 
 /// 0x6502 supported drive modes: bits 0 PP, 2 PV, 5 HM, 7 CSP, 8 CSV, 9 CST (IDX L6735-6770; Gamma L997).
@@ -76,6 +80,7 @@ impl Mode {
             Mode::CyclicSyncPosition => 8,
             Mode::CyclicSyncVelocity => 9,
             Mode::CyclicSyncTorque => 10,
+            Mode::AutoSetup => -2,
         }
     }
 
@@ -89,6 +94,7 @@ impl Mode {
             8 => Some(Mode::CyclicSyncPosition),
             9 => Some(Mode::CyclicSyncVelocity),
             10 => Some(Mode::CyclicSyncTorque),
+            -2 => Some(Mode::AutoSetup),
             _ => None,
         }
     }
@@ -102,6 +108,7 @@ impl Mode {
             Mode::CyclicSyncPosition => 1 << 7,
             Mode::CyclicSyncVelocity => 1 << 8,
             Mode::CyclicSyncTorque => 1 << 9,
+            Mode::AutoSetup => 0,
         }
     }
 
@@ -186,11 +193,12 @@ mod tests {
         assert_eq!(SUPPORTED_DRIVE_MODES, 0x0000_03A5);
         for code in i8::MIN..=i8::MAX {
             match Mode::from_code(code) {
+                Some(Mode::AutoSetup) => assert_eq!(code, -2),
                 Some(m) => {
                     assert_eq!(m.code(), code);
                     assert_ne!(SUPPORTED_DRIVE_MODES & m.support_bit(), 0);
                 }
-                None => assert!(!matches!(code, 1 | 3 | 6 | 8 | 9 | 10)),
+                None => assert!(!matches!(code, 1 | 3 | 6 | 8 | 9 | 10 | -2)),
             }
         }
     }

@@ -58,6 +58,26 @@ pub enum PowerLevel {
     SwitchedOn,
     /// Current loop running (transition 4).
     OperationEnabled,
+    /// Operation enabled with the identification's current injection (`super::identification`): the d current
+    /// [`SetPoint::i_d`] at the forced electrical angle carried in the bits of [`SetPoint::i_q`], q current 0.
+    InjectCurrent,
+    /// Operation enabled with the identification's voltage injection: open loop, the d and q voltages (mV, `i16`
+    /// each, low and high half) carried in the bits of [`SetPoint::i_d`] at the forced angle in [`SetPoint::i_q`].
+    InjectVoltage,
+    /// Operation enabled with the identification's q-axis square wave, open loop: the d voltage (mV, `i16`, low
+    /// half of the bits of [`SetPoint::i_d`]) and a q voltage of +-the amplitude (mV, high half) that tier 1
+    /// reverses every second period; the angle in the bits of [`SetPoint::i_q`] (`super::tier1`).
+    InjectSquareQ,
+    /// As [`Self::InjectSquareQ`] with the square wave on d (added to the d voltage), q voltage 0.
+    InjectSquareD,
+}
+
+impl PowerLevel {
+    /// Whether the level is one of the identification's injections.
+    #[must_use]
+    pub const fn injects(self) -> bool {
+        matches!(self, Self::InjectCurrent | Self::InjectVoltage | Self::InjectSquareQ | Self::InjectSquareD)
+    }
 }
 
 /// Tier 2 -> tier 1 at every change: the power request and the q-current reference, already converted
@@ -285,6 +305,10 @@ impl SetPoint {
             PowerLevel::Off => 0,
             PowerLevel::SwitchedOn => 1,
             PowerLevel::OperationEnabled => 2,
+            PowerLevel::InjectCurrent => 3,
+            PowerLevel::InjectVoltage => 4,
+            PowerLevel::InjectSquareQ => 5,
+            PowerLevel::InjectSquareD => 6,
         };
         u32::from_le_bytes([level, p.switch_on, p.fault_reset, p.sequence])
     }
@@ -309,6 +333,10 @@ impl Words<SETPOINT_WORDS> for SetPoint {
         let level = match byte(power, 0) {
             1 => PowerLevel::SwitchedOn,
             2 => PowerLevel::OperationEnabled,
+            3 => PowerLevel::InjectCurrent,
+            4 => PowerLevel::InjectVoltage,
+            5 => PowerLevel::InjectSquareQ,
+            6 => PowerLevel::InjectSquareD,
             // 0, and anything not written by `to_words`: the safe level.
             _ => PowerLevel::Off,
         };
@@ -536,6 +564,7 @@ fn stage_byte(stage: CommutationStage) -> u32 {
         CommutationStage::Aligning => 3,
         CommutationStage::Aligned => 4,
         CommutationStage::Indexed => 5,
+        CommutationStage::Injecting => 6,
     }
 }
 
@@ -546,6 +575,7 @@ fn stage_from_byte(value: u8) -> CommutationStage {
         3 => CommutationStage::Aligning,
         4 => CommutationStage::Aligned,
         5 => CommutationStage::Indexed,
+        6 => CommutationStage::Injecting,
         _ => CommutationStage::Unknown,
     }
 }
@@ -676,6 +706,17 @@ mod tests {
             i_d: Amps::from_bits(-654_321),
             apply_from: u32::MAX,
         });
+        for level in
+            [PowerLevel::InjectCurrent, PowerLevel::InjectVoltage, PowerLevel::InjectSquareQ, PowerLevel::InjectSquareD]
+        {
+            round_trip(SetPoint {
+                version: 2,
+                power: PowerRequest { level, switch_on: 1, fault_reset: 0, sequence: 3 },
+                i_q: Amps::from_bits(-1),
+                i_d: Amps::from_bits(0x7FFF_8001),
+                apply_from: 5,
+            });
+        }
         round_trip(SetPoint {
             version: 1,
             power: PowerRequest { level: PowerLevel::SwitchedOn, ..PowerRequest::default() },
@@ -786,6 +827,7 @@ mod tests {
             CommutationStage::HallEdge,
             CommutationStage::Aligning,
             CommutationStage::Aligned,
+            CommutationStage::Injecting,
         ] {
             round_trip(Tier1Report { stage, ..Tier1Report::default() });
         }

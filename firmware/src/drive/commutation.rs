@@ -192,6 +192,12 @@ impl Commutation {
         Ok(())
     }
 
+    /// The identification procedure takes over the angle (`super::identification`): only the encoder is tracked
+    /// until [`Commutation::stop`] and a new [`Commutation::start`]. A learned index offset is kept.
+    pub fn begin_injection(&mut self) {
+        self.stage = CommutationStage::Injecting;
+    }
+
     /// Without an encoder (0x3000:01 sensor 1 none) the angle comes from the Hall sectors alone.
     pub fn set_hall_only(&mut self, hall_only: bool) {
         self.hall_only = hall_only;
@@ -219,7 +225,9 @@ impl Commutation {
     #[inline]
     pub fn update(&mut self, feedback: &FeedbackSample) -> Result<ElectricalAngle, CommutationError> {
         self.encoder.update(feedback.encoder_count);
-        if self.stage == CommutationStage::Unknown {
+        // Not started, or the identification imposes the angle: the encoder alone is tracked (one compare for
+        // both: the two stages are adjacent).
+        if matches!(self.stage, CommutationStage::Unknown | CommutationStage::Injecting) {
             if let Some(latch) = feedback.index_latch {
                 self.last_index_latch = Some(latch);
             }
@@ -319,6 +327,11 @@ impl Commutation {
         // Clamped to +-the alignment current (< 2^31): the conversion is exact.
         let i_q = Amps::from_bits(damping.wrapping_neg().clamp(limit.wrapping_neg(), limit) as i32);
         Some(AlignmentDemand { angle, i_d: Amps::from_bits(self.align_current), i_q })
+    }
+
+    /// Sets the Hall offset (0x301A:03) for the next start.
+    pub fn set_hall_offset(&mut self, offset: ElectricalAngle) {
+        self.hall_offset = offset;
     }
 
     /// The configured start method.

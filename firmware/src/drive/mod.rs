@@ -54,6 +54,8 @@
 //! the same period as the target. Off requests and the CST torque (the master's value, not a loop's output) are
 //! not held back.
 
+pub mod auto_setup;
+pub mod auto_tuning;
 pub mod blocks;
 pub mod calibration;
 pub mod chopper;
@@ -61,11 +63,14 @@ pub mod commutation;
 pub mod encoder;
 mod fieldbus;
 pub mod hall_position;
+pub mod identification;
+pub mod mechanical_identification;
 pub mod objects;
 pub mod protection;
 pub mod regeneration;
 pub mod scaling;
 pub mod tier1;
+pub mod tuning;
 
 use crate::control::angle::ElectricalAngle;
 use crate::control::demand::{rated_torque_micro_nm, DemandScale};
@@ -108,6 +113,8 @@ pub enum DemandSource {
     TargetTorque,
     /// A current set by tier 2 through [`Drive::set_current_demand`] (the velocity and position loops).
     Internal,
+    /// The motor identification sets tier 1's set-point itself (0x6060 = -2, [`auto_setup`]).
+    Identification,
 }
 
 /// Construction-time configuration that has no dictionary object (yet).
@@ -245,6 +252,8 @@ pub struct Drive {
     event_warning_shown: bool,
     /// The STO inputs tier 2 read for this slow period ([`Self::set_sto_inputs`]).
     sto_inputs: StoInputs,
+    /// The motor identification procedure (0x6060 = -2).
+    auto_setup: auto_setup::AutoSetup,
 }
 
 impl Drive {
@@ -300,6 +309,7 @@ impl Drive {
             chopper: BrakingChopper::default(),
             event_warning_shown: false,
             sto_inputs: StoInputs::RELEASED,
+            auto_setup: auto_setup::AutoSetup::default(),
             dictionary,
         };
         drive.configure_commutation();
@@ -396,6 +406,8 @@ impl Drive {
                 i_q
             }
             DemandSource::Internal => self.internal,
+            // The identification's set-point is its own (angle and injection in the current words).
+            DemandSource::Identification => return,
         };
         let i = if self.bus_limiter.active() {
             self.bus_limiter.limit(i_q, self.axis.velocity().to_bits())
@@ -681,6 +693,9 @@ impl Drive {
         };
         let out = self.axis.step(&input, &mut self.dictionary);
         self.apply(&out);
+        if out.demand == CurrentDemand::Identification || self.auto_setup.running() {
+            self.run_auto_setup();
+        }
         self.hold_loop_setpoint(before);
     }
 
@@ -720,6 +735,13 @@ impl Drive {
                 self.clamp_internal_demand();
             }
             CurrentDemand::TargetTorque => self.source = DemandSource::TargetTorque,
+            CurrentDemand::Identification => {
+                if !self.auto_setup.running() && self.source == DemandSource::Identification {
+                    // No identification running in mode -2: no current.
+                    self.source = DemandSource::Internal;
+                    self.internal = Amps::ZERO;
+                }
+            }
         }
         // One conversion for whatever the step changed (source, loops' demand, 0x6071).
         self.update_demand();

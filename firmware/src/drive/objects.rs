@@ -26,6 +26,8 @@
 //! - 0x1F50..0x1F57, program download and control (CiA 302-3), belong to the bootloader issue: they are handed
 //!   to a second [`ApplicationObjects`] (`P`), by default [`NoApplicationObjects`], which answers every transfer
 //!   with 0x0800_0020 (data cannot be transferred or stored to the application) and never panics.
+//! - 0x3205:01 *Auto tuning command* runs the tuning on the value storage ([`super::auto_tuning`]), with the power
+//!   stage off (0x0800_0022 otherwise).
 //! - Any other application entry (none exists today) answers 0x0800_0020 as well.
 //!
 //! On the target the flash work happens in tier 3 inside `rt::tier2::with_drive` (see `rt::app`).
@@ -260,6 +262,7 @@ impl<F: NorFlash, P> DriveObjects<'_, F, P> {
 enum Served {
     Store,
     Program,
+    AutoTuning,
     Nobody,
 }
 
@@ -269,6 +272,7 @@ const fn served(index: u16) -> Served {
         PROGRAM_DATA | PROGRAM_CONTROL | PROGRAM_SOFTWARE_IDENTIFICATION | FLASH_STATUS_IDENTIFICATION => {
             Served::Program
         }
+        super::auto_tuning::AUTO_TUNING => Served::AutoTuning,
         _ => Served::Nobody,
     }
 }
@@ -278,7 +282,8 @@ impl<F: NorFlash, P: ApplicationObjects> ApplicationObjects for DriveObjects<'_,
         match served(entry.index) {
             Served::Store => self.store_objects().read(entry, offset, buf),
             Served::Program => self.program.read(entry, offset, buf),
-            Served::Nobody => Err(SdoAbort::CannotTransfer),
+            // 0x3205:01 is write-only: the access layer answers a read before it comes here.
+            Served::AutoTuning | Served::Nobody => Err(SdoAbort::CannotTransfer),
         }
     }
 
@@ -295,6 +300,10 @@ impl<F: NorFlash, P: ApplicationObjects> ApplicationObjects for DriveObjects<'_,
             Served::Store if self.power_stage_enabled => Err(SdoAbort::DeviceState),
             Served::Store => self.store_objects().write(entry, offset, data, complete, values),
             Served::Program => self.program.write(entry, offset, data, complete, values),
+            // The gains change only with the power stage off (device.toml `writable_in`, checked again here as for
+            // the store). The access layer has checked the length (UNSIGNED8, one byte, expedited: `complete`).
+            Served::AutoTuning if self.power_stage_enabled => Err(SdoAbort::DeviceState),
+            Served::AutoTuning => super::auto_tuning::run(data, values),
             Served::Nobody => Err(SdoAbort::CannotTransfer),
         }
     }
@@ -303,7 +312,7 @@ impl<F: NorFlash, P: ApplicationObjects> ApplicationObjects for DriveObjects<'_,
         match served(entry.index) {
             Served::Store => self.store_objects().abort(entry),
             Served::Program => self.program.abort(entry),
-            Served::Nobody => {}
+            Served::AutoTuning | Served::Nobody => {}
         }
     }
 

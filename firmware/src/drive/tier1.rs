@@ -18,6 +18,8 @@ use super::{FastSignals, FastTick};
 use crate::control::angle::ElectricalAngle;
 use crate::control::current_loop::{foc_step, CurrentController, CurrentLoopConfig, FocInput};
 use crate::control::frames::{Abc, Amps, Dq, Volts};
+use crate::control::transforms::{clarke, inverse_park, park};
+use crate::control::trig::sin_cos;
 use crate::control::velocity_estimate::PositionSum;
 use crate::hal::power::{FeedbackSample, Measurements, PwmCommand, SLOW_TICK_DIVIDER};
 use crate::power_state::{CommutationStage, DriveError, PowerState, Trip};
@@ -54,6 +56,28 @@ pub struct Tier1State {
     /// The settings in force: Hall mask, encoder presence, calibration; the source of the limits and the
     /// commutation.
     settings: Settings,
+    /// The identification's q square wave ([`PowerLevel::InjectSquareQ`]).
+    square: SquareWave,
+}
+
+/// Tier 1's q-axis square wave for the identification's Lq (`super::identification`, step 3): +A for two periods,
+/// -A for two. A duty computed in period n applies during period n + 1, and a current sample is the average of
+/// its period (the centre of a centred PWM), so the increment between the samples of periods n and n + 1 comes
+/// from one voltage alone when the voltages computed in periods n - 1 and n are equal: the second period of each
+/// half. Those increments are summed with the sign of their voltage (running totals, wrapping: tier 2 differences
+/// two reports): `L = A T count / sum` with R, the dead time and the bias cancelling, and the half period (80 us)
+/// short enough that the torque of the q current moves the rotor too little to matter (its voltage error grows
+/// with the square of the half period).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct SquareWave {
+    /// Period within the 4-period cycle.
+    tick: u8,
+    /// The q current of the last sample.
+    last: Amps,
+    /// Sum of the signed increments (`I16F16` bits, wrapping).
+    sum: i32,
+    /// Increments summed (wrapping).
+    count: u32,
 }
 
 impl Tier1State {
@@ -84,6 +108,7 @@ impl Tier1State {
             trip_sample: FastSignals::default(),
             position_sum: PositionSum::default(),
             settings: *settings,
+            square: SquareWave::default(),
         };
         t1.commutation.set_hall_only(!c.encoder_present);
         t1
@@ -106,13 +131,20 @@ impl Tier1State {
         let same = !sensor_changed
             && self.commutation.encoder().config() == &c.encoder
             && self.commutation.method() == c.method
-            && self.commutation.hall_offset() == c.hall_offset;
+            && (self.commutation.hall_offset() == c.hall_offset || self.setpoint.power.level.injects());
         // A configured offset wins over a learned one, a learned one over the construction-time default.
         let index_offset = c.configured_index_offset.or(self.commutation.index_offset()).or(c.default_index_offset);
         if same {
+            // The identification's Hall offset takes effect without a rebuild, which would restart the encoder's
+            // position in operation (the supervision and the axis expect that only at a switch-on).
+            self.commutation.set_hall_offset(c.hall_offset);
             self.commutation.set_index_offset(index_offset);
         } else {
             self.commutation = Commutation::new(c.method, c.encoder, c.hall_offset, index_offset);
+            if self.state == PowerState::OperationEnabled && self.setpoint.power.level.injects() {
+                // The identification publishes what it found while it still injects: the angle stays imposed.
+                self.commutation.begin_injection();
+            }
         }
         self.commutation.set_hall_only(!c.encoder_present);
         self.settings = *settings;
@@ -141,6 +173,20 @@ impl Tier1State {
                 PowerLevel::OperationEnabled => {
                     if self.state == PowerState::SwitchedOn {
                         self.enable_operation();
+                    }
+                    if self.commutation.stage() == CommutationStage::Injecting {
+                        // The identification ended: the commutation starts again from its sensors (with what the
+                        // identification found, once tier 2 has published it in the settings).
+                        self.commutation.stop();
+                        self.controller.reset();
+                    }
+                }
+                PowerLevel::InjectCurrent
+                | PowerLevel::InjectVoltage
+                | PowerLevel::InjectSquareQ
+                | PowerLevel::InjectSquareD => {
+                    if self.state == PowerState::OperationEnabled {
+                        self.commutation.begin_injection();
                     }
                 }
             }
@@ -286,11 +332,15 @@ impl Tier1State {
             }
             angle = self.commutation.angle();
         }
-        let i_ref = if let Some(align) = self.commutation.alignment_demand() {
+        // A valid angle first: the normal path pays one compare; the alignment and the identification's injection
+        // are the branches behind it.
+        let i_ref = if self.commutation.stage().is_valid() {
+            Dq::new(self.setpoint.i_d, self.setpoint.i_q)
+        } else if let Some(align) = self.commutation.alignment_demand() {
             angle = align.angle;
             Dq::new(align.i_d, align.i_q)
-        } else if self.commutation.stage().is_valid() {
-            Dq::new(self.setpoint.i_d, self.setpoint.i_q)
+        } else if self.commutation.stage() == CommutationStage::Injecting {
+            return self.run_injection(m, v_bus);
         } else {
             // The alignment just finished this tick: the angle is valid from the next one; hold zero current.
             Dq::new(Amps::ZERO, Amps::ZERO)
@@ -301,6 +351,69 @@ impl Tier1State {
         }
         let out = foc_step(&mut self.controller, &FocInput { i_abc, angle, i_ref, v_bus });
         self.signals.i_abc = i_abc;
+        self.signals.i_dq = out.i_dq;
+        self.signals.i_ref = i_ref;
+        self.signals.v_dq = out.v_dq;
+        self.signals.saturated = out.saturated;
+        out.pwm_command()
+    }
+
+    /// The identification's injection (`super::identification`, [`PowerLevel::InjectCurrent`] and
+    /// [`PowerLevel::InjectVoltage`]): the angle is the one tier 2 imposes, carried in the bits of the set-point's
+    /// q reference; the d current through the current controller, or the d/q voltages open loop through the
+    /// modulator (the integrators are emptied so that a later current step starts without a stale voltage).
+    /// Protection as on the normal path. Off the normal path: it runs only during the identification.
+    #[cold]
+    #[inline(never)]
+    fn run_injection(&mut self, m: &Measurements, v_bus: Volts) -> PwmCommand {
+        let angle = ElectricalAngle(self.setpoint.i_q.to_bits().cast_unsigned());
+        let i_abc = scaling::phase_currents(&m.adc, &self.offsets);
+        if self.limits.currents_outside(&i_abc) {
+            return self.trip_currents(&i_abc);
+        }
+        self.signals.i_abc = i_abc;
+        let level = self.setpoint.power.level;
+        if level != PowerLevel::InjectCurrent {
+            let packed = self.setpoint.i_d.to_bits().cast_unsigned();
+            let volts = |half: u32| Volts::from_millivolts(i32::from((half & 0xFFFF) as u16 as i16));
+            let mut v_dq = Dq::new(volts(packed), volts(packed >> 16));
+            let sc = sin_cos(angle);
+            let i_dq = park(clarke(i_abc), sc);
+            if level == PowerLevel::InjectSquareQ {
+                v_dq.q = self.square.step(i_dq.q, v_dq.q);
+                // The running totals travel in the report's (unused) current reference.
+                self.signals.i_ref =
+                    Dq::new(Amps::from_bits(self.square.sum), Amps::from_bits(self.square.count.cast_signed()));
+            } else if level == PowerLevel::InjectSquareD {
+                let swing = self.square.step(i_dq.d, v_dq.q);
+                v_dq = Dq::new(Volts::from_bits(v_dq.d.to_bits().wrapping_add(swing.to_bits())), Volts::ZERO);
+                // The running totals travel in the report's (unused) current reference.
+                self.signals.i_ref =
+                    Dq::new(Amps::from_bits(self.square.sum), Amps::from_bits(self.square.count.cast_signed()));
+            } else {
+                self.signals.i_ref = Dq::default();
+            }
+            let modulator = self.controller.modulator();
+            let modulated = modulator.modulate(inverse_park(v_dq, sc), v_bus);
+            let mut c = modulated.compare_ticks;
+            if level != PowerLevel::InjectVoltage {
+                // Centred instead of bottom-clamped: with the lowest phase held at 0, the sign of the square wave
+                // would choose which leg stops switching (at angle 0, B or C), and the dead time would add to the
+                // amplitude in both halves; centred, every leg switches in both halves and the dead time's error
+                // follows the currents alone, which the symmetric increments cancel.
+                let high = c.a.max(c.b).max(c.c);
+                let low = c.a.min(c.b).min(c.c);
+                let lift = modulator.clamp().max_compare().saturating_sub(high).saturating_sub(low) / 2;
+                c = Abc { a: c.a.saturating_add(lift), b: c.b.saturating_add(lift), c: c.c.saturating_add(lift) };
+            }
+            self.controller.reset();
+            self.signals.i_dq = i_dq;
+            self.signals.v_dq = v_dq;
+            self.signals.saturated = modulated.saturated;
+            return PwmCommand { duty: [c.a, c.b, c.c], enabled: true };
+        }
+        let i_ref = Dq::new(self.setpoint.i_d, Amps::ZERO);
+        let out = foc_step(&mut self.controller, &FocInput { i_abc, angle, i_ref, v_bus });
         self.signals.i_dq = out.i_dq;
         self.signals.i_ref = i_ref;
         self.signals.v_dq = out.v_dq;
@@ -384,6 +497,27 @@ impl Tier1State {
     fn fault_reset(&mut self) {
         if matches!(self.state, PowerState::Fault(_)) {
             self.state = PowerState::Off;
+        }
+    }
+}
+
+impl SquareWave {
+    /// One period with the q current `i_q` sampled: the q voltage to apply (+-`amplitude`).
+    fn step(&mut self, i_q: Amps, amplitude: Volts) -> Volts {
+        let tick = self.tick;
+        // The increment since the last sample came from one voltage when this is the first period of a half
+        // (the two periods before computed the same voltage): the half before, whose sign is the opposite.
+        if tick == 0 || tick == 2 {
+            let step = i_q.to_bits().wrapping_sub(self.last.to_bits());
+            self.sum = if tick == 0 { self.sum.wrapping_sub(step) } else { self.sum.wrapping_add(step) };
+            self.count = self.count.wrapping_add(1);
+        }
+        self.last = i_q;
+        self.tick = (tick.wrapping_add(1)) & 3;
+        if tick < 2 {
+            amplitude
+        } else {
+            Volts::from_bits(amplitude.to_bits().wrapping_neg())
         }
     }
 }

@@ -243,10 +243,27 @@ pub enum FaultId {
     ChopperOverload = 36,
     /// The CAN controller is back on the bus after a bus-off (reported once, as an event).
     CanBusOffRecovered = 37,
+    /// Motor identification: the voltage limit stopped a test current short of its demand (IDX 0xFF12).
+    AutoTuningCurrentLimit = 38,
+    /// Motor identification: a test current does not flow (an open phase; IDX 0xFF13).
+    AutoTuningIdentificationCurrent = 39,
+    /// Motor identification: a measured parameter contradicts the configuration (pole pairs against the encoder,
+    /// Hall sequence) or the configuration does not allow it (no encoder; IDX 0xFF16).
+    AutoTuningParameter = 40,
+    /// Motor identification: the procedure did not finish in time (IDX 0xFF19).
+    AutoTuningTimeout = 41,
+    /// Motor identification: the motor moved before the test (IDX 0xFF20).
+    AutoTuningStandstill = 42,
+    /// Motor identification: the rotor did not follow (movement obstructed, or no encoder signal; IDX 0xFF21).
+    AutoTuningTorqueInvalid = 43,
+    /// Motor identification: the maximum speed 0x6080 was exceeded (IDX 0xFF22).
+    AutoTuningMaxSpeed = 44,
+    /// Motor identification: the mechanical step's samples gave no physical plant (IDX 0xFF15).
+    AutoTuningSampleMismatch = 45,
 }
 
 /// Number of rows in [`FAULT_TABLE`].
-pub const FAULT_COUNT: usize = 38;
+pub const FAULT_COUNT: usize = 46;
 
 /// One row of the fault table.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -314,6 +331,14 @@ impl FaultId {
         Self::StoDiscrepancy,
         Self::ChopperOverload,
         Self::CanBusOffRecovered,
+        Self::AutoTuningCurrentLimit,
+        Self::AutoTuningIdentificationCurrent,
+        Self::AutoTuningParameter,
+        Self::AutoTuningTimeout,
+        Self::AutoTuningStandstill,
+        Self::AutoTuningTorqueInvalid,
+        Self::AutoTuningMaxSpeed,
+        Self::AutoTuningSampleMismatch,
     ];
 
     /// The stable fault number (the table row; EMCY manufacturer byte 3).
@@ -801,5 +826,95 @@ pub static FAULT_TABLE: [FaultInfo; FAULT_COUNT] = [
         S::Detail,
         "Recovered from bus off",
         "CiA 301 EMCY error code 8140h: the node rejoined the bus; the bus-off fault 0x81FD stays until a fault reset",
+    ),
+    // Motor identification (`drive::auto_setup`): IDX Table 7-153's auto-tuning codes, register 0010 0000b
+    // (profile) plus the generic bit, class d. Events: the procedure ended, a fault reset is accepted at once.
+    row(
+        FaultId::AutoTuningCurrentLimit,
+        0xFF12,
+        REG_GENERIC | REG_PROFILE,
+        D,
+        Event,
+        Tier::Supervision,
+        S::Detail,
+        "Auto tuning current limit error",
+        "IDX L7096, L7514 (7.2.51)",
+    ),
+    row(
+        FaultId::AutoTuningIdentificationCurrent,
+        0xFF13,
+        REG_GENERIC | REG_PROFILE,
+        D,
+        Event,
+        Tier::Supervision,
+        S::Detail,
+        "Auto tuning identification current error",
+        "IDX L7097, L7522 (7.2.52); EPOS3's 0xFF13 (interpolation) is not used: this drive follows IDX",
+    ),
+    row(
+        FaultId::AutoTuningParameter,
+        0xFF16,
+        REG_GENERIC | REG_PROFILE,
+        D,
+        Event,
+        Tier::Supervision,
+        S::Detail,
+        "Auto tuning parameter error",
+        "IDX L7104, L7546 (7.2.55)",
+    ),
+    row(
+        FaultId::AutoTuningTimeout,
+        0xFF19,
+        REG_GENERIC | REG_PROFILE,
+        D,
+        Event,
+        Tier::Supervision,
+        S::Detail,
+        "Auto tuning timeout error",
+        "IDX L7107, L7570 (7.2.58)",
+    ),
+    row(
+        FaultId::AutoTuningStandstill,
+        0xFF20,
+        REG_GENERIC | REG_PROFILE,
+        D,
+        Event,
+        Tier::Supervision,
+        S::Detail,
+        "Auto tuning standstill error",
+        "IDX L7108, L7578 (7.2.59)",
+    ),
+    row(
+        FaultId::AutoTuningTorqueInvalid,
+        0xFF21,
+        REG_GENERIC | REG_PROFILE,
+        D,
+        Event,
+        Tier::Supervision,
+        S::Detail,
+        "Auto tuning torque invalid error",
+        "IDX L7109, L7586 (7.2.60)",
+    ),
+    row(
+        FaultId::AutoTuningMaxSpeed,
+        0xFF22,
+        REG_GENERIC | REG_PROFILE,
+        D,
+        Event,
+        Tier::Supervision,
+        S::Detail,
+        "Auto tuning max system speed error",
+        "IDX L7110, L7594 (7.2.61)",
+    ),
+    row(
+        FaultId::AutoTuningSampleMismatch,
+        0xFF15,
+        REG_GENERIC | REG_PROFILE,
+        D,
+        Event,
+        Tier::Supervision,
+        S::Detail,
+        "Auto tuning sample mismatch error",
+        "IDX L7103, L7538 (7.2.54)",
     ),
 ];

@@ -91,6 +91,8 @@ pub enum CurrentDemand {
     Internal(Amps),
     /// CST: 0x6071 + 0x60B2, read by tier 1 every period.
     TargetTorque,
+    /// Auto setup (0x6060 = -2): the motor identification sets tier 1's demand (`crate::drive::auto_setup`).
+    Identification,
 }
 
 /// What the drive must do after this step.
@@ -169,6 +171,8 @@ pub struct Axis {
     i2t_objects: (u32, u32, u16),
     i2t_warning: bool,
     i2t_current_limit_ma: u32,
+    /// The auto setup finished successfully (statusword bit 12 in 0x6060 = -2, PD4-E "aligned").
+    auto_setup_done: bool,
 }
 
 impl Axis {
@@ -198,6 +202,7 @@ impl Axis {
             standstill: false,
             remote: false,
             drive_fault_seen: false,
+            auto_setup_done: false,
             previous_controlword: Controlword(0),
             last_position: 0,
             limit_seen: [false; 2],
@@ -374,6 +379,11 @@ impl Axis {
                 self.internal_limit = false;
                 CurrentDemand::TargetTorque
             }
+            Some(_) if self.activity == Activity::Following(Mode::AutoSetup) => {
+                self.internal_limit = false;
+                self.loops.reset();
+                CurrentDemand::Identification
+            }
             Some(step) => CurrentDemand::Internal(self.run_loops(step, position, input.scale)),
         };
         if step.is_none() {
@@ -404,6 +414,17 @@ impl Axis {
             output_pins,
             state: out.state,
         }
+    }
+
+    /// Whether the axis follows the auto setup mode (0x6060 = -2) in «Operation enabled».
+    #[must_use]
+    pub fn auto_setup_active(&self) -> bool {
+        self.activity == Activity::Following(Mode::AutoSetup) && self.machine.state() == State::OperationEnabled
+    }
+
+    /// The auto setup finished successfully (statusword bit 12) or not (a new run started, or it failed).
+    pub fn set_auto_setup_done(&mut self, done: bool) {
+        self.auto_setup_done = done;
     }
 
     /// Publishes the velocity actual values beside 0x606C from the last step's estimate: 0x6069 (the estimate in
@@ -734,6 +755,11 @@ impl Axis {
                 demand: LoopDemand::Torque { permille: 0 },
                 status: ModeStatus { target_reached: false, bit12: true, bit13: false },
             },
+            // The identification drives tier 1 itself; bit 12 is PD4-E's "aligned" (seed 003 p.76).
+            Mode::AutoSetup => ModeStep {
+                demand: LoopDemand::Torque { permille: 0 },
+                status: ModeStatus { target_reached: self.auto_setup_done, bit12: self.auto_setup_done, bit13: false },
+            },
         };
         (Some(step), fb.position)
     }
@@ -754,6 +780,7 @@ impl Axis {
                     self.cyclic.enter(m, self.params.period, start.position_i32(), velocity);
                 }
             }
+            Mode::AutoSetup => {}
         }
         self.activity = Activity::Following(mode);
     }

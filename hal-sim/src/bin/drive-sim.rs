@@ -9,6 +9,7 @@
 //! drive-sim homing       [--seed N] [--out DIR]                     every homing method from both sides
 //! drive-sim fault-matrix [--seed N] [--out DIR] [--only TEXT]       every fault injected, reaction checked
 //! drive-sim duty-cycle   [--seed N] [--out DIR]                     60 s duty cycle: no false trips
+//! drive-sim identify     [--seed N]                                 motor identification (0x6060 = -2) over SDO
 //! drive-sim bench        [--seconds S]                              host speed (build with --release)
 //! drive-sim ethercat --iface NAME [--lock-step] [--cycle-us N] [--clock-error-ppm X] [--seconds S]
 //!                        [--idle-exit-ms N] [--pcap FILE] [--seed N]  the drive as an EtherCAT slave on NAME;
@@ -65,7 +66,7 @@ output). Not scaled (reference numbers, on the chosen plant): fault-matrix (its 
 which every preset shares), bench, and the servers, whose motion comes from the master.";
 
 const USAGE: &str =
-    "usage: drive-sim <current-step | spinning | csp | csv-sweep | ppm | homing | fault-matrix | duty-cycle | bench | ethercat | canopen> [--plant FILE] [--seed N] [--default-gains | --gains P,I] \
+    "usage: drive-sim <current-step | spinning | csp | csv-sweep | ppm | homing | fault-matrix | duty-cycle | identify | bench | ethercat | canopen> [--plant FILE] [--seed N] [--default-gains | --gains P,I] \
                      [--out DIR] [--seconds S] [--only TEXT] \
                      [--iface NAME --lock-step --cycle-us N --clock-error-ppm X --idle-exit-ms N --pcap FILE --idle-cycle \
                      --drive-clock-error-ppm X --sto-open]";
@@ -646,6 +647,67 @@ fn duty_cycle(args: &Args, dir: &Path) -> Result<(), String> {
     Ok(())
 }
 
+/// `drive-sim identify`: the motor identification run by a master over SDO, its results against the plant's truth.
+fn identify(args: &Args) -> Result<(), String> {
+    use hal_sim::scenarios::identification::{self, IdentifyRun, Outcome};
+    let params = scenarios::scenario_plant();
+    println!(
+        "identify: 0x6060 = -2, enable, controlword bit 4 over SDO; the master polls 0x3204:02/:03 and 0x6041 every \
+         10 ms, then reads the results back (seed {})",
+        args.seed
+    );
+    let run = identification::identify(&params, args.seed, |_| {});
+    let id = &run.identified;
+    let err = IdentifyRun::error_pct;
+    println!(
+        "  R {:.4} ohm (true {:.4}), Ld {:.1} uH (true {:.1}), Lq {:.1} uH (true {:.1}), pole pairs {}, 0x3010:02 {:#06x}, \
+         index offset {}, Hall offset {}",
+        id.resistance_ohm,
+        params.phase_resistance_ohm,
+        id.ld_h * 1e6,
+        params.ld_h * 1e6,
+        id.lq_h * 1e6,
+        params.lq_h * 1e6,
+        id.pole_pairs,
+        id.encoder_type,
+        id.index_offset,
+        id.hall_offset
+    );
+    println!(
+        "  SDO: {} requests, {} answered, {} aborted, longest gap between answers {:.1} ms; last step {}",
+        run.sdo.requests, run.sdo.answered, run.sdo.aborted, run.sdo.max_gap_ms, run.last_step
+    );
+    let pct = |value: f64, truth: f64| {
+        if value > 0.0 {
+            format!("{:.2}", err(value, truth))
+        } else {
+            "nan".to_owned()
+        }
+    };
+    match run.outcome {
+        Outcome::Done => println!("  done (statusword bit 12)"),
+        Outcome::Fault { code, power_off } => println!("  fault {code:#06x}, power stage off: {power_off}"),
+        Outcome::GaveUp => println!("  neither done nor failed within 30 s"),
+    }
+    println!();
+    println!("r_error_pct={}", pct(id.resistance_ohm, params.phase_resistance_ohm));
+    println!("ld_error_pct={}", pct(id.ld_h, params.ld_h));
+    println!("lq_error_pct={}", pct(id.lq_h, params.lq_h));
+    // 0x3001:05 holds the commissioned value until the mechanical step writes it: an error only once it did.
+    let kt = if id.inertia_kg_m2 > 0.0 { id.kt_nm_per_a } else { 0.0 };
+    println!("kt_error_pct={}", pct(kt, params.torque_constant_nm_per_a()));
+    println!("inertia_error_pct={}", pct(id.inertia_kg_m2, params.total_inertia_kg_m2()));
+    println!("friction_error_pct={}", pct(id.coulomb_friction_nm, params.coulomb_friction_nm));
+    println!("identify_s={:.3}", run.identify_s);
+    println!("sdo_requests={}", run.sdo.requests);
+    println!("sdo_answered={}", run.sdo.answered);
+    println!("sdo_max_gap_ms={:.1}", run.sdo.max_gap_ms);
+    match run.outcome {
+        Outcome::Done => Ok(()),
+        other => Err(format!("identification did not finish: {other:?}")),
+    }
+}
+
 fn bench(args: &Args) -> Result<(), String> {
     if cfg!(debug_assertions) {
         println!("note: a debug build; the figure is for `cargo run --release`");
@@ -915,6 +977,7 @@ fn run_scenario(args: &Args, dir: &Path) -> Result<(), String> {
         "homing" => homing_matrix(args, dir),
         "fault-matrix" => fault_matrix(args, dir),
         "duty-cycle" => duty_cycle(args, dir),
+        "identify" => identify(args),
         "bench" => bench(args),
         "ethercat" => ethercat(args),
         other => Err(format!("unknown scenario {other}\n{USAGE}\n{PLANT_HELP}")),

@@ -65,6 +65,9 @@ pub enum Situation {
     LockedTorque,
     /// «Ready to switch on», about to switch on (offset calibration).
     ReadyToSwitchOn,
+    /// Auto setup (0x6060 = -2) in «Operation enabled», the identification about to start (controlword bit 4:
+    /// the injection sets it).
+    AutoSetup,
     /// The drive boots.
     Boot,
     /// The drive starts after a reset by the independent watchdog (an erased parameter store: nothing else to
@@ -79,6 +82,7 @@ impl Situation {
             Self::RunningCsv | Self::ReadyToSwitchOn => Some(9),
             Self::RunningCsp => Some(8),
             Self::LockedTorque => Some(10),
+            Self::AutoSetup => Some(-2),
             Self::Boot | Self::WatchdogRestart => None,
         }
     }
@@ -90,6 +94,7 @@ impl Situation {
             Self::RunningCsp => "CSP 300 rpm",
             Self::LockedTorque => "CST locked",
             Self::ReadyToSwitchOn => "ready",
+            Self::AutoSetup => "auto setup",
             Self::Boot => "boot",
             Self::WatchdogRestart => "restart",
         }
@@ -530,6 +535,61 @@ pub fn cases() -> Vec<Case> {
             |b| b.sim.drive.communication_restored(LinkLoss::CanBusOff),
             nothing,
         ),
+        // The motor identification (drive::auto_setup), started by controlword bit 4 with the failure present.
+        case(
+            F::AutoTuningIdentificationCurrent,
+            "phase A open, identification started",
+            S::AutoSetup,
+            10_000,
+            |b| {
+                b.sim.plant.faults_mut().phase_open = Some(0);
+                b.sim.set_controlword(0x001F);
+            },
+            |b| {
+                b.sim.plant.faults_mut().phase_open = None;
+                b.sim.set_controlword(0x000F);
+            },
+        ),
+        case(
+            F::AutoTuningParameter,
+            "0x3001:03 = 5 on the 7-pole-pair motor, identification started",
+            S::AutoSetup,
+            110_000,
+            |b| {
+                b.sim.drive.dictionary_mut().set(h::MOTOR_POLE_PAIRS, 5u8);
+                b.sim.set_controlword(0x001F);
+            },
+            |b| {
+                b.sim.drive.dictionary_mut().set(h::MOTOR_POLE_PAIRS, 7u8);
+                b.sim.set_controlword(0x000F);
+            },
+        ),
+        case(
+            F::AutoTuningStandstill,
+            "rotor coasting at 100 rpm, identification started",
+            S::AutoSetup,
+            2_500,
+            |b| {
+                let theta = b.sim.plant.state().theta_m_rad;
+                b.sim.plant.set_rotor_state(theta, 100.0 * core::f64::consts::TAU / 60.0);
+                b.sim.set_controlword(0x001F);
+            },
+            |b| b.sim.set_controlword(0x000F),
+        ),
+        case(
+            F::AutoTuningTorqueInvalid,
+            "rotor locked, identification started",
+            S::AutoSetup,
+            60_000,
+            |b| {
+                b.sim.plant.lock_rotor(true);
+                b.sim.set_controlword(0x001F);
+            },
+            |b| {
+                b.sim.plant.lock_rotor(false);
+                b.sim.set_controlword(0x000F);
+            },
+        ),
         case(
             F::CanRxOverrun,
             "3 frames lost in the receive FIFO (CANopen layer)",
@@ -648,6 +708,11 @@ fn prepare(situation: Situation, seed: u64) -> Result<Bench, SimError> {
         Situation::ReadyToSwitchOn => {
             let mut b = Bench::new(prepare_motion(seed, 9)?);
             b.sim.set_controlword(0x0006);
+            b.run(20 * PERIODS_PER_SLOW_TICK);
+            b
+        }
+        Situation::AutoSetup => {
+            let mut b = Bench::new(prepare_motion(seed, -2)?);
             b.run(20 * PERIODS_PER_SLOW_TICK);
             b
         }

@@ -19,6 +19,7 @@
 pub mod duty_cycle;
 pub mod faults;
 pub mod homing;
+pub mod identification;
 pub mod motion;
 pub mod profile;
 pub mod regeneration;

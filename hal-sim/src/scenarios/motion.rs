@@ -155,7 +155,7 @@ pub struct CspFigures {
 /// Runs the CSP scenario; the figures and a trace per slow tick (time, master target, demand, actual, following
 /// error, velocity, q current).
 pub fn csp(config: &CspConfig) -> Result<(CspFigures, Trace), SimError> {
-    let mut sim = prepare_motion(config.seed, 8)?;
+    let mut sim = prepare_motion_on(super::scenario_plant(), config.seed, 8)?;
     if let Some([p, i, d, fv, fa]) = config.position_gains {
         let dict = sim.drive.dictionary_mut();
         dict.set(h::POSITION_CONTROLLER_P_GAIN, p);
@@ -173,10 +173,11 @@ pub fn csp(config: &CspConfig) -> Result<(CspFigures, Trace), SimError> {
         d.set(h::INTERPOLATION_TIME_INDEX, index);
     }
     let start = f64::from(sim.drive.dictionary().get(h::POSITION_ACTUAL_VALUE));
-    let inc_per_s_per_rpm = INC_PER_REV / 60.0;
+    let inc_per_rev = plant_inc_per_rev(&sim);
+    let inc_per_s_per_rpm = inc_per_rev / 60.0;
     let mv = JerkLimitedMove::new(
         start,
-        config.revolutions * INC_PER_REV,
+        config.revolutions * inc_per_rev,
         config.max_rpm * inc_per_s_per_rpm,
         config.peak_rpm_per_s * inc_per_s_per_rpm,
     );
@@ -272,12 +273,18 @@ pub struct VelocityStepFigures {
 /// Velocity of the drive's demand (`Velocity`, Q32 increments per slow tick) in rpm.
 fn demand_rpm(sim: &Simulation) -> f64 {
     let v = sim.drive.axis().setpoint().velocity.0 as f64 / 4_294_967_296.0;
-    v * 2500.0 * 60.0 / INC_PER_REV
+    v * 2500.0 * 60.0 / plant_inc_per_rev(sim)
 }
 
-/// CSV: a step of the target velocity from 0 to `step_rpm` (set-points every 1 ms, no interpolation), 300 ms.
+/// Encoder increments per motor revolution of the simulated plant ([`INC_PER_REV`] on the reference).
+fn plant_inc_per_rev(sim: &Simulation) -> f64 {
+    f64::from(sim.plant.params().encoder_counts_per_rev)
+}
+
+/// CSV: a step of the target velocity from 0 to `step_rpm` (set-points every 1 ms, no interpolation), 300 ms, on
+/// the scenarios' plant.
 pub fn csv_step(seed: u64, step_rpm: f64) -> Result<(VelocityStepFigures, Trace), SimError> {
-    csv_step_on(PlantParams::reference(), seed, step_rpm)
+    csv_step_on(super::scenario_plant(), seed, step_rpm)
 }
 
 /// [`csv_step`] on the plant `params`.
@@ -367,7 +374,7 @@ fn sine_fit(t: &[f64], y: &[f64], w: f64) -> (f64, f64) {
 /// demand, fitted over whole periods after a settling time. Returns the points and the -3 dB bandwidth
 /// (interpolated in log frequency between the points around it; NaN if the gain never falls below -3 dB).
 pub fn csv_sweep(seed: u64) -> Result<(Vec<ResponsePoint>, f64), SimError> {
-    let mut sim = prepare_motion(seed, 9)?;
+    let mut sim = prepare_motion_on(super::scenario_plant(), seed, 9)?;
     sim.drive.dictionary_mut().set(h::INTERPOLATION_TIME_PERIOD_VALUE, 0);
     sim.drive.dictionary_mut().set(h::TARGET_VELOCITY, CSV_SWEEP_OFFSET_RPM as i32);
     // Reach the offset speed first.

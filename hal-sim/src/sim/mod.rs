@@ -187,8 +187,8 @@ impl Simulation {
     /// Configures the drive for the plant `params` from its ratings, as a commissioning engineer would before the
     /// first enable, and again after every [`Self::replace_drive`] (a reboot): motor data 0x3001 (nominal current,
     /// output current limit = the peak current capped at the object's 12 A, pole pairs, winding thermal time
-    /// constant, torque constant), 0x3002 (phase resistance and q inductance, informative), the encoder 0x3010:01
-    /// (lines = counts / 4), the highest current 0x6073 (peak over nominal, per mille), and the speeds 0x6080 (max
+    /// constant, torque constant), 0x3002 (phase resistance in uOhm, Lq and Ld: the auto-tuning 0x3205 reads them;
+    /// the gains do not change until it runs), the encoder 0x3010:01 (lines = counts / 4), the highest current 0x6073 (peak over nominal, per mille), and the speeds 0x6080 (max
     /// motor speed) and 0x607F (max profile velocity). The gains stay the dictionary's, tuned for the reference
     /// plant (auto-tuning is issue 18 items 3-5). For the reference plant every value equals the dictionary
     /// default, so nothing changes.
@@ -205,7 +205,11 @@ impl Simulation {
             (params.winding_time_constant_s * 10.0).round().clamp(1.0, 5400.0) as u16,
         );
         d.set(h::MOTOR_TORQUE_CONSTANT, (params.torque_constant_nm_per_a() * 1e6).round().clamp(1.0, 1e7) as u32);
-        d.set(h::MOTOR_PHASE_RESISTANCE, milli(params.phase_resistance_ohm));
+        d.set(
+            h::MOTOR_PHASE_RESISTANCE,
+            (params.phase_resistance_ohm * 1e6).round().clamp(1.0, f64::from(u32::MAX)) as u32,
+        );
+        d.set(h::MOTOR_PHASE_INDUCTANCE_D, (params.ld_h * 1e6).round().clamp(1.0, 65_535.0) as u16);
         d.set(h::MOTOR_PHASE_INDUCTANCE, (params.lq_h * 1e6).round().clamp(1.0, 65_535.0) as u16);
         d.set(h::ENCODER_PULSES, params.encoder_counts_per_rev / 4);
         d.set(h::MAX_CURRENT, per_mille as u16);

@@ -15,7 +15,10 @@ fn supported_modes_agree_with_the_dictionary() {
     assert_eq!(SUPPORTED_DRIVE_MODES, 0x0000_03A5);
     let mut codes: Vec<i16> = Mode::ALL.iter().map(|m| i16::from(m.code())).collect();
     codes.insert(0, 0);
-    assert_eq!(accepted_values(0x6060), codes, "0x6060 accepts 0 (no change) and the supported modes");
+    // -2: the auto setup (PD4-E, the motor identification), a manufacturer mode outside 0x6502's CiA 402 bits.
+    codes.insert(0, i16::from(Mode::AutoSetup.code()));
+    assert_eq!(accepted_values(0x6060), codes, "0x6060 accepts -2 (auto setup), 0 (no change) and the supported modes");
+    assert_eq!(Mode::AutoSetup.support_bit(), 0);
     // 0x6061 default is the machine's initial mode.
     let mut h = Harness::new();
     assert_eq!(default_value(0x6061), i64::from(h.step().mode.display));

@@ -3,10 +3,12 @@
 //!
 //! One test binary for the area; each module is one of its test files.
 
+mod auto_tuning;
 mod cia402;
 mod commutation;
 mod current_loop;
 mod encoder_resolution;
+mod identification;
 mod io;
 mod parameters;
 mod regeneration;

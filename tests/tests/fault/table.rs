@@ -43,6 +43,15 @@ const IDX_TABLE_7_153: &[(u16, u8, char, u32)] = &[
     (0x8A82, 0b1000_0000, 'f', 7091),
     (0xFF02, 0b0000_0001, 'd', 7093),
     (0xFF0B, 0b0000_0001, 'd', 7094),
+    // The auto-tuning codes the motor identification raises (drive::auto_setup).
+    (0xFF12, 0b0010_0000, 'd', 7096),
+    (0xFF13, 0b0010_0000, 'd', 7097),
+    (0xFF15, 0b0010_0000, 'd', 7103),
+    (0xFF16, 0b0010_0000, 'd', 7104),
+    (0xFF19, 0b0010_0000, 'd', 7107),
+    (0xFF20, 0b0010_0000, 'd', 7108),
+    (0xFF21, 0b0010_0000, 'd', 7109),
+    (0xFF22, 0b0010_0000, 'd', 7110),
 ];
 
 fn letter(class: ReactionClass) -> char {

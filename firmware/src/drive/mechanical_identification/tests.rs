@@ -1,0 +1,426 @@
+//! The mechanical step against plant models written here: a rigid body with Coulomb and viscous friction and
+//! back-EMF, and a two-mass drivetrain with a coupling spring and backlash (the presets of `hal-sim/presets/`),
+//! plus the step's errors and the least-squares solver on exact data.
+
+use super::*;
+use core::f64::consts::TAU;
+
+const F: f64 = 2_500.0;
+const SUBSTEPS: u32 = 40;
+
+/// A motor (q axis only, current loop as a first-order lag) on a rigid or elastic drivetrain, everything at the
+/// motor shaft.
+#[derive(Clone, Debug)]
+struct Plant {
+    kt: f64,
+    pole_pairs: f64,
+    r: f64,
+    lq: f64,
+    /// The inverter's voltage error per current sign (dead time, diode drops), volts.
+    dead_time_v: f64,
+    /// Current-loop time constant, s.
+    current_tau: f64,
+    j_motor: f64,
+    /// Load inertia at the motor shaft; rigid when `stiffness` is 0.
+    j_load: f64,
+    /// Coupling stiffness and damping at the motor shaft (Nm/rad, Nm s/rad).
+    stiffness: f64,
+    damping: f64,
+    /// Total backlash at the motor shaft, rad.
+    backlash: f64,
+    coulomb_motor: f64,
+    coulomb_load: f64,
+    viscous: f64,
+    cpr: f64,
+    v_bus: f64,
+    /// An external torque on the motor shaft (an overhauling load), Nm.
+    load_torque: f64,
+    /// Amplitude of a deterministic pseudo-noise on the measured current, A.
+    current_noise: f64,
+    // State.
+    theta: f64,
+    omega: f64,
+    theta_load: f64,
+    omega_load: f64,
+    i_q: f64,
+    noise_state: u32,
+}
+
+impl Plant {
+    /// The reference plant (`reference.toml`): kt 0.0335, 176 g cm^2 rigid, Tc 3 mNm, B 2e-6 Nm s/rad.
+    fn reference() -> Self {
+        Self {
+            kt: 0.0335,
+            pole_pairs: 7.0,
+            r: 0.26,
+            lq: 165e-6,
+            dead_time_v: 0.5e-6 * 25_000.0 * 24.0,
+            current_tau: 0.2e-3,
+            j_motor: 4.4e-6,
+            j_load: 13.2e-6,
+            stiffness: 0.0,
+            damping: 0.0,
+            backlash: 0.0,
+            coulomb_motor: 0.003,
+            coulomb_load: 0.0,
+            viscous: 2e-6,
+            cpr: 4096.0,
+            v_bus: 24.0,
+            load_torque: 0.0,
+            current_noise: 0.02,
+            theta: 0.0,
+            omega: 0.0,
+            theta_load: 0.0,
+            omega_load: 0.0,
+            i_q: 0.0,
+            noise_state: 12_345,
+        }
+    }
+
+    /// `small-gimbal.toml`: kt 0.05, 10 g cm^2, Tc 0.6 mNm, B 2e-7, 16,384 counts, 12 V.
+    fn small_gimbal() -> Self {
+        Self {
+            kt: 0.05,
+            pole_pairs: 11.0,
+            r: 2.8,
+            lq: 1.5e-3,
+            dead_time_v: 0.5e-6 * 25_000.0 * 12.0,
+            j_motor: 1e-6,
+            j_load: 0.0,
+            coulomb_motor: 0.0006,
+            viscous: 2e-7,
+            cpr: 16_384.0,
+            v_bus: 12.0,
+            current_noise: 0.005,
+            ..Self::reference()
+        }
+    }
+
+    /// `geared-36v.toml` at the motor shaft: kt 0.1, rotor 200 g cm^2, load 0.0075 kg m^2 through 5:1 (300 g cm^2
+    /// at the motor), coupling 66.62 Nm/rad at the output (2.665 at the motor: 60 Hz resonance, 15 Hz
+    /// anti-resonance), 0.3 deg backlash at the output (1.5 deg at the motor), Tc 10 mNm + 45 mNm / 5 at the
+    /// motor, B 1e-5, 5,000 counts, 36 V.
+    fn geared() -> Self {
+        Self {
+            kt: 0.1,
+            pole_pairs: 5.0,
+            r: 0.05,
+            lq: 90e-6,
+            dead_time_v: 0.5e-6 * 25_000.0 * 36.0,
+            j_motor: 2e-5,
+            j_load: 0.0075 / 25.0,
+            stiffness: 66.6198 / 25.0,
+            damping: 0.017671 / 25.0,
+            backlash: 0.3_f64.to_radians() * 5.0,
+            coulomb_motor: 0.01,
+            coulomb_load: 0.045 / 5.0,
+            viscous: 1e-5,
+            cpr: 5000.0,
+            v_bus: 36.0,
+            current_noise: 0.05,
+            ..Self::reference()
+        }
+    }
+
+    fn rigid(&self) -> bool {
+        self.stiffness == 0.0
+    }
+
+    fn total_inertia(&self) -> f64 {
+        self.j_motor + self.j_load
+    }
+
+    fn total_coulomb(&self) -> f64 {
+        self.coulomb_motor + self.coulomb_load
+    }
+
+    fn noise(&mut self) -> f64 {
+        // xorshift32: deterministic, uniform in [-1, 1).
+        let mut x = self.noise_state;
+        x ^= x << 13;
+        x ^= x >> 17;
+        x ^= x << 5;
+        self.noise_state = x;
+        f64::from(x) / f64::from(u32::MAX) * 2.0 - 1.0
+    }
+
+    /// One body's speed after a substep with Coulomb friction that sticks at zero speed.
+    fn integrate(omega: f64, torque: f64, coulomb: f64, inertia: f64, h: f64) -> f64 {
+        if omega == 0.0 && torque.abs() <= coulomb {
+            return 0.0;
+        }
+        let direction = if omega != 0.0 { omega.signum() } else { torque.signum() };
+        let next = omega + h * (torque - coulomb * direction) / inertia;
+        if omega != 0.0 && next.signum() != omega.signum() {
+            0.0
+        } else {
+            next
+        }
+    }
+
+    /// One slow tick with the q current demand `i_ref`: the sample the drive would take (averaged current and
+    /// voltage, quantised position).
+    fn tick(&mut self, i_ref: f64) -> MechanicalSample {
+        let h = 1.0 / F / f64::from(SUBSTEPS);
+        let (mut i_sum, mut v_sum) = (0.0, 0.0);
+        for _ in 0..SUBSTEPS {
+            let di = (i_ref - self.i_q) / self.current_tau * h;
+            let di = if di.abs() > (i_ref - self.i_q).abs() { i_ref - self.i_q } else { di };
+            self.i_q += di;
+            let v = self.r * self.i_q
+                + self.lq * di / h
+                + self.kt / 1.5 * self.omega
+                + self.dead_time_v * self.i_q.signum();
+            i_sum += self.i_q;
+            v_sum += v;
+            let drive = self.kt * self.i_q + self.load_torque - self.viscous * self.omega;
+            if self.rigid() {
+                self.omega = Self::integrate(self.omega, drive, self.total_coulomb(), self.total_inertia(), h);
+                self.theta += self.omega * h;
+            } else {
+                let twist = self.theta - self.theta_load;
+                let half = self.backlash / 2.0;
+                let spring = if twist > half {
+                    self.stiffness * (twist - half) + self.damping * (self.omega - self.omega_load)
+                } else if twist < -half {
+                    self.stiffness * (twist + half) + self.damping * (self.omega - self.omega_load)
+                } else {
+                    0.0
+                };
+                self.omega = Self::integrate(self.omega, drive - spring, self.coulomb_motor, self.j_motor, h);
+                self.omega_load = Self::integrate(self.omega_load, spring, self.coulomb_load, self.j_load, h);
+                self.theta += self.omega * h;
+                self.theta_load += self.omega_load * h;
+            }
+        }
+        let noise = self.noise() * self.current_noise;
+        let n = f64::from(SUBSTEPS);
+        MechanicalSample {
+            position: (self.theta / TAU * self.cpr).floor() as i64 as i32,
+            i_q: Amps::from_bits((((i_sum / n) + noise) * 65_536.0).round() as i32),
+            v_q: Volts::from_bits(((v_sum / n) * 65_536.0).round() as i32),
+            v_bus: Volts::from_bits((self.v_bus * 65_536.0) as i32),
+        }
+    }
+}
+
+fn config(plant: &Plant, current_limit_a: f64, max_rpm: u32) -> MechanicalConfig {
+    MechanicalConfig {
+        current_limit: Amps::from_bits((current_limit_a * 65_536.0) as i32),
+        max_speed_rpm: max_rpm,
+        counts_per_rev: plant.cpr as u32,
+        pole_pairs: plant.pole_pairs as u8,
+        phase_resistance_milliohm: (plant.r * 1000.0).round() as u32,
+        timeout_ticks: 12_500,
+    }
+}
+
+/// What a run shows besides the outcome: the largest current demanded and speed reached.
+struct Run {
+    status: MechanicalStatus,
+    max_demand_a: f64,
+    max_speed_rpm: f64,
+    seconds: f64,
+}
+
+fn run(plant: &mut Plant, config: &MechanicalConfig) -> Run {
+    let mut id = MechanicalIdentification::new(config);
+    let mut demand = 0.0;
+    let mut max_demand_a: f64 = 0.0;
+    let mut max_speed_rpm: f64 = 0.0;
+    let mut last_progress = 0;
+    for tick in 0..100_000u32 {
+        let sample = plant.tick(demand);
+        max_speed_rpm = max_speed_rpm.max(plant.omega.abs() * 60.0 / TAU);
+        let status = id.step(&sample);
+        let progress = id.progress_per_mille();
+        assert!(progress >= last_progress, "progress goes forward");
+        last_progress = progress;
+        match status {
+            MechanicalStatus::Running { i_q_demand } => {
+                demand = f64::from(i_q_demand.to_bits()) / 65_536.0;
+                max_demand_a = max_demand_a.max(demand.abs());
+            }
+            other => {
+                assert_eq!(id.step(&sample), other, "a finished step repeats its outcome");
+                return Run { status: other, max_demand_a, max_speed_rpm, seconds: f64::from(tick + 1) / F };
+            }
+        }
+    }
+    panic!("the step never finished");
+}
+
+fn error_pct(measured: f64, truth: f64) -> f64 {
+    (measured - truth) / truth * 100.0
+}
+
+/// Runs the identification on `plant` and checks kt, inertia and friction against the plant's values.
+/// Returns the errors in percent (kt, inertia, Coulomb, viscous) for the message.
+fn identify(mut plant: Plant, limit_a: f64, max_rpm: u32) -> (MechanicalResult, [f64; 4], Run) {
+    let config = config(&plant, limit_a, max_rpm);
+    let truth = plant.clone();
+    let run = run(&mut plant, &config);
+    let MechanicalStatus::Done(result) = run.status else { panic!("identification failed: {:?}", run.status) };
+    let kt = f64::from(result.torque_constant) * 1e-6;
+    let inertia = f64::from(result.inertia) * 1e-10;
+    let coulomb = f64::from(result.coulomb_friction) * 1e-6;
+    let viscous = f64::from(result.viscous_friction) * 1e-9 / (TAU / 60.0);
+    let errors = [
+        error_pct(kt, truth.kt),
+        error_pct(inertia, truth.total_inertia()),
+        error_pct(coulomb, truth.total_coulomb()),
+        error_pct(viscous, truth.viscous),
+    ];
+    println!(
+        "kt {:.2} %, inertia {:.2} %, coulomb {:.1} %, viscous {:.1} %, relay {:.3} A, {} half cycles, {:.2} s, \
+         max {:.0} rpm, {result:?}",
+        errors[0],
+        errors[1],
+        errors[2],
+        errors[3],
+        f64::from(result.relay_current.to_bits()) / 65_536.0,
+        result.half_cycles,
+        run.seconds,
+        run.max_speed_rpm
+    );
+    assert!(run.max_demand_a <= limit_a + 1e-4, "current demand {} above the limit {limit_a}", run.max_demand_a);
+    assert!(run.max_speed_rpm < f64::from(max_rpm), "speed {} above the max system speed", run.max_speed_rpm);
+    assert!(run.seconds < 5.0, "took {} s of the procedure's 20 s", run.seconds);
+    (result, errors, run)
+}
+
+// Tolerances: issue 18 "What it must show" asks kt within 3 %, inertia within 5 % (rigid) and 10 % (elastic).
+// Friction has no stated tolerance; Coulomb friction is checked within 25 % (it is 2 to 9 % of the relay's torque,
+// so 25 % of it is 0.5 to 2 % of the torque the fit resolves) and viscous friction, which adds less than 1 % of
+// the torque at the relay speed on these plants, only for its order of magnitude on the reference.
+
+#[test]
+fn reference_plant_kt_within_3_pct_inertia_within_5_pct() {
+    let (_, e, _) = identify(Plant::reference(), 3.2, 5000);
+    assert!(e[0].abs() < 3.0, "kt error {} %", e[0]);
+    assert!(e[1].abs() < 5.0, "inertia error {} %", e[1]);
+    assert!(e[2].abs() < 25.0, "Coulomb friction error {} %", e[2]);
+    assert!(e[3].abs() < 100.0, "viscous friction error {} %", e[3]);
+}
+
+#[test]
+fn small_gimbal_kt_within_3_pct_inertia_within_5_pct() {
+    let (_, e, _) = identify(Plant::small_gimbal(), 0.6, 1200);
+    assert!(e[0].abs() < 3.0, "kt error {} %", e[0]);
+    assert!(e[1].abs() < 5.0, "inertia error {} %", e[1]);
+    assert!(e[2].abs() < 25.0, "Coulomb friction error {} %", e[2]);
+}
+
+#[test]
+fn geared_two_mass_with_backlash_kt_within_3_pct_total_inertia_within_10_pct() {
+    let (_, e, _) = identify(Plant::geared(), 5.0, 2000);
+    assert!(e[0].abs() < 3.0, "kt error {} %", e[0]);
+    assert!(e[1].abs() < 10.0, "inertia error {} %", e[1]);
+    // The coupling rings after each reversal (60 Hz, 5 % damping); what is left of it in the steady blocks is of
+    // the order of the friction (2 % of the relay torque), so Coulomb friction only within 50 % here.
+    assert!(e[2].abs() < 50.0, "Coulomb friction error {} %", e[2]);
+}
+
+/// The solver recovers exact coefficients from exact data whose sums need the scaling (y y above 2^80).
+#[test]
+fn least_squares_recovers_exact_coefficients_from_large_sums() {
+    let mut fit = Regression3::default();
+    for k in 0..5_000i64 {
+        let x = [(k * 7_919 % 2_003 - 1_000) * 100_000, k % 3 - 1, 1];
+        fit.add(x, 5 * x[0] - 300_000 * x[1] + 11_000_000 * x[2]);
+    }
+    let solution = fit.solve().expect("regular equations");
+    // The scaling rounds each sum to 40 bits of the diagonal's size: relative errors of about 2^-40 times the
+    // equations' condition (here ~1e7, the regressors differ by 1e8 in size) remain, below 1e-4.
+    let near = |value: Option<i64>, truth: i64| {
+        let value = value.expect("a value");
+        assert!((value - truth).abs() as f64 <= truth.abs() as f64 * 1e-4, "{value} vs {truth}");
+    };
+    near(solution.scaled(0, 1_000, 1), 5_000);
+    near(solution.scaled(1, 1, 1), -300_000);
+    near(solution.scaled(2, 1, 1), 11_000_000);
+    near(solution.ratio(1, 0, 1, 1), -60_000);
+    near(solution.inverse_scaled(0, 1_000, 1), 200);
+}
+
+/// Equations that do not determine the coefficients (one regressor always zero) give no solution.
+#[test]
+fn least_squares_refuses_singular_equations() {
+    let mut fit = Regression3::default();
+    for k in 0..100i64 {
+        fit.add([k, 0, 1], 2 * k);
+    }
+    assert_eq!(fit.solve(), None);
+}
+
+/// A blocked shaft: no movement at any probe level up to the full test current ends the step with
+/// `Obstructed`, IDX 0xFF21 (seed 002 L7585 "motor movement has been obstructed"), after the five probe levels.
+#[test]
+fn blocked_shaft_fails_obstructed_0xff21_after_trying_the_full_current() {
+    let mut plant = Plant { coulomb_motor: 1.0, ..Plant::reference() };
+    let config = config(&plant, 3.2, 5000);
+    let run = run(&mut plant, &config);
+    assert_eq!(run.status, MechanicalStatus::Failed(MechanicalError::Obstructed));
+    assert_eq!(MechanicalError::Obstructed.code(), 0xFF21);
+    assert!((run.max_demand_a - 3.2).abs() < 1e-4, "tried up to {} A", run.max_demand_a);
+    let ticks = (run.seconds * F).round() as u32;
+    assert_eq!(ticks, SPEED_TICKS + (PROBE_LEVELS + 1) * PROBE_TICKS);
+}
+
+/// An overhauling load that the test current cannot hold drives the motor past the max system speed: the step
+/// fails with `SpeedLimit`, IDX 0xFF22 (seed 002 L7591), at the first sample above it.
+#[test]
+fn overhauling_load_fails_speed_limit_0xff22_at_the_max_system_speed() {
+    let mut plant = Plant { load_torque: 0.2, ..Plant::reference() };
+    let config = config(&plant, 3.2, 5000);
+    let run = run(&mut plant, &config);
+    assert_eq!(run.status, MechanicalStatus::Failed(MechanicalError::SpeedLimit));
+    assert_eq!(MechanicalError::SpeedLimit.code(), 0xFF22);
+    // The speed over the last 3.2 ms crossed 5,000 rpm; the shaft's own speed is at most a few % above.
+    assert!(run.max_speed_rpm > 5000.0 && run.max_speed_rpm < 5300.0, "{} rpm", run.max_speed_rpm);
+}
+
+/// The step ends with `Timeout`, IDX 0xFF19, at the configured tick.
+#[test]
+fn step_fails_timeout_0xff19_at_the_configured_tick() {
+    let mut plant = Plant::reference();
+    let config = MechanicalConfig { timeout_ticks: 400, ..config(&plant, 3.2, 5000) };
+    let run = run(&mut plant, &config);
+    assert_eq!(run.status, MechanicalStatus::Failed(MechanicalError::Timeout));
+    assert_eq!(MechanicalError::Timeout.code(), 0xFF19);
+    assert_eq!((run.seconds * F).round() as u32, 401);
+}
+
+/// A motor that turns against the current (wrong direction or commutation) fails with `SampleMismatch`,
+/// IDX 0xFF15, in the probe, before any speed builds up.
+#[test]
+fn motor_turning_against_the_current_fails_sample_mismatch_0xff15() {
+    let mut plant = Plant { kt: -0.0335, ..Plant::reference() };
+    let config = config(&plant, 3.2, 5000);
+    let run = run(&mut plant, &config);
+    assert_eq!(run.status, MechanicalStatus::Failed(MechanicalError::SampleMismatch));
+    assert_eq!(MechanicalError::SampleMismatch.code(), 0xFF15);
+    assert!(run.max_speed_rpm < 1500.0, "{} rpm", run.max_speed_rpm);
+}
+
+/// A zero encoder resolution, current limit or max speed is refused with `InvalidConfig`, IDX 0xFF16, at the
+/// first sample, without any current.
+#[test]
+fn zero_configuration_values_fail_invalid_config_0xff16() {
+    let plant = Plant::reference();
+    let good = config(&plant, 3.2, 5000);
+    for bad in [
+        MechanicalConfig { counts_per_rev: 0, ..good },
+        MechanicalConfig { current_limit: Amps::ZERO, ..good },
+        MechanicalConfig { max_speed_rpm: 0, ..good },
+        MechanicalConfig { pole_pairs: 0, ..good },
+    ] {
+        let mut id = MechanicalIdentification::new(&bad);
+        assert_eq!(
+            id.step(&MechanicalSample::default()),
+            MechanicalStatus::Failed(MechanicalError::InvalidConfig),
+            "{bad:?}"
+        );
+    }
+    assert_eq!(MechanicalError::InvalidConfig.code(), 0xFF16);
+}

@@ -1,0 +1,210 @@
+//! `drive-sim identify`: the motor identification (0x6060 = -2, `firmware::drive::auto_setup`) run as a master
+//! runs it, through SDO requests to the simulated drive's own SDO server (CiA 301 expedited transfers): mode -2,
+//! «Shutdown», «Switch on», «Enable operation», then controlword bit 4; while it runs the master polls the step,
+//! the progress and the statusword every 10 ms; at the end it reads the results back and they are compared with
+//! the plant's true values.
+
+use firmware::comm::sdo::server::SdoServer;
+use firmware::drive::DriveConfig;
+use firmware::od::access::{AccessContext, CommState, NoApplicationObjects};
+
+use crate::plant::{PlantParams, PERIOD_S};
+use crate::sim::Simulation;
+
+/// Periods between the master's polls (10 ms).
+const POLL_PERIODS: u64 = 250;
+/// The master gives up after this much simulated time (the drive's own timeout is 20 s).
+const GIVE_UP_S: f64 = 30.0;
+
+/// What the master saw of the SDO server during the run.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SdoFigures {
+    /// Requests sent.
+    pub requests: u32,
+    /// Requests answered with a response (not an abort).
+    pub answered: u32,
+    /// Requests answered with an abort.
+    pub aborted: u32,
+    /// The longest simulated time between two answered requests while the procedure ran, ms.
+    pub max_gap_ms: f64,
+}
+
+/// The identified values as the master read them back (their objects' units converted to SI).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Identified {
+    /// 0x3002:01 (uOhm), ohm.
+    pub resistance_ohm: f64,
+    /// 0x3002:02, H.
+    pub lq_h: f64,
+    /// 0x3002:03, H.
+    pub ld_h: f64,
+    /// 0x3001:05, N m/A.
+    pub kt_nm_per_a: f64,
+    /// 0x3204:06 total inertia, kg m^2 (0: not identified).
+    pub inertia_kg_m2: f64,
+    /// 0x3204:05 Coulomb friction, N m (0: not identified).
+    pub coulomb_friction_nm: f64,
+    /// 0x3204:04.
+    pub pole_pairs: u8,
+    /// 0x3010:05 (-1 none).
+    pub index_offset: i32,
+    /// 0x301A:03.
+    pub hall_offset: u16,
+    /// 0x3010:02.
+    pub encoder_type: u16,
+}
+
+/// How the run ended.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Outcome {
+    /// Statusword bit 12: done.
+    Done,
+    /// Statusword bit 3: a fault with this 0x603F code; whether the power stage was off (PWM outputs disabled).
+    Fault {
+        /// 0x603F.
+        code: u16,
+        /// The PWM outputs were off at the end.
+        power_off: bool,
+    },
+    /// Neither within 30 s of simulated time (the drive's own timeout is 20 s).
+    GaveUp,
+}
+
+/// The run's figures.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IdentifyRun {
+    /// How it ended.
+    pub outcome: Outcome,
+    /// Simulated seconds from controlword bit 4 to the end.
+    pub identify_s: f64,
+    /// The values read back.
+    pub identified: Identified,
+    /// The SDO figures.
+    pub sdo: SdoFigures,
+    /// The highest step 0x3204:02 showed (8 done, 255 failed).
+    pub last_step: u8,
+}
+
+impl IdentifyRun {
+    /// Error of an identified value against the truth, percent.
+    #[must_use]
+    pub fn error_pct(identified: f64, truth: f64) -> f64 {
+        (identified - truth) / truth * 100.0
+    }
+}
+
+/// The master's side: an SDO client on the drive's SDO server.
+struct Master {
+    server: SdoServer,
+    sdo: SdoFigures,
+    last_answer_s: Option<f64>,
+}
+
+impl Master {
+    fn request(&mut self, sim: &mut Simulation, frame: [u8; 8]) -> Option<[u8; 8]> {
+        self.sdo.requests += 1;
+        let ctx = AccessContext {
+            comm_state: CommState::Operational,
+            power_stage_enabled: sim.drive.state() == firmware::power_state::PowerState::OperationEnabled,
+            max_pdo_bytes: 8,
+        };
+        let now_us = (sim.time_s() * 1e6) as u64;
+        let answer = self.server.handle(&frame, now_us, sim.drive.dictionary_mut(), ctx, &mut NoApplicationObjects);
+        let t = sim.time_s();
+        match answer {
+            Some(a) if a[0] != 0x80 => {
+                self.sdo.answered += 1;
+                if let Some(last) = self.last_answer_s {
+                    self.sdo.max_gap_ms = self.sdo.max_gap_ms.max((t - last) * 1000.0);
+                }
+                self.last_answer_s = Some(t);
+                Some(a)
+            }
+            _ => {
+                self.sdo.aborted += 1;
+                None
+            }
+        }
+    }
+
+    fn download(&mut self, sim: &mut Simulation, index: u16, sub: u8, data: &[u8]) -> bool {
+        let command = match data.len() {
+            1 => 0x2F,
+            2 => 0x2B,
+            3 => 0x27,
+            _ => 0x23,
+        };
+        let [lo, hi] = index.to_le_bytes();
+        let mut frame = [command, lo, hi, sub, 0, 0, 0, 0];
+        for (slot, byte) in frame[4..].iter_mut().zip(data) {
+            *slot = *byte;
+        }
+        self.request(sim, frame).is_some_and(|a| a[0] == 0x60)
+    }
+
+    fn upload(&mut self, sim: &mut Simulation, index: u16, sub: u8) -> Option<u32> {
+        let [lo, hi] = index.to_le_bytes();
+        let answer = self.request(sim, [0x40, lo, hi, sub, 0, 0, 0, 0])?;
+        (answer[0] & 0xE3 == 0x43).then(|| u32::from_le_bytes([answer[4], answer[5], answer[6], answer[7]]))
+    }
+}
+
+/// Runs the identification on `params` (noise seeded with `seed`), after `setup` (fault injection, a wrong
+/// parameter) has acted on the commissioned simulation.
+pub fn identify(params: &PlantParams, seed: u64, setup: impl FnOnce(&mut Simulation)) -> IdentifyRun {
+    let mut sim = Simulation::new(params.clone(), seed, DriveConfig::DEFAULT);
+    sim.commission_motor_data(params);
+    setup(&mut sim);
+    sim.run(10);
+    let mut master = Master { server: SdoServer::default(), sdo: SdoFigures::default(), last_answer_s: None };
+    let statusword = |m: &mut Master, s: &mut Simulation| m.upload(s, 0x6041, 0).unwrap_or(0) as u16;
+    master.download(&mut sim, 0x6060, 0, &[(-2i8).to_le_bytes()[0]]);
+    for (controlword, mask, state) in [(0x0006u16, 0x6F, 0x21), (0x0007, 0x6F, 0x23), (0x000F, 0x6F, 0x27)] {
+        master.download(&mut sim, 0x6040, 0, &controlword.to_le_bytes());
+        for _ in 0..400 {
+            sim.run(25);
+            if statusword(&mut master, &mut sim) & mask == state {
+                break;
+            }
+        }
+    }
+    // Tier 1 enables in the period the slow tick named; then the rising edge of bit 4 starts.
+    sim.run(50);
+    master.download(&mut sim, 0x6040, 0, &0x001Fu16.to_le_bytes());
+    let start_s = sim.time_s();
+    master.last_answer_s = Some(start_s);
+    let mut last_step = 0u8;
+    let outcome = loop {
+        sim.run(POLL_PERIODS);
+        let step = master.upload(&mut sim, 0x3204, 2).unwrap_or(0) as u8;
+        let _progress = master.upload(&mut sim, 0x3204, 3);
+        last_step = if step == 0 { last_step } else { step };
+        let sw = statusword(&mut master, &mut sim);
+        if sw & (1 << 3) != 0 {
+            let code = master.upload(&mut sim, 0x603F, 0).unwrap_or(0) as u16;
+            break Outcome::Fault { code, power_off: !sim.command().enabled };
+        }
+        if sw & (1 << 12) != 0 {
+            break Outcome::Done;
+        }
+        if sim.time_s() - start_s > GIVE_UP_S {
+            break Outcome::GaveUp;
+        }
+    };
+    let identify_s = sim.time_s() - start_s;
+    let mut read = |index: u16, sub: u8| master.upload(&mut sim, index, sub).unwrap_or(0);
+    let identified = Identified {
+        resistance_ohm: f64::from(read(0x3002, 1)) * 1e-6,
+        lq_h: f64::from(read(0x3002, 2)) * 1e-6,
+        ld_h: f64::from(read(0x3002, 3)) * 1e-6,
+        kt_nm_per_a: f64::from(read(0x3001, 5)) * 1e-6,
+        inertia_kg_m2: f64::from(read(0x3204, 6)) * 1e-3 * 1e-7,
+        coulomb_friction_nm: f64::from(read(0x3204, 5)) * 1e-6,
+        pole_pairs: read(0x3204, 4) as u8,
+        index_offset: read(0x3010, 5) as i32,
+        hall_offset: read(0x301A, 3) as u16,
+        encoder_type: read(0x3010, 2) as u16,
+    };
+    let _ = PERIOD_S;
+    IdentifyRun { outcome, identify_s, identified, sdo: master.sdo, last_step }
+}
