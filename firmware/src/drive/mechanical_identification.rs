@@ -10,7 +10,11 @@
 //!    useful experiment. No movement at the full test current: [`MechanicalError::Obstructed`] (IDX 0xFF21).
 //! 2. Relay: +I until the speed reaches +w, -I until it reaches -w (w = half the max system speed, or less where
 //!    the q voltage nears the bus's linear range), the reversal ramped over [`RAMP_TICKS`] so that an elastic
-//!    coupling is excited less. At least [`MIN_HALF_CYCLES`] half cycles and [`MIN_RELAY_TICKS`].
+//!    coupling is excited less. The first half cycles rescale the current to a half cycle of
+//!    [`HALF_CYCLE_TARGET_TICKS`]. A half cycle whose braking lifts the bus near the drive's bus-voltage limiter
+//!    (0x3202:02, which would add d current and cut the braking current: `super::regeneration`) counts in no fit
+//!    and lowers the relay speed by 3/4 (on the geared preset without a chopper from 1,000 to about 230 rpm). The
+//!    relay ends after [`MIN_HALF_CYCLES`] half cycles without such a reduction and [`MIN_RELAY_TICKS`].
 //! 3. Stop: the current against the speed until it changes sign; then the results.
 //!
 //! The speed never exceeds the max system speed ([`MechanicalError::SpeedLimit`], IDX 0xFF22), the whole step
@@ -58,15 +62,15 @@ pub const HALF_CYCLE_TARGET_TICKS: u32 = 625;
 /// which a step would ring at full amplitude.
 pub const RAMP_TICKS: u32 = 50;
 /// Half cycles the relay runs at least.
-pub const MIN_HALF_CYCLES: u16 = 8;
+pub const MIN_HALF_CYCLES: u16 = 6;
 /// Ticks the relay runs at least (1 s).
 pub const MIN_RELAY_TICKS: u32 = 2_500;
-/// Ticks the relay runs at most (3 s): with fewer than [`MIN_FIT_HALF_CYCLES`] by then, the step times out.
-pub const MAX_RELAY_TICKS: u32 = 7_500;
+/// Ticks the relay runs at most (4 s): with fewer than [`MIN_FIT_HALF_CYCLES`] by then, the step times out.
+pub const MAX_RELAY_TICKS: u32 = 10_000;
 /// Half cycles after which the relay adapts its current (the first ones).
 const ADAPTED_HALF_CYCLES: u16 = 3;
 /// Half cycles the fit needs at the least.
-const MIN_FIT_HALF_CYCLES: u16 = 2;
+pub const MIN_FIT_HALF_CYCLES: u16 = 2;
 /// The relay speed in per mille of the max system speed.
 const RELAY_SPEED_PERMILLE: u64 = 500;
 /// The q voltage at which the relay reverses whatever the speed, in 1/64 of the bus voltage: 29/64 = 0.45, 78 %
@@ -91,6 +95,10 @@ pub struct MechanicalConfig {
     pub phase_resistance_milliohm: u32,
     /// The step fails with [`MechanicalError::Timeout`] after this many slow ticks.
     pub timeout_ticks: u32,
+    /// The bus voltage from which the drive's bus-voltage limiter may change the currents (0x3202:02, loss
+    /// braking voltage; `Volts` of `i16::MAX` with the limiter off): from 15/16 of it, samples count in no fit
+    /// and the relay speed is lowered, so that braking from it returns less energy than the bus takes.
+    pub regeneration_limit: Volts,
 }
 
 /// One slow tick's measurements.
@@ -126,6 +134,9 @@ pub struct MechanicalResult {
     pub relay_current: Amps,
     /// Relay half cycles completed.
     pub half_cycles: u16,
+    /// The relay speed at the end (rpm): half the max system speed, or less where the bus could not take the
+    /// braking energy.
+    pub relay_speed_rpm: u32,
     /// Slow ticks the step took.
     pub ticks: u32,
 }
@@ -199,7 +210,7 @@ struct BlockSums {
     s1: [i64; 3],
     /// The block's position difference (counts).
     travel: i64,
-    /// The current demand changed in the block or the tick before it.
+    /// The current demand changed in the block or the tick before it, or the bus was near the limiter's voltage.
     ramping: bool,
 }
 
@@ -245,6 +256,10 @@ pub struct MechanicalIdentification {
     previous_demand: i64,
     relay_ticks: u32,
     half_cycles: u16,
+    /// Half cycles since the relay speed was last lowered.
+    clean_half_cycles: u16,
+    /// The bus reached 15/16 of the limiter's voltage since the last reversal.
+    bus_high: bool,
     /// Relay tick and speed at the last reversal (the relay's start at first).
     half_start: (u32, i64),
     /// Ticks into the current block and its sums; the previous complete block.
@@ -282,6 +297,8 @@ impl MechanicalIdentification {
             previous_demand: 0,
             relay_ticks: 0,
             half_cycles: 0,
+            clean_half_cycles: 0,
+            bus_high: false,
             half_start: (0, 0),
             block_tick: 0,
             block: BlockSums::default(),
@@ -300,7 +317,8 @@ impl MechanicalIdentification {
             Phase::Probe { level, .. } => u16::try_from(level.saturating_mul(20)).unwrap_or(100).min(100),
             Phase::Relay { .. } => {
                 let by_ticks = u64::from(self.relay_ticks).saturating_mul(800).checked_div(u64::from(MIN_RELAY_TICKS));
-                let by_cycles = u64::from(self.half_cycles).saturating_mul(800).checked_div(u64::from(MIN_HALF_CYCLES));
+                let by_cycles =
+                    u64::from(self.clean_half_cycles).saturating_mul(800).checked_div(u64::from(MIN_HALF_CYCLES));
                 let (by_ticks, by_cycles) = (by_ticks.unwrap_or(800), by_cycles.unwrap_or(800));
                 u16::try_from(by_ticks.min(by_cycles).min(800)).unwrap_or(800).saturating_add(100)
             }
@@ -323,7 +341,12 @@ impl MechanicalIdentification {
 
     fn advance(&mut self, sample: &MechanicalSample) -> MechanicalStatus {
         let c = &self.config;
-        if c.current_limit <= Amps::ZERO || self.speed_limit < 4 || c.counts_per_rev == 0 || c.pole_pairs == 0 {
+        if c.current_limit <= Amps::ZERO
+            || c.regeneration_limit <= Volts::ZERO
+            || self.speed_limit < 4
+            || c.counts_per_rev == 0
+            || c.pole_pairs == 0
+        {
             return MechanicalStatus::Failed(MechanicalError::InvalidConfig);
         }
         self.ticks = self.ticks.saturating_add(1);
@@ -430,7 +453,7 @@ impl MechanicalIdentification {
     /// One relay tick: reverses at the relay speed, ends after enough half cycles.
     fn relay(&mut self, direction: i64, speed: i64, headroom: bool) {
         self.relay_ticks = self.relay_ticks.saturating_add(1);
-        let enough = self.half_cycles >= MIN_HALF_CYCLES && self.relay_ticks >= MIN_RELAY_TICKS;
+        let enough = self.clean_half_cycles >= MIN_HALF_CYCLES && self.relay_ticks >= MIN_RELAY_TICKS;
         if enough || self.relay_ticks >= MAX_RELAY_TICKS {
             let moving = if speed < 0 { -1 } else { 1 };
             self.phase = Phase::Stop { direction: moving };
@@ -445,6 +468,16 @@ impl MechanicalIdentification {
                 self.adapt_relay_current(speed);
             }
             self.half_start = (self.relay_ticks, speed);
+            if self.bus_high {
+                // The braking half returned more energy than the bus holds below the limiter: a lower speed
+                // (kinetic energy 9/16) for the next ones, down to 1/16 of the max system speed.
+                self.relay_speed =
+                    self.relay_speed.saturating_mul(3).checked_div(4).unwrap_or(0).max(self.speed_limit / 16);
+                self.clean_half_cycles = 0;
+                self.bus_high = false;
+            } else {
+                self.clean_half_cycles = self.clean_half_cycles.saturating_add(1);
+            }
             direction.saturating_neg()
         } else {
             direction
@@ -484,14 +517,22 @@ impl MechanicalIdentification {
     /// Adds the tick to the fits (relay and stop).
     fn record(&mut self, sample: &MechanicalSample, increment: i64, position: i32) {
         let i_q = i64::from(sample.i_q.to_bits());
+        // Near the limiter's voltage the drive may add d current and cut the braking q current (0x3202): such
+        // ticks count in neither fit, and the half cycle lowers the relay speed.
+        if i64::from(sample.v_bus.to_bits()).saturating_mul(16)
+            >= i64::from(self.config.regeneration_limit.to_bits()).saturating_mul(15)
+        {
+            self.bus_high = true;
+        }
+        let excluded = self.bus_high;
         // Torque constant: ticks with a settled current sign (|i_q| above half the relay current).
-        if i_q.saturating_mul(2).abs() >= self.relay_current {
+        if !excluded && i_q.saturating_mul(2).abs() >= self.relay_current {
             let resistance_drop = i64::from(self.config.phase_resistance_milliohm).saturating_mul(i_q) / 1000;
             let y = i64::from(sample.v_q.to_bits()).saturating_sub(resistance_drop);
             self.electrical.add([increment, i_q.signum(), 1], y);
         }
         // Mechanics: block sums, one equation per pair of complete blocks at a steady current demand.
-        self.block.ramping |= self.demand != self.previous_demand;
+        self.block.ramping |= excluded || self.demand != self.previous_demand;
         self.previous_demand = self.demand;
         self.block_tick = self.block_tick.saturating_add(1);
         let m = i64::from(self.block_tick);
@@ -561,6 +602,15 @@ impl MechanicalIdentification {
             current_sign_voltage_mv: i32::try_from(sign_voltage).unwrap_or(0),
             relay_current: Amps::from_bits(wide::sat_i32(i128::from(self.relay_current))),
             half_cycles: self.half_cycles,
+            relay_speed_rpm: u32::try_from(
+                u64::try_from(self.relay_speed)
+                    .unwrap_or(0)
+                    .saturating_mul(60)
+                    .saturating_mul(f)
+                    .checked_div(cpr.saturating_mul(u64::from(SPEED_TICKS)))
+                    .unwrap_or(0),
+            )
+            .unwrap_or(u32::MAX),
             ticks: self.ticks,
         })
     }
@@ -592,7 +642,7 @@ const fn sym(j: usize, k: usize) -> usize {
 }
 
 /// The bits of the scaled normal equations: the products of three of them (the determinant) stay below 2^122.
-const SCALED_BITS: u32 = 40;
+pub const SCALED_BITS: u32 = 40;
 
 /// A least-squares solution: coefficient j is `num[j] / det * 2^exp[j]`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -8,5 +8,6 @@ mod commutation;
 mod current_loop;
 mod encoder_resolution;
 mod io;
+mod mechanical_identification;
 mod parameters;
 mod regeneration;

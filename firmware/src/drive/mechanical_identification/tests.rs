@@ -212,6 +212,7 @@ fn config(plant: &Plant, current_limit_a: f64, max_rpm: u32) -> MechanicalConfig
         pole_pairs: plant.pole_pairs as u8,
         phase_resistance_milliohm: (plant.r * 1000.0).round() as u32,
         timeout_ticks: 12_500,
+        regeneration_limit: Volts::from_bits(51 << 16),
     }
 }
 
@@ -403,7 +404,7 @@ fn motor_turning_against_the_current_fails_sample_mismatch_0xff15() {
     assert!(run.max_speed_rpm < 1500.0, "{} rpm", run.max_speed_rpm);
 }
 
-/// A zero encoder resolution, current limit or max speed is refused with `InvalidConfig`, IDX 0xFF16, at the
+/// A zero encoder resolution, current limit, max speed, pole-pair count or limiter voltage is refused with `InvalidConfig`, IDX 0xFF16, at the
 /// first sample, without any current.
 #[test]
 fn zero_configuration_values_fail_invalid_config_0xff16() {
@@ -414,6 +415,7 @@ fn zero_configuration_values_fail_invalid_config_0xff16() {
         MechanicalConfig { current_limit: Amps::ZERO, ..good },
         MechanicalConfig { max_speed_rpm: 0, ..good },
         MechanicalConfig { pole_pairs: 0, ..good },
+        MechanicalConfig { regeneration_limit: Volts::ZERO, ..good },
     ] {
         let mut id = MechanicalIdentification::new(&bad);
         assert_eq!(
