@@ -15,7 +15,8 @@
 //!    (0x3202:02, which would add d current and cut the braking current: `super::regeneration`) counts in no fit
 //!    and lowers the relay speed by 3/4 (on the geared preset without a chopper from 1,000 to about 230 rpm). The
 //!    relay ends after [`MIN_HALF_CYCLES`] half cycles without such a reduction and [`MIN_RELAY_TICKS`].
-//! 3. Stop: the current against the speed until it changes sign; then the results.
+//! 3. Stop: the current against the speed until it changes sign; then the solution, one part per slow tick over
+//!    three ticks (no slow tick carries all of it), and the results.
 //!
 //! The speed never exceeds the max system speed ([`MechanicalError::SpeedLimit`], IDX 0xFF22), the whole step
 //! never the configured timeout ([`MechanicalError::Timeout`], IDX 0xFF19). IDX codes: seed 002 L7516-7596.
@@ -38,7 +39,8 @@
 //!
 //! Each fit accumulates its normal equations in `i128` ([`Regression3`]) and is solved once at the end by
 //! Cramer's rule on the equations scaled to 40 bits. Cost per slow tick: a few dozen 64-bit products; the solve
-//! at the end: about 60 `i128` products and a few divisions on the hardware divider ([`wide::div_shl`]).
+//! at the end, spread over three slow ticks: 3 x 4 determinants of the scaled equations (64 x 64-bit minors, one
+//! 128-bit product per term) and a few divisions on the hardware divider ([`wide::div_shl`]).
 
 use crate::control::frames::{Amps, Volts};
 use crate::control::velocity::SLOW_TICK_HZ;
@@ -198,6 +200,9 @@ enum Phase {
     Relay { direction: i64 },
     /// Braking against `direction`, the sign of the speed when the relay ended.
     Stop { direction: i64 },
+    /// Solving, one part per slow tick (0: the torque-constant fit, 1: the mechanical fit, 2: the results), so
+    /// that no slow tick carries all of it.
+    Solve(u8),
     /// Finished.
     Finished(MechanicalStatus),
 }
@@ -269,6 +274,8 @@ pub struct MechanicalIdentification {
     block_start: i32,
     electrical: Regression3,
     mechanical: Regression3,
+    electrical_solution: Option<Solution3>,
+    mechanical_solution: Option<Solution3>,
 }
 
 impl MechanicalIdentification {
@@ -306,10 +313,12 @@ impl MechanicalIdentification {
             block_start: 0,
             electrical: Regression3::default(),
             mechanical: Regression3::default(),
+            electrical_solution: None,
+            mechanical_solution: None,
         }
     }
 
-    /// Progress of the step in per mille: probe 0..100, relay 100..900, stop 900, finished 1,000.
+    /// Progress of the step in per mille: probe 0..100, relay 100..900, stop 900, solving 950, finished 1,000.
     #[must_use]
     pub fn progress_per_mille(&self) -> u16 {
         match self.phase {
@@ -323,6 +332,7 @@ impl MechanicalIdentification {
                 u16::try_from(by_ticks.min(by_cycles).min(800)).unwrap_or(800).saturating_add(100)
             }
             Phase::Stop { .. } => 900,
+            Phase::Solve(_) => 950,
             Phase::Finished(_) => 1000,
         }
     }
@@ -394,9 +404,19 @@ impl MechanicalIdentification {
             Phase::Stop { direction } => {
                 self.record(sample, increment, position);
                 if speed.saturating_mul(direction) <= 0 {
-                    return self.finish();
+                    self.demand = 0;
+                    if self.half_cycles < MIN_FIT_HALF_CYCLES {
+                        return MechanicalStatus::Failed(MechanicalError::Timeout);
+                    }
+                    self.phase = Phase::Solve(0);
+                } else {
+                    self.ramp_towards(direction.saturating_neg().saturating_mul(self.relay_current));
                 }
-                self.ramp_towards(direction.saturating_neg().saturating_mul(self.relay_current));
+            }
+            Phase::Solve(part) => {
+                if let Some(status) = self.solve(part) {
+                    return status;
+                }
             }
             Phase::Finished(status) => return status,
         }
@@ -556,22 +576,37 @@ impl MechanicalIdentification {
         }
     }
 
-    /// Solves both fits and converts the coefficients into the result.
-    fn finish(&mut self) -> MechanicalStatus {
-        self.demand = 0;
-        if self.half_cycles < MIN_FIT_HALF_CYCLES {
-            return MechanicalStatus::Failed(MechanicalError::Timeout);
+    /// One part of the solution; the outcome after the last.
+    fn solve(&mut self, part: u8) -> Option<MechanicalStatus> {
+        let mismatch = Some(MechanicalStatus::Failed(MechanicalError::SampleMismatch));
+        match part {
+            0 => {
+                self.electrical_solution = self.electrical.solve();
+                if self.electrical_solution.is_none() {
+                    return mismatch;
+                }
+            }
+            1 => {
+                self.mechanical_solution = self.mechanical.solve();
+                if self.mechanical_solution.is_none() {
+                    return mismatch;
+                }
+            }
+            _ => {
+                return Some(match self.results() {
+                    Some(result) => MechanicalStatus::Done(result),
+                    None => MechanicalStatus::Failed(MechanicalError::SampleMismatch),
+                });
+            }
         }
-        match self.results() {
-            Some(result) => MechanicalStatus::Done(result),
-            None => MechanicalStatus::Failed(MechanicalError::SampleMismatch),
-        }
+        self.phase = Phase::Solve(part.saturating_add(1));
+        None
     }
 
     fn results(&self) -> Option<MechanicalResult> {
         let cpr = u64::from(self.config.counts_per_rev);
         let f = u64::from(SLOW_TICK_HZ);
-        let el = self.electrical.solve()?;
+        let el = self.electrical_solution?;
         // Coefficient 0: V bits per count/tick, one count/tick being 2 pi f / cpr rad/s: lambda p = c cpr /
         // (65536 2 pi f) V s/rad; kt = 1.5 lambda p, in uNm/A: c cpr 1.5e6 / (65536 2 pi f)
         // = c cpr 750,000 113 / (65536 355 f) (pi ~ 355/113, 8e-8).
@@ -580,7 +615,7 @@ impl MechanicalIdentification {
         let flux = kt.saturating_mul(2).checked_div(3u64.saturating_mul(u64::from(self.config.pole_pairs)))?;
         // Coefficient 1: V bits per sign of i_q.
         let sign_voltage = el.scaled(1, 1000, 65_536)?;
-        let me = self.mechanical.solve()?;
+        let me = self.mechanical_solution?;
         // D2 = b0 W_i + b1 W_s + b2 W_p: b0 = cpr kt / (4 pi J f^2 65536) (i in bits, kt in Nm/A, J in kg m^2),
         // b1 = -cpr Tc / (4 pi J f^2), b2 = -B / (2 J f).
         // J in 0.001 g cm^2 (1e-10 kg m^2): cpr kt_u 1e4 / (4 pi f^2 65536 b0) = cpr kt_u 113 / ((f^2 / 1e4) 1420 65536 b0).
@@ -683,12 +718,15 @@ impl Regression3 {
         let e = [0, 1, 2].map(|j| shift_for(self.xx.get(sym(j, j)).copied().unwrap_or(0)));
         let ey = shift_for(self.yy);
         let ej = |j: usize| e.get(j).copied().unwrap_or(0);
-        let shr = |v: i128, s: u32| if s == 0 { v } else { wide::round_shr(v, s.min(126)) };
+        let shr = |v: i128, s: u32| {
+            let v = if s == 0 { v } else { wide::round_shr(v, s.min(126)) };
+            i64::try_from(v.clamp(i128::from(-ENTRY_BOUND), i128::from(ENTRY_BOUND))).unwrap_or(0)
+        };
         let m = |j: usize, k: usize| shr(self.xx.get(sym(j, k)).copied().unwrap_or(0), ej(j).saturating_add(ej(k)));
         let r = |j: usize| shr(self.xy.get(j).copied().unwrap_or(0), ej(j).saturating_add(ey));
         let a = [[m(0, 0), m(0, 1), m(0, 2)], [m(1, 0), m(1, 1), m(1, 2)], [m(2, 0), m(2, 1), m(2, 2)]];
         let rhs = [r(0), r(1), r(2)];
-        let det = det3(&a)?;
+        let det = det3(&a);
         if det == 0 {
             return None;
         }
@@ -700,7 +738,7 @@ impl Regression3 {
                     *cell = *value;
                 }
             }
-            *n = det3(&column)?;
+            *n = det3(&column);
         }
         // The scaled system solves for b'_j = b_j 2^(e_j - e_y).
         let exp = [0, 1, 2].map(|j| i32::try_from(ey).unwrap_or(0).saturating_sub(i32::try_from(ej(j)).unwrap_or(0)));
@@ -708,16 +746,22 @@ impl Regression3 {
     }
 }
 
-/// The determinant of a 3x3 matrix, `None` on overflow.
-fn det3(a: &[[i128; 3]; 3]) -> Option<i128> {
-    let e = |r: usize, c: usize| a.get(r).and_then(|row| row.get(c)).copied().unwrap_or(0);
+/// The largest magnitude of a scaled entry: 2^41 (the scaling leaves them at or below 2^40 plus rounding; the clamp
+/// makes the bound hold whatever the sums).
+const ENTRY_BOUND: i64 = 1 << 41;
+
+/// The determinant of a 3x3 matrix of entries of at most [`ENTRY_BOUND`]: minors below 2^83, terms below 2^124, the
+/// sum below 2^126, so the wrapping operations are exact (and cheap on the Cortex-M4: 64 x 64-bit products for the
+/// minors, one 128-bit product per term).
+fn det3(a: &[[i64; 3]; 3]) -> i128 {
+    let e = |r: usize, c: usize| i128::from(a.get(r).and_then(|row| row.get(c)).copied().unwrap_or(0));
     let minor = |r0: usize, r1: usize, c0: usize, c1: usize| {
-        e(r0, c0).checked_mul(e(r1, c1))?.checked_sub(e(r0, c1).checked_mul(e(r1, c0))?)
+        e(r0, c0).wrapping_mul(e(r1, c1)).wrapping_sub(e(r0, c1).wrapping_mul(e(r1, c0)))
     };
-    let t0 = e(0, 0).checked_mul(minor(1, 2, 1, 2)?)?;
-    let t1 = e(0, 1).checked_mul(minor(1, 2, 0, 2)?)?;
-    let t2 = e(0, 2).checked_mul(minor(1, 2, 0, 1)?)?;
-    t0.checked_sub(t1)?.checked_add(t2)
+    let t0 = e(0, 0).wrapping_mul(minor(1, 2, 1, 2));
+    let t1 = e(0, 1).wrapping_mul(minor(1, 2, 0, 2));
+    let t2 = e(0, 2).wrapping_mul(minor(1, 2, 0, 1));
+    t0.wrapping_sub(t1).wrapping_add(t2)
 }
 
 impl Solution3 {
