@@ -276,6 +276,8 @@ pub struct MechanicalIdentification {
     mechanical: Regression3,
     electrical_solution: Option<Solution3>,
     mechanical_solution: Option<Solution3>,
+    /// The highest progress shown, per mille.
+    progress: u16,
 }
 
 impl MechanicalIdentification {
@@ -315,12 +317,19 @@ impl MechanicalIdentification {
             mechanical: Regression3::default(),
             electrical_solution: None,
             mechanical_solution: None,
+            progress: 0,
         }
     }
 
-    /// Progress of the step in per mille: probe 0..100, relay 100..900, stop 900, solving 950, finished 1,000.
+    /// Progress of the step in per mille: probe 0..100, relay 100..900, stop 900, solving 950, finished 1,000;
+    /// never falling (a lowered relay speed restarts the count of half cycles, not the progress shown).
     #[must_use]
-    pub fn progress_per_mille(&self) -> u16 {
+    pub const fn progress_per_mille(&self) -> u16 {
+        self.progress
+    }
+
+    /// The progress by the phase now.
+    fn phase_progress(&self) -> u16 {
         match self.phase {
             Phase::Start { .. } => 0,
             Phase::Probe { level, .. } => u16::try_from(level.saturating_mul(20)).unwrap_or(100).min(100),
@@ -343,6 +352,7 @@ impl MechanicalIdentification {
             return status;
         }
         let status = self.advance(sample);
+        self.progress = self.progress.max(self.phase_progress());
         if !matches!(status, MechanicalStatus::Running { .. }) {
             self.phase = Phase::Finished(status);
         }
