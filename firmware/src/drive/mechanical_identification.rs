@@ -29,8 +29,8 @@
 //!   and the drive's convention).
 //! - Mechanics: the position's second difference over two blocks of [`BLOCK_TICKS`], `D2 = x(j) - 2 x(j-1) +
 //!   x(j-2)`, is exactly the acceleration weighted by a tent over the two blocks. With
-//!   `J a = kt i_q - Tc sign(w) - B w`, the tent-weighted sums of i_q, sign(w) and w (the position increments) are the regressors of D2:
-//!   three coefficients give J, Tc and B (kt from the first fit). The position is exact (no velocity
+//!   `J a = kt i_q - Tc sign(w) - B w`, the tent-weighted sums of i_q, sign(w) and w (the position increments)
+//!   are the regressors of D2: three coefficients give J, Tc and B (kt from the first fit). The position is exact (no velocity
 //!   differentiation), each block pair is one equation, and the relay makes current sign, speed sign and
 //!   speed independent regressors. Only block pairs at a steady current demand count: while the current ramps,
 //!   an elastic coupling winds up and the motor runs ahead of (or behind) the load by the twist's rate, which on
@@ -57,8 +57,8 @@ pub const PROBE_TICKS: u32 = 250;
 const PROBE_LEVELS: u32 = 4;
 /// The relay's half cycle the probe and the first half cycles aim the current at (250 ms, 625 ticks): long
 /// against a coupling's period, so that its ringing after a reversal (whose mean acceleration over the half cycle
-/// is its speed change over the whole) is small against the acceleration; on the geared preset 100 ms gave a
-/// Coulomb friction 90 % off, 250 ms 35 %. The relay ends after about 2 to 3 s.
+/// is its speed change over the whole) is small against the acceleration; on the unit tests' model of the geared
+/// preset 100 ms gave a Coulomb friction 90 % off, 250 ms 35 %. The relay ends after about 2 to 3 s.
 pub const HALF_CYCLE_TARGET_TICKS: u32 = 625;
 /// Ticks of a full current reversal (+I to -I), 20 ms: longer than the period of a 60 Hz coupling resonance,
 /// which a step would ring at full amplitude.
@@ -69,7 +69,7 @@ pub const MIN_HALF_CYCLES: u16 = 6;
 pub const MIN_RELAY_TICKS: u32 = 2_500;
 /// Ticks the relay runs at most (4 s): with fewer than [`MIN_FIT_HALF_CYCLES`] by then, the step times out.
 pub const MAX_RELAY_TICKS: u32 = 10_000;
-/// Half cycles after which the relay adapts its current (the first ones).
+/// The first half cycles, each of which rescales the relay current.
 const ADAPTED_HALF_CYCLES: u16 = 3;
 /// Half cycles the fit needs at the least.
 pub const MIN_FIT_HALF_CYCLES: u16 = 2;
@@ -113,7 +113,8 @@ pub struct MechanicalSample {
     pub i_q: Amps,
     /// Applied q voltage, the average over the same periods (the last period's adds only noise).
     pub v_q: Volts,
-    /// DC-bus voltage: the relay reverses early when v_q nears the bus's linear range.
+    /// DC-bus voltage: the relay reverses early when v_q nears the bus's linear range, and lowers its speed when
+    /// braking lifts the bus near the limiter ([`MechanicalConfig::regeneration_limit`]).
     pub v_bus: Volts,
 }
 
