@@ -28,7 +28,7 @@ use super::mechanical_identification::{
     MechanicalConfig, MechanicalError, MechanicalIdentification, MechanicalResult, MechanicalSample, MechanicalStatus,
 };
 use super::{DemandSource, Drive};
-use crate::control::frames::Amps;
+use crate::control::frames::{Amps, Volts};
 use crate::fault::table::FaultId;
 use crate::od::generated::handles as h;
 use crate::power_state::PowerState;
@@ -276,7 +276,16 @@ impl Drive {
 
     /// Step 6: the mechanical experiment in FOC with the commutation now known (d current 0).
     fn start_mechanical(&mut self) {
+        self.tune_current_loop();
         let d = &self.dictionary;
+        // The relay brakes on every reversal: below the limiter's loss-braking voltage it keeps its data (the
+        // module drops the half cycles that lift the bus near it); with the limiter off nothing bounds it here
+        // (the over-voltage trip still does).
+        let regeneration_limit = if d.get(h::BUS_LIMITER_ENABLE) == 0 {
+            Volts::from_bits(i32::MAX)
+        } else {
+            Volts::from_millivolts(i32::try_from(d.get(h::BUS_LIMITER_LOSS_BRAKING_VOLTAGE)).unwrap_or(i32::MAX))
+        };
         let config = MechanicalConfig {
             current_limit: Amps::from_milliamps(i32::try_from(d.get(h::MOTOR_NOMINAL_CURRENT)).unwrap_or(i32::MAX)),
             max_speed_rpm: d.get(h::MAX_MOTOR_SPEED),
@@ -285,9 +294,27 @@ impl Drive {
             // 0x3002:01 is in uOhm.
             phase_resistance_milliohm: d.get(h::MOTOR_PHASE_RESISTANCE).saturating_add(500) / 1000,
             timeout_ticks: TIMEOUT_TICKS.saturating_sub(self.auto_setup.ticks),
+            regeneration_limit,
         };
         self.auto_setup.phase = Phase::Mechanical(MechanicalIdentification::new(&config));
         self.dictionary.set(h::IDENTIFICATION_STEP, step::MECHANICAL);
+    }
+
+    /// The current loop tuned from the winding just identified (0x3002), before the mechanical step: EPOS4 tunes
+    /// its current controller before it identifies the mechanics (seed 001, auto tuning), because the relay's
+    /// current must follow its demand within a slow tick for the tick's last sample to stand for its average (with
+    /// the reference gains the small gimbal's 1.5 mH winding answers in 8 ms, and its inertia came out 16 % high).
+    /// Skipped with the tuning (0x3204:01 bit 1): the gains in force then stay.
+    fn tune_current_loop(&mut self) {
+        if self.dictionary.get(h::IDENTIFICATION_OPTIONS) & OPTION_SKIP_TUNING != 0 {
+            return;
+        }
+        let plant = super::auto_tuning::plant_from_objects(self.dictionary.values_mut().bytes_mut());
+        // A winding whose gains do not fit 0x30A0 keeps the gains in force; the tuning step refuses it later.
+        if let Ok((gains, _)) = super::tuning::tune_current(&plant) {
+            self.dictionary.set(h::CURRENT_CONTROLLER_P_GAIN, gains.p_uv_per_a);
+            self.dictionary.set(h::CURRENT_CONTROLLER_I_GAIN, gains.i_uv_per_a_ms);
+        }
     }
 
     /// The q current of the mechanical step, through the loops' path: the current limits and the bus-voltage

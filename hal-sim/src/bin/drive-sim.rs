@@ -697,7 +697,12 @@ fn identify(args: &Args) -> Result<(), String> {
     let kt = if id.inertia_kg_m2 > 0.0 { id.kt_nm_per_a } else { 0.0 };
     println!("kt_error_pct={}", pct(kt, params.torque_constant_nm_per_a()));
     println!("inertia_error_pct={}", pct(id.inertia_kg_m2, params.total_inertia_kg_m2()));
-    println!("friction_error_pct={}", pct(id.coulomb_friction_nm, params.coulomb_friction_nm));
+    // The Coulomb friction the motor sees: its own and the load's through the gear (driving, the motor supplies
+    // T / (N eta)). The gear's losses, proportional to the torque it carries, add to it in the relay (they oppose
+    // the motion like friction) and are not in this figure's truth.
+    let coulomb_at_motor =
+        params.coulomb_friction_nm + params.load_coulomb_friction_nm / (params.gear_ratio * params.gear_efficiency);
+    println!("friction_error_pct={}", pct(id.coulomb_friction_nm, coulomb_at_motor));
     println!("identify_s={:.3}", run.identify_s);
     println!("sdo_requests={}", run.sdo.requests);
     println!("sdo_answered={}", run.sdo.answered);

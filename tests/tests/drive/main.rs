@@ -10,6 +10,7 @@ mod current_loop;
 mod encoder_resolution;
 mod identification;
 mod io;
+mod mechanical_identification;
 mod parameters;
 mod regeneration;
 mod sensor_configuration;
