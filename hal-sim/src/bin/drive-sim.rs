@@ -54,7 +54,8 @@ use hal_sim::sim::trace::Trace;
 /// How `--plant FILE` scales each scenario (printed with the usage).
 const PLANT_HELP: &str = "--plant FILE: run on the plant of a TOML plant file (keys: PlantParams' fields; presets in \
 hal-sim/presets/). The drive gets the plant's motor data (0x3001, 0x3010:01, 0x6073, 0x6080, 0x607F); the gains stay \
-the reference-tuned ones. Scaling against the reference plant, so a scenario means the same on every plant: speeds, \
+the reference-tuned ones unless --auto-tune, which first runs the identification with its auto-tuning (drive-sim \
+identify) on the plant and commissions every drive of the scenario with the parameters it found. Scaling against the reference plant, so a scenario means the same on every plant: speeds, \
 accelerations and distances in revolutions x max_speed_rpm / 5000 (a move keeps its timing); currents (steps, \
 sweep bias and amplitude, spinning base and high current) x peak_current_a / 10; load torques (at the output) x \
 kt * peak_current_a * gear_ratio * gear_efficiency / 0.335 N m. Scaled: current-step, spinning, csp, csv-sweep, ppm \
@@ -66,7 +67,7 @@ output). Not scaled (reference numbers, on the chosen plant): fault-matrix (its 
 which every preset shares), bench, and the servers, whose motion comes from the master.";
 
 const USAGE: &str =
-    "usage: drive-sim <current-step | spinning | csp | csv-sweep | ppm | homing | fault-matrix | duty-cycle | identify | bench | ethercat | canopen> [--plant FILE] [--seed N] [--default-gains | --gains P,I] \
+    "usage: drive-sim <current-step | spinning | csp | csv-sweep | ppm | homing | fault-matrix | duty-cycle | identify | bench | ethercat | canopen> [--plant FILE] [--auto-tune] [--seed N] [--default-gains | --gains P,I] \
                      [--out DIR] [--seconds S] [--only TEXT] \
                      [--iface NAME --lock-step --cycle-us N --clock-error-ppm X --idle-exit-ms N --pcap FILE --idle-cycle \
                      --drive-clock-error-ppm X --sto-open]";
@@ -75,6 +76,9 @@ struct Args {
     scenario: String,
     /// `--plant FILE`: the plant file, none for the reference plant.
     plant: Option<PathBuf>,
+    /// `--auto-tune`: identify and tune the drive on the plant first (0x6060 = -2), then run the scenario with the
+    /// parameters found.
+    auto_tune: bool,
     seed: u64,
     default_gains: bool,
     gains: Option<(u32, u32)>,
@@ -113,6 +117,7 @@ fn parse_args() -> Result<Args, String> {
     let mut args = Args {
         scenario,
         plant: None,
+        auto_tune: false,
         seed: 1,
         default_gains: false,
         gains: None,
@@ -128,6 +133,7 @@ fn parse_args() -> Result<Args, String> {
             "--seed" => args.seed = value("--seed")?.parse().map_err(|e| format!("--seed: {e}"))?,
             "--plant" => args.plant = Some(PathBuf::from(value("--plant")?)),
             "--default-gains" => args.default_gains = true,
+            "--auto-tune" => args.auto_tune = true,
             "--gains" => {
                 let v = value("--gains")?;
                 let (p, i) = v.split_once(',').ok_or_else(|| format!("--gains P,I (uV/A,uV/(A ms)), got {v}"))?;
@@ -939,13 +945,44 @@ fn main() -> ExitCode {
     if args.scenario != "bench" {
         print_plant(args.plant.as_deref(), &params);
     }
-    let result = scenarios::with_plant(params, || run_scenario(&args, &dir));
+    let result = if args.auto_tune {
+        auto_tuned(&args, &params).and_then(|parameters| {
+            scenarios::with_plant(params, || scenarios::with_parameters(parameters, || run_scenario(&args, &dir)))
+        })
+    } else {
+        scenarios::with_plant(params, || run_scenario(&args, &dir))
+    };
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("drive-sim: {e}");
             ExitCode::FAILURE
         }
+    }
+}
+
+/// `--auto-tune`: the identification with its auto-tuning (`drive-sim identify`'s run) on the plant, and the
+/// parameters it found, which every drive of the scenario then gets after its motor data.
+fn auto_tuned(args: &Args, params: &PlantParams) -> Result<hal_sim::scenarios::identification::Parameters, String> {
+    use hal_sim::scenarios::identification;
+    if matches!(args.scenario.as_str(), "identify" | "bench" | "ethercat" | "canopen") {
+        return Err(format!("--auto-tune applies to the simulated scenarios, not to {}", args.scenario));
+    }
+    let run = identification::identify(params, args.seed, |_| {});
+    let id = &run.identified;
+    println!(
+        "auto-tune: identified in {:.2} s (simulated): R {:.4} ohm, Ld {:.1} uH, Lq {:.1} uH, kt {:.4} Nm/A, \
+         J {:.1} g cm^2; gains 0x30A0..0x30A3 from 0x3205's stiffness",
+        run.identify_s,
+        id.resistance_ohm,
+        id.ld_h * 1e6,
+        id.lq_h * 1e6,
+        id.kt_nm_per_a,
+        id.inertia_kg_m2 * 1e7,
+    );
+    match run.outcome {
+        identification::Outcome::Done => Ok(run.parameters),
+        other => Err(format!("--auto-tune: the identification did not finish: {other:?}")),
     }
 }
 

@@ -723,7 +723,7 @@ fn prepare(situation: Situation, seed: u64) -> Result<Bench, SimError> {
             let params = super::scenario_plant();
             let mut sim = Simulation::new(params.clone(), seed, DriveConfig::DEFAULT);
             sim.replace_drive(firmware::drive::Drive::boot(DriveConfig::DEFAULT, &mut store).0);
-            sim.commission_motor_data(&params);
+            super::commission(&mut sim, &params);
             Bench::new(sim)
         }
         Situation::WatchdogRestart => {
@@ -733,7 +733,7 @@ fn prepare(situation: Situation, seed: u64) -> Result<Bench, SimError> {
             let (mut drive, _) = firmware::drive::Drive::boot(DriveConfig::DEFAULT, &mut store);
             drive.report_reset(firmware::hal::reset::ResetCause::from_rcc_csr(RCC_CSR_AFTER_IWDG_RESET));
             sim.replace_drive(drive);
-            sim.commission_motor_data(&params);
+            super::commission(&mut sim, &params);
             Bench::new(sim)
         }
     };

@@ -71,7 +71,7 @@ pub enum Outcome {
 }
 
 /// The run's figures.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct IdentifyRun {
     /// How it ended.
     pub outcome: Outcome,
@@ -83,6 +83,8 @@ pub struct IdentifyRun {
     pub sdo: SdoFigures,
     /// The highest step 0x3204:02 showed (8 done, 255 failed).
     pub last_step: u8,
+    /// The identified and tuned objects read back at the end ([`IDENTIFIED_OBJECTS`]).
+    pub parameters: Parameters,
 }
 
 impl IdentifyRun {
@@ -142,11 +144,72 @@ impl Master {
         self.request(sim, frame).is_some_and(|a| a[0] == 0x60)
     }
 
+    /// An expedited upload's data bytes, as many as the answer names (CiA 301 7.2.4.3.3: `n` bytes unused).
+    fn upload_bytes(&mut self, sim: &mut Simulation, index: u16, sub: u8) -> Option<Vec<u8>> {
+        let [lo, hi] = index.to_le_bytes();
+        let answer = self.request(sim, [0x40, lo, hi, sub, 0, 0, 0, 0])?;
+        (answer[0] & 0xE3 == 0x43).then(|| answer[4..8 - usize::from((answer[0] >> 2) & 3)].to_vec())
+    }
+
     fn upload(&mut self, sim: &mut Simulation, index: u16, sub: u8) -> Option<u32> {
         let [lo, hi] = index.to_le_bytes();
         let answer = self.request(sim, [0x40, lo, hi, sub, 0, 0, 0, 0])?;
         (answer[0] & 0xE3 == 0x43).then(|| u32::from_le_bytes([answer[4], answer[5], answer[6], answer[7]]))
     }
+}
+
+/// The objects the identification and its auto-tuning write (the drive's parameters a master saves after it and
+/// writes into a drive it commissions): motor data, winding, encoder direction and index offset, Hall offset, and
+/// the gains of the current, position and velocity loops and the observer.
+pub const IDENTIFIED_OBJECTS: [(u16, u8); 26] = [
+    (0x3001, 5),
+    (0x3002, 1),
+    (0x3002, 2),
+    (0x3002, 3),
+    (0x3010, 2),
+    (0x3010, 5),
+    (0x301A, 3),
+    (0x30A0, 1),
+    (0x30A0, 2),
+    (0x30A1, 1),
+    (0x30A1, 2),
+    (0x30A1, 3),
+    (0x30A1, 4),
+    (0x30A1, 5),
+    (0x30A2, 1),
+    (0x30A2, 2),
+    (0x30A2, 3),
+    (0x30A2, 4),
+    (0x30A2, 5),
+    (0x30A3, 1),
+    (0x30A3, 2),
+    (0x30A3, 3),
+    (0x30A3, 4),
+    (0x30A3, 5),
+    (0x3205, 3),
+    (0x3205, 4),
+];
+
+/// The values of [`IDENTIFIED_OBJECTS`] one identification left in its drive, as an SDO upload gave them.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Parameters {
+    /// Index, sub-index and the data bytes.
+    pub values: Vec<(u16, u8, Vec<u8>)>,
+}
+
+/// Writes `parameters` into the drive of `sim` with SDO downloads (the power stage off), as a master commissions a
+/// drive from a saved parameter set.
+///
+/// # Errors
+/// The first object the drive refused, by index and sub-index.
+pub fn commission(sim: &mut Simulation, parameters: &Parameters) -> Result<(), String> {
+    let mut master = Master { server: SdoServer::default(), sdo: SdoFigures::default(), last_answer_s: None };
+    for (index, sub, data) in &parameters.values {
+        if !master.download(sim, *index, *sub, data) {
+            return Err(format!("the drive refused the identified 0x{index:04X}:{sub:02X} = {data:02X?}"));
+        }
+    }
+    Ok(())
 }
 
 /// Runs the identification on `params` (noise seeded with `seed`), after `setup` (fault injection, a wrong
@@ -206,5 +269,11 @@ pub fn identify(params: &PlantParams, seed: u64, setup: impl FnOnce(&mut Simulat
         encoder_type: read(0x3010, 2) as u16,
     };
     let _ = PERIOD_S;
-    IdentifyRun { outcome, identify_s, identified, sdo: master.sdo, last_step }
+    let parameters = Parameters {
+        values: IDENTIFIED_OBJECTS
+            .iter()
+            .filter_map(|&(index, sub)| Some((index, sub, master.upload_bytes(&mut sim, index, sub)?)))
+            .collect(),
+    };
+    IdentifyRun { outcome, identify_s, identified, sdo: master.sdo, last_step, parameters }
 }

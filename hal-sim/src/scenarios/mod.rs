@@ -49,6 +49,36 @@ pub fn with_plant<R>(params: PlantParams, f: impl FnOnce() -> R) -> R {
     result
 }
 
+thread_local! {
+    /// The parameters every scenario of this thread writes into its drive after the motor data (`None`: the
+    /// dictionary's), set by [`with_parameters`].
+    static SCENARIO_PARAMETERS: RefCell<Option<identification::Parameters>> = const { RefCell::new(None) };
+}
+
+/// Runs `f` with every scenario it starts on this thread commissioned with `parameters` after the motor data
+/// (`drive-sim --auto-tune`: what an identification with its auto-tuning found on the same plant, as a master
+/// writes a saved parameter set into the drive it starts); the previous choice is restored afterwards.
+pub fn with_parameters<R>(parameters: identification::Parameters, f: impl FnOnce() -> R) -> R {
+    let previous = SCENARIO_PARAMETERS.with(|p| p.replace(Some(parameters)));
+    let result = f();
+    SCENARIO_PARAMETERS.with(|p| *p.borrow_mut() = previous);
+    result
+}
+
+/// Commissions the drive of `sim` for `params` as every scenario does: the plant's motor data
+/// ([`Simulation::commission_motor_data`]), then the parameters of [`with_parameters`] if any.
+///
+/// # Panics
+/// When the drive refuses one of those parameters (they come from the same drive's identification).
+pub fn commission(sim: &mut Simulation, params: &PlantParams) {
+    sim.commission_motor_data(params);
+    SCENARIO_PARAMETERS.with(|p| {
+        if let Some(parameters) = p.borrow().as_ref() {
+            identification::commission(sim, parameters).unwrap_or_else(|e| panic!("{e}"));
+        }
+    });
+}
+
 /// The plant the scenarios of this thread run on: the one of [`with_plant`], else the reference.
 pub fn scenario_plant() -> PlantParams {
     SCENARIO_PLANT.with(|p| p.borrow().clone()).unwrap_or_else(PlantParams::reference)
@@ -146,7 +176,7 @@ pub fn prepare(setup: &Setup) -> Result<(Simulation, Prepared), SimError> {
 pub fn prepare_plant(mut params: PlantParams, setup: &Setup) -> Result<(Simulation, Prepared), SimError> {
     params.shunt_offset_lsb = setup.offsets_lsb;
     let mut sim = Simulation::new(params.clone(), setup.seed, DriveConfig::DEFAULT);
-    sim.commission_motor_data(&params);
+    commission(&mut sim, &params);
     sim.plant.set_rotor_state(setup.start_angle_rad, 0.0);
     if let Some((p, i)) = setup.gains {
         sim.set_current_gains(p, i);
@@ -169,7 +199,7 @@ pub fn offset_calibration(setup: &Setup) -> Result<Prepared, SimError> {
     let mut params = scenario_plant();
     params.shunt_offset_lsb = setup.offsets_lsb;
     let mut sim = Simulation::new(params.clone(), setup.seed, DriveConfig::DEFAULT);
-    sim.commission_motor_data(&params);
+    commission(&mut sim, &params);
     sim.run(10);
     let calibration_ticks = sim.switch_on()?;
     let (est, residual) = offsets_of(&sim, setup);
