@@ -55,7 +55,9 @@ use hal_sim::sim::trace::Trace;
 const PLANT_HELP: &str = "--plant FILE: run on the plant of a TOML plant file (keys: PlantParams' fields; presets in \
 hal-sim/presets/). The drive gets the plant's motor data (0x3001, 0x3010:01, 0x6073, 0x6080, 0x607F); the gains stay \
 the reference-tuned ones unless --auto-tune, which first runs the identification with its auto-tuning (drive-sim \
-identify) on the plant and commissions every drive of the scenario with the parameters it found. Scaling against the reference plant, so a scenario means the same on every plant: speeds, \
+identify) on the plant and commissions every drive of the scenario with the parameters it found; --resonance F_R,F_AR \
+(Hz) is what a master writes into 0x3205:03/04 before it for an elastic load (the identification does not measure \
+the resonance; without it the tuning is the rigid one). Scaling against the reference plant, so a scenario means the same on every plant: speeds, \
 accelerations and distances in revolutions x max_speed_rpm / 5000 (a move keeps its timing); currents (steps, \
 sweep bias and amplitude, spinning base and high current) x peak_current_a / 10; load torques (at the output) x \
 kt * peak_current_a * gear_ratio * gear_efficiency / 0.335 N m. Scaled: current-step, spinning, csp, csv-sweep, ppm \
@@ -67,7 +69,7 @@ output). Not scaled (reference numbers, on the chosen plant): fault-matrix (its 
 which every preset shares), bench, and the servers, whose motion comes from the master.";
 
 const USAGE: &str =
-    "usage: drive-sim <current-step | spinning | csp | csv-sweep | ppm | homing | fault-matrix | duty-cycle | identify | bench | ethercat | canopen> [--plant FILE] [--auto-tune] [--seed N] [--default-gains | --gains P,I] \
+    "usage: drive-sim <current-step | spinning | csp | csv-sweep | ppm | homing | fault-matrix | duty-cycle | identify | bench | ethercat | canopen> [--plant FILE] [--auto-tune [--resonance F_R,F_AR]] [--seed N] [--default-gains | --gains P,I] \
                      [--out DIR] [--seconds S] [--only TEXT] \
                      [--iface NAME --lock-step --cycle-us N --clock-error-ppm X --idle-exit-ms N --pcap FILE --idle-cycle \
                      --drive-clock-error-ppm X --sto-open]";
@@ -79,6 +81,9 @@ struct Args {
     /// `--auto-tune`: identify and tune the drive on the plant first (0x6060 = -2), then run the scenario with the
     /// parameters found.
     auto_tune: bool,
+    /// `--resonance F_R,F_AR`: the load's resonance and anti-resonance (Hz) a master writes into 0x3205:03/04
+    /// before the identification, for the auto-tuning's elastic design (the identification does not measure them).
+    resonance: Option<(f64, f64)>,
     seed: u64,
     default_gains: bool,
     gains: Option<(u32, u32)>,
@@ -118,6 +123,7 @@ fn parse_args() -> Result<Args, String> {
         scenario,
         plant: None,
         auto_tune: false,
+        resonance: None,
         seed: 1,
         default_gains: false,
         gains: None,
@@ -134,6 +140,16 @@ fn parse_args() -> Result<Args, String> {
             "--plant" => args.plant = Some(PathBuf::from(value("--plant")?)),
             "--default-gains" => args.default_gains = true,
             "--auto-tune" => args.auto_tune = true,
+            "--resonance" => {
+                let v = value("--resonance")?;
+                let parsed: Result<Vec<f64>, _> = v.split(',').map(|x| x.trim().parse::<f64>()).collect();
+                match parsed.map_err(|e| format!("--resonance F_R,F_AR (Hz): {e}"))?.as_slice() {
+                    [r, ar] if *r > 0.0 && *ar > 0.0 && *r <= 6553.5 && *ar <= 6553.5 => {
+                        args.resonance = Some((*r, *ar))
+                    }
+                    _ => return Err(format!("--resonance F_R,F_AR: two frequencies in (0, 6553.5] Hz, got {v}")),
+                }
+            }
             "--gains" => {
                 let v = value("--gains")?;
                 let (p, i) = v.split_once(',').ok_or_else(|| format!("--gains P,I (uV/A,uV/(A ms)), got {v}"))?;
@@ -662,7 +678,7 @@ fn identify(args: &Args) -> Result<(), String> {
          10 ms, then reads the results back (seed {})",
         args.seed
     );
-    let run = identification::identify(&params, args.seed, |_| {});
+    let run = identification::identify(&params, args.seed, resonance_setup(args));
     let id = &run.identified;
     let err = IdentifyRun::error_pct;
     println!(
@@ -961,6 +977,19 @@ fn main() -> ExitCode {
     }
 }
 
+/// What the master writes before the identification: `--resonance`'s pair into 0x3205:03/04 (0.1 Hz).
+fn resonance_setup(args: &Args) -> impl FnOnce(&mut hal_sim::sim::Simulation) {
+    let resonance = args.resonance;
+    move |sim| {
+        if let Some((r, ar)) = resonance {
+            use firmware::od::generated::handles as h;
+            let d = sim.drive.dictionary_mut();
+            d.set(h::AUTO_TUNING_RESONANCE, (r * 10.0).round() as u16);
+            d.set(h::AUTO_TUNING_ANTI_RESONANCE, (ar * 10.0).round() as u16);
+        }
+    }
+}
+
 /// `--auto-tune`: the identification with its auto-tuning (`drive-sim identify`'s run) on the plant, and the
 /// parameters it found, which every drive of the scenario then gets after its motor data.
 fn auto_tuned(args: &Args, params: &PlantParams) -> Result<hal_sim::scenarios::identification::Parameters, String> {
@@ -968,7 +997,7 @@ fn auto_tuned(args: &Args, params: &PlantParams) -> Result<hal_sim::scenarios::i
     if matches!(args.scenario.as_str(), "identify" | "bench" | "ethercat" | "canopen") {
         return Err(format!("--auto-tune applies to the simulated scenarios, not to {}", args.scenario));
     }
-    let run = identification::identify(params, args.seed, |_| {});
+    let run = identification::identify(params, args.seed, resonance_setup(args));
     let id = &run.identified;
     println!(
         "auto-tune: identified in {:.2} s (simulated): R {:.4} ohm, Ld {:.1} uH, Lq {:.1} uH, kt {:.4} Nm/A, \
