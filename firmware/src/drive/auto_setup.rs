@@ -79,11 +79,14 @@ pub struct AutoSetup {
     phase: Phase,
     last_start_bit: bool,
     ticks: u32,
+    /// The period and the q sums of the last report the mechanical step read (its samples are the averages
+    /// between two reports).
+    last_q_sums: Option<(u32, [i32; 2])>,
 }
 
 impl Default for AutoSetup {
     fn default() -> Self {
-        Self { phase: Phase::Idle, last_start_bit: false, ticks: 0 }
+        Self { phase: Phase::Idle, last_start_bit: false, ticks: 0, last_q_sums: None }
     }
 }
 
@@ -161,12 +164,24 @@ impl Drive {
             }
             Phase::Mechanical(mechanical) => {
                 let s = &report.signals;
+                // The averages over the periods since the last report (one slow tick); the first tick, without a
+                // report before it, takes the last period's values.
+                let periods = self.auto_setup.last_q_sums.map_or(0, |(period, _)| report.period.wrapping_sub(period));
+                let average = |k: usize, last: i32| {
+                    let previous = self.auto_setup.last_q_sums.and_then(|(_, sums)| sums.get(k).copied());
+                    let now = report.q_sums.get(k).copied().unwrap_or(0);
+                    previous
+                        .and_then(|p| now.wrapping_sub(p).checked_div(i32::try_from(periods).ok()?))
+                        .filter(|_| periods > 0)
+                        .unwrap_or(last)
+                };
                 let sample = MechanicalSample {
                     position: report.encoder_position,
-                    i_q: s.i_dq.q,
-                    v_q: s.v_dq.q,
+                    i_q: Amps::from_bits(average(0, s.i_dq.q.to_bits())),
+                    v_q: Volts::from_bits(average(1, s.v_dq.q.to_bits())),
                     v_bus: s.v_bus,
                 };
+                self.auto_setup.last_q_sums = Some((report.period, report.q_sums));
                 let status = mechanical.step(&sample);
                 let progress = 900u16.saturating_add(mechanical.progress_per_mille() / 10);
                 self.dictionary.set(h::IDENTIFICATION_PROGRESS, progress.min(999));
@@ -276,7 +291,6 @@ impl Drive {
 
     /// Step 6: the mechanical experiment in FOC with the commutation now known (d current 0).
     fn start_mechanical(&mut self) {
-        self.tune_current_loop();
         let d = &self.dictionary;
         // The relay brakes on every reversal: below the limiter's loss-braking voltage it keeps its data (the
         // module drops the half cycles that lift the bus near it); with the limiter off nothing bounds it here
@@ -297,24 +311,8 @@ impl Drive {
             regeneration_limit,
         };
         self.auto_setup.phase = Phase::Mechanical(MechanicalIdentification::new(&config));
+        self.auto_setup.last_q_sums = None;
         self.dictionary.set(h::IDENTIFICATION_STEP, step::MECHANICAL);
-    }
-
-    /// The current loop tuned from the winding just identified (0x3002), before the mechanical step: EPOS4 tunes
-    /// its current controller before it identifies the mechanics (seed 001, auto tuning), because the relay's
-    /// current must follow its demand within a slow tick for the tick's last sample to stand for its average (with
-    /// the reference gains the small gimbal's 1.5 mH winding answers in 8 ms, and its inertia came out 16 % high).
-    /// Skipped with the tuning (0x3204:01 bit 1): the gains in force then stay.
-    fn tune_current_loop(&mut self) {
-        if self.dictionary.get(h::IDENTIFICATION_OPTIONS) & OPTION_SKIP_TUNING != 0 {
-            return;
-        }
-        let plant = super::auto_tuning::plant_from_objects(self.dictionary.values_mut().bytes_mut());
-        // A winding whose gains do not fit 0x30A0 keeps the gains in force; the tuning step refuses it later.
-        if let Ok((gains, _)) = super::tuning::tune_current(&plant) {
-            self.dictionary.set(h::CURRENT_CONTROLLER_P_GAIN, gains.p_uv_per_a);
-            self.dictionary.set(h::CURRENT_CONTROLLER_I_GAIN, gains.i_uv_per_a_ms);
-        }
     }
 
     /// The q current of the mechanical step, through the loops' path: the current limits and the bus-voltage

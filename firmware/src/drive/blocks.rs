@@ -200,6 +200,11 @@ pub struct Tier1Report {
     pub index_offset: Option<ElectricalAngle>,
     /// The shunt offsets in use.
     pub offsets: ShuntOffsets,
+    /// Running sums (wrapping, `I16F16` bits) of the measured q current and the applied q voltage over every
+    /// current-loop period, never reset (two additions and no branch in tier 1): the difference of two reports
+    /// over the periods between them is a slow tick's average, free of one period's noise (the motor
+    /// identification's mechanical step, `super::auto_setup`).
+    pub q_sums: [i32; 2],
 }
 
 impl Default for Tier1Report {
@@ -222,6 +227,7 @@ impl Default for Tier1Report {
             last_index_latch: None,
             index_offset: None,
             offsets: ShuntOffsets::NOMINAL,
+            q_sums: [0; 2],
         }
     }
 }
@@ -581,7 +587,7 @@ fn stage_from_byte(value: u8) -> CommutationStage {
 }
 
 /// Words of a [`Tier1Report`].
-pub const REPORT_WORDS: usize = 4 + 2 + 2 * SIGNAL_WORDS + 4 + 1 + 2 * (2 * DIGITAL_INPUTS + 1) + 3 + 3;
+pub const REPORT_WORDS: usize = 4 + 2 + 2 * SIGNAL_WORDS + 4 + 1 + 2 * (2 * DIGITAL_INPUTS + 1) + 3 + 3 + 2;
 
 impl Words<REPORT_WORDS> for Tier1Report {
     #[inline(never)]
@@ -616,6 +622,7 @@ impl Words<REPORT_WORDS> for Tier1Report {
         for offset in self.offsets.q8 {
             put.int(offset);
         }
+        put.int(self.q_sums[0]).int(self.q_sums[1]);
         put.words
     }
 
@@ -642,6 +649,7 @@ impl Words<REPORT_WORDS> for Tier1Report {
         let last_index_latch = low_half(take.word());
         let index_offset = ElectricalAngle(take.word());
         let offsets = ShuntOffsets { q8: core::array::from_fn(|_| take.int()) };
+        let q_sums = [take.int(), take.int()];
         let bit = |n: u32| flags >> n & 1 == 1;
         Self {
             period,
@@ -661,6 +669,7 @@ impl Words<REPORT_WORDS> for Tier1Report {
             last_index_latch: bit(9).then_some(last_index_latch),
             index_offset: bit(10).then_some(index_offset),
             offsets,
+            q_sums,
         }
     }
 }
@@ -821,6 +830,7 @@ mod tests {
             last_index_latch: Some(0),
             index_offset: Some(ElectricalAngle(12_345)),
             offsets: ShuntOffsets { q8: [524_288, -1, i32::MAX] },
+            q_sums: [i32::MIN, 123_456],
         });
         for stage in [
             CommutationStage::HallSector,

@@ -557,12 +557,12 @@ impl MechanicalIdentification {
             self.bus_high = true;
         }
         let excluded = self.bus_high;
-        // The mechanical fit takes the demand of steady blocks, not the measured current: the identification
-        // tunes the current loop from the identified winding before this step (`auto_setup`), so the current
-        // holds a steady demand within a few periods, while the measured current's noise (2 LSB rms = 16 mA on
-        // the reference sensing, as large as the small gimbal's relay current) would bias the fit's slope towards
-        // zero: with single-period samples the gimbal's inertia came out 13 to 16 % high. With the reference
-        // gains on that 1.5 mH winding the current fell short of a 26 mA demand while braking (75 % too high).
+        // The mechanical fit takes the measured current, the slow tick's average (`Tier1Report::q_sums`): the loop
+        // does not hold a small demand exactly (on the small gimbal with the reference gains the true current of a
+        // 26 mA relay fell to 8-20 mA while braking, and the demand as regressor made the inertia 75 % too large;
+        // with the current loop tuned first, +10 %), and a single period's current carries the sensing noise
+        // (2 LSB rms = 16 mA, as large as the gimbal's relay current), which biases the slope towards zero (+13 to
+        // +16 % inertia on the gimbal).
         // Torque constant: ticks with a settled current sign (measured |i_q| above half the relay current, where
         // the dead-time voltage is a function of the sign alone; by the demand's sign, which includes the braking
         // ticks whose current fell short, the gimbal's kt was 1.8 % off instead of 0.7 %).
@@ -576,7 +576,7 @@ impl MechanicalIdentification {
         self.previous_demand = self.demand;
         self.block_tick = self.block_tick.saturating_add(1);
         let m = i64::from(self.block_tick);
-        let values = [self.demand, increment.signum(), increment];
+        let values = [i_q, increment.signum(), increment];
         for (k, x) in values.iter().enumerate() {
             if let (Some(s0), Some(s1)) = (self.block.s0.get_mut(k), self.block.s1.get_mut(k)) {
                 *s0 = s0.saturating_add(*x);

@@ -53,6 +53,9 @@ pub struct Tier1State {
     trip_sample: FastSignals,
     /// Tier 1's encoder positions summed and latched per slow tick (the averaged velocity estimate).
     position_sum: PositionSum,
+    /// Running sums (wrapping, `I16F16` bits) of the measured q current and the applied q voltage of every
+    /// current-loop period ([`Tier1Report::q_sums`]).
+    q_sums: [i32; 2],
     /// The settings in force: Hall mask, encoder presence, calibration; the source of the limits and the
     /// commutation.
     settings: Settings,
@@ -107,6 +110,7 @@ impl Tier1State {
             calibration: Calibration::new(settings.calibration),
             trip_sample: FastSignals::default(),
             position_sum: PositionSum::default(),
+            q_sums: [0; 2],
             settings: *settings,
             square: SquareWave::default(),
         };
@@ -240,6 +244,7 @@ impl Tier1State {
             last_index_latch: self.commutation.last_index_latch(),
             index_offset: self.commutation.index_offset(),
             offsets: self.offsets,
+            q_sums: self.q_sums,
         }
     }
 
@@ -354,6 +359,8 @@ impl Tier1State {
         self.signals.i_dq = out.i_dq;
         self.signals.i_ref = i_ref;
         self.signals.v_dq = out.v_dq;
+        let [i_q_sum, v_q_sum] = self.q_sums;
+        self.q_sums = [i_q_sum.wrapping_add(out.i_dq.q.to_bits()), v_q_sum.wrapping_add(out.v_dq.q.to_bits())];
         self.signals.saturated = out.saturated;
         out.pwm_command()
     }

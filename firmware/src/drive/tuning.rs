@@ -376,12 +376,8 @@ pub fn tune(plant: &TuningPlant, request: &TuningRequest) -> Result<TunedGains, 
     Ok(TunedGains { current, position, velocity, observer, design })
 }
 
-/// The current PI and its design figures. Needs only the winding (R, Ld, Lq; the bus voltage and peak current
-/// for the design figures), so the identification tunes the current loop with it before its mechanical step.
-///
-/// # Errors
-/// [`TuningError::GainRange`] when Kp or Ki does not fit 0x30A0.
-pub fn tune_current(plant: &TuningPlant) -> Result<(CurrentGainObjects, TuningDesign), TuningError> {
+/// The current PI and its design figures.
+fn tune_current(plant: &TuningPlant) -> Result<(CurrentGainObjects, TuningDesign), TuningError> {
     let delay_s = CURRENT_LOOP_DELAY_PERIODS / PWM_FREQUENCY_HZ as f32;
     let lq = plant.lq_h;
     // The axis with the smaller inductance crosses over higher by the ratio; it keeps the minimum margin.
