@@ -42,16 +42,27 @@ fn auto_tuned_reference_is_no_worse_than_the_hand_tuned_defaults_by_10_percent()
     let (step_t, velocity_t, csp_t) = scenarios::with_parameters(parameters, figures);
     no_worse("current-step overshoot %", step_t.overshoot_pct, step_d.overshoot_pct, 0.1);
     no_worse("current-step rise us", step_t.rise_us, step_d.rise_us, 2.0);
-    // The velocity step's overshoot is held to the issue's absolute bound (15 %), not to the defaults' +10 %: on
-    // one run it moves by more than that with changes far below the loop's (a Hall offset of 0.15 degrees
-    // electrical moves it from 5.6 to 7.3 %; over seeds 1..4 the defaults give 5.2..6.1 %, the auto-tuned drive
-    // 5.9..7.4 %). That the mean is 17 % above the defaults' is a known shortfall of the tuning, not hidden here.
-    assert!(
-        velocity_t.overshoot_pct <= 15.0,
-        "csv step overshoot {} % (issue: <= 15 %; the defaults' {} %)",
-        velocity_t.overshoot_pct,
-        velocity_d.overshoot_pct
-    );
+    // The velocity step's overshoot, on one run, moves by more than 10 % with changes far below the loop's (over
+    // seeds 1..4 the defaults give 5.2 to 6.1 %): compared as the mean over four seeds (plant noise and the
+    // identification's own run both change with the seed).
+    let mean_overshoot = |auto_tune: bool| {
+        let runs = (1..=4u64).map(|seed| {
+            let run = || motion::csv_step(seed, 100.0).expect("csv step").0.overshoot_pct;
+            match auto_tune {
+                true => {
+                    let tuned = identification::identify(&PlantParams::reference(), seed, |_| {});
+                    assert_eq!(tuned.outcome, Outcome::Done, "identification finished (seed {seed})");
+                    scenarios::with_parameters(tuned.parameters, run)
+                }
+                false => run(),
+            }
+        });
+        runs.sum::<f64>() / 4.0
+    };
+    let (default_mean, tuned_mean) = (mean_overshoot(false), mean_overshoot(true));
+    no_worse("csv step overshoot %, mean of seeds 1..4", tuned_mean, default_mean, 0.1);
+    assert!(velocity_t.overshoot_pct <= 15.0, "csv step overshoot {} % (issue: <= 15 %)", velocity_t.overshoot_pct);
+    let _ = velocity_d;
     no_worse("csp following error peak inc", csp_t.following_error_peak_inc, csp_d.following_error_peak_inc, 1.0);
     no_worse("csp settle error inc", csp_t.settle_error_inc, csp_d.settle_error_inc, 1.0);
 }
