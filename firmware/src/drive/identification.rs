@@ -304,13 +304,16 @@ struct AngleMean {
     n: i64,
 }
 
+/// Out of line: three means (offset, index, Hall edges) each inline them otherwise (flash, issue 17).
 impl AngleMean {
+    #[inline(never)]
     fn add(&mut self, angle: u32) {
         let first = *self.first.get_or_insert(angle);
         self.sum = self.sum.wrapping_add(i64::from(angle.wrapping_sub(first).cast_signed()));
         self.n = self.n.wrapping_add(1);
     }
 
+    #[inline(never)]
     fn mean(&self) -> Option<u32> {
         let first = self.first?;
         let mean = self.sum.checked_div(self.n)?;

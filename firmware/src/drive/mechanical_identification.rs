@@ -222,18 +222,28 @@ struct BlockSums {
 }
 
 impl BlockSums {
-    /// The rising half of the tent (weights 2m - 1): this block is the first of the pair.
+    /// The rising half of the tent (weights 2m - 1): this block is the first of the pair. Out of line, as
+    /// [`Self::falling`]: the pair's three regressors would inline each three times (flash, issue 17).
+    #[inline(never)]
     fn rising(&self, k: usize) -> i64 {
         let (s0, s1) = (get(&self.s0, k), get(&self.s1, k));
         s1.saturating_mul(2).saturating_sub(s0)
     }
 
     /// The falling half of the tent (weights 2N - 2m + 1): this block is the second of the pair.
+    #[inline(never)]
     fn falling(&self, k: usize) -> i64 {
         let (s0, s1) = (get(&self.s0, k), get(&self.s1, k));
         let n = i64::from(BLOCK_TICKS);
         s0.saturating_mul(n.saturating_mul(2).saturating_add(1)).saturating_sub(s1.saturating_mul(2))
     }
+}
+
+/// `a b`, saturated: the 64-bit overflow-checked product is some 20 instructions, once here instead of at each
+/// use (flash, issue 17).
+#[inline(never)]
+fn sat_mul(a: i64, b: i64) -> i64 {
+    a.saturating_mul(b)
 }
 
 fn get(a: &[i64; 3], k: usize) -> i64 {
@@ -415,14 +425,14 @@ impl MechanicalIdentification {
             }
             Phase::Stop { direction } => {
                 self.record(sample, increment, position);
-                if speed.saturating_mul(direction) <= 0 {
+                if sat_mul(speed, direction) <= 0 {
                     self.demand = 0;
                     if self.half_cycles < MIN_FIT_HALF_CYCLES {
                         return MechanicalStatus::Failed(MechanicalError::Timeout);
                     }
                     self.phase = Phase::Solve(0);
                 } else {
-                    self.ramp_towards(direction.saturating_neg().saturating_mul(self.relay_current));
+                    self.ramp_towards(sat_mul(direction.saturating_neg(), self.relay_current));
                 }
             }
             Phase::Solve(part) => {
@@ -486,11 +496,10 @@ impl MechanicalIdentification {
         if enough || self.relay_ticks >= MAX_RELAY_TICKS {
             let moving = if speed < 0 { -1 } else { 1 };
             self.phase = Phase::Stop { direction: moving };
-            self.ramp_towards(self.relay_current.saturating_mul(moving.saturating_neg()));
+            self.ramp_towards(sat_mul(self.relay_current, moving.saturating_neg()));
             return;
         }
-        let reached =
-            speed.saturating_mul(direction) >= self.relay_speed || (headroom && speed.saturating_mul(direction) > 0);
+        let reached = sat_mul(speed, direction) >= self.relay_speed || (headroom && sat_mul(speed, direction) > 0);
         let direction = if reached {
             self.half_cycles = self.half_cycles.saturating_add(1);
             if self.half_cycles <= ADAPTED_HALF_CYCLES {
@@ -512,7 +521,7 @@ impl MechanicalIdentification {
             direction
         };
         self.phase = Phase::Relay { direction };
-        self.ramp_towards(direction.saturating_mul(self.relay_current));
+        self.ramp_towards(sat_mul(direction, self.relay_current));
     }
 
     /// Scales the relay current by the half cycle's acceleration against the one wanted (2 w per
@@ -558,7 +567,7 @@ impl MechanicalIdentification {
         // the dead-time voltage is a function of the sign alone; by the demand's sign, which includes the braking
         // ticks whose current fell short, the gimbal's kt was 1.8 % off instead of 0.7 %).
         if !excluded && i_q.saturating_mul(2).abs() >= self.relay_current {
-            let resistance_drop = i64::from(self.config.phase_resistance_milliohm).saturating_mul(i_q) / 1000;
+            let resistance_drop = sat_mul(i64::from(self.config.phase_resistance_milliohm), i_q) / 1000;
             let y = i64::from(sample.v_q.to_bits()).saturating_sub(resistance_drop);
             self.electrical.add([increment, i_q.signum(), 1], y);
         }
@@ -571,7 +580,7 @@ impl MechanicalIdentification {
         for (k, x) in values.iter().enumerate() {
             if let (Some(s0), Some(s1)) = (self.block.s0.get_mut(k), self.block.s1.get_mut(k)) {
                 *s0 = s0.saturating_add(*x);
-                *s1 = s1.saturating_add(x.saturating_mul(m));
+                *s1 = s1.saturating_add(sat_mul(*x, m));
             }
         }
         if self.block_tick >= BLOCK_TICKS {
@@ -712,7 +721,8 @@ pub struct Solution3 {
 }
 
 impl Regression3 {
-    /// Adds one equation.
+    /// Adds one equation. The sums wrap exactly as they would saturate: each product is below 2^126 and no
+    /// experiment adds 2^63 equations (the type's note).
     pub fn add(&mut self, x: [i64; 3], y: i64) {
         let p = |a: i64, b: i64| i128::from(a).wrapping_mul(i128::from(b));
         for j in 0..3 {
@@ -720,14 +730,14 @@ impl Regression3 {
             for k in j..3 {
                 let xk = x.get(k).copied().unwrap_or(0);
                 if let Some(s) = self.xx.get_mut(sym(j, k)) {
-                    *s = s.saturating_add(p(xj, xk));
+                    *s = s.wrapping_add(p(xj, xk));
                 }
             }
             if let Some(s) = self.xy.get_mut(j) {
-                *s = s.saturating_add(p(xj, y));
+                *s = s.wrapping_add(p(xj, y));
             }
         }
-        self.yy = self.yy.saturating_add(p(y, y));
+        self.yy = self.yy.wrapping_add(p(y, y));
     }
 
     /// Solves by Cramer's rule on the equations scaled so that each diagonal entry (and y y) has at most
