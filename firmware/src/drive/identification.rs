@@ -506,6 +506,8 @@ impl ElectricalIdentification {
         status
     }
 
+    /// Out of line, as the other outputs: each step returns them from several places (flash, issue 17).
+    #[inline(never)]
     fn current(&self, i_d: f32) -> IdentificationStatus {
         IdentificationStatus::Running(Injection::Current {
             angle: ElectricalAngle(self.angle),
@@ -610,6 +612,7 @@ impl ElectricalIdentification {
         (amplitude * 1000.0).clamp(20.0, 8_000.0) as i16
     }
 
+    #[inline(never)]
     fn inductance_output(&self) -> IdentificationStatus {
         let positive = self.half.is_multiple_of(2);
         let swing = if positive { self.amplitude_mv } else { self.amplitude_mv.wrapping_neg() };
@@ -670,6 +673,7 @@ impl ElectricalIdentification {
         self.square_output()
     }
 
+    #[inline(never)]
     fn square_output(&self) -> IdentificationStatus {
         IdentificationStatus::Running(Injection::Square {
             on_d: !self.square_on_q,
@@ -712,6 +716,7 @@ impl ElectricalIdentification {
 
     /// The electrical angle the encoder shows at `position` (counts), in the field's direction, without the
     /// commutation offset.
+    #[inline(never)]
     fn encoder_angle(&self, position: i32) -> u32 {
         let counts = position.wrapping_mul(self.direction).cast_unsigned();
         counts.wrapping_mul(u32::from(self.config.pole_pairs.max(1))).wrapping_mul(self.angle_per_count)
