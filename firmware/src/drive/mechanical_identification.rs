@@ -469,7 +469,7 @@ impl MechanicalIdentification {
             // Acceleration a_p = gained / ticks (counts per block per tick) at `current`; the relay wants
             // a_r = 2 w / T: I = current a_r / a_p = current 2 w ticks / (T gained).
             let wanted = relay_current_for(current, self.relay_speed, ticks, gained.max(1)).unwrap_or(limit);
-            self.relay_current = wanted.clamp(limit >> (PROBE_LEVELS.saturating_add(1)), limit);
+            self.relay_current = wanted.max(limit >> (PROBE_LEVELS.saturating_add(1))).min(limit);
             self.phase = Phase::Relay { direction: 1 };
             self.half_start = (0, speed);
             self.block_start = self.last_position;
@@ -534,15 +534,17 @@ impl MechanicalIdentification {
         let current = self.relay_current;
         let wanted = relay_current_for(current, self.relay_speed, ticks, gained).unwrap_or(current);
         let limit = i64::from(self.config.current_limit.to_bits());
-        let wanted = wanted.clamp(current / 2, current.saturating_mul(2));
-        self.relay_current = wanted.clamp(limit >> PROBE_LEVELS.saturating_add(1), limit);
+        let wanted = wanted.max(current / 2).min(current.saturating_mul(2));
+        self.relay_current = wanted.max(limit >> PROBE_LEVELS.saturating_add(1)).min(limit);
     }
 
-    /// Moves the demand towards `target` by at most a [`RAMP_TICKS`]-th of a full reversal.
+    /// Moves the demand towards `target` by at most a [`RAMP_TICKS`]-th of a full reversal. The bounds here and in
+    /// the relay current's are ordered (a positive limit and rate) and taken with max/min: `clamp` would assert
+    /// their order with a formatted panic (flash in the images that print panics, issue 17).
     fn ramp_towards(&mut self, target: i64) {
         let rate = self.relay_current.saturating_mul(2).checked_div(i64::from(RAMP_TICKS)).unwrap_or(0);
         let rate = rate.max(1);
-        let change = target.saturating_sub(self.demand).clamp(rate.saturating_neg(), rate);
+        let change = target.saturating_sub(self.demand).max(rate.saturating_neg()).min(rate);
         self.demand = self.demand.saturating_add(change);
     }
 
