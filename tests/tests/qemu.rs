@@ -46,8 +46,12 @@ const ECAT_CYCLE_BUDGET: u64 = 1_500;
 /// Raised by 3 to 4 KiB for the regeneration work (the bus-voltage limiter, the braking chopper with its resistor
 /// model and 13 dictionary entries, the stop ramp that follows the limiter: +3,660 to +4,268 bytes of text + data),
 /// which Safe Torque Off (+564 to +652), the smaller CRC table of the update code (-928 to -332) and the bus-off
-/// recovery EMCY (+156) then moved. Measured at the last change: 183,676, 213,992 and 221,984.
-const TEXT_BUDGETS: [(&str, u64); 3] = [("can", 181 * 1024), ("ethercat", 210 * 1024), ("ethercat_defmt", 218 * 1024)];
+/// recovery EMCY (+156) then moved. Raised for the motor identification (0x6060 = -2: electrical and mechanical
+/// identification, auto tuning; issue 18 items 3-5: about +31 KB of text in every image), of which reworking its
+/// 128-bit arithmetic, taking its slow tick out of line and dropping the formatted bound checks of `clamp` won
+/// back 7,160 bytes in the CAN image and 9,384 in EtherCAT with defmt. The CAN image stays above its 200 KiB
+/// ceiling (by 3,064 bytes) until more is lowered. Measured at the last change: 207,864, 238,568 and 244,552.
+const TEXT_BUDGETS: [(&str, u64); 3] = [("can", 204 * 1024), ("ethercat", 234 * 1024), ("ethercat_defmt", 240 * 1024)];
 
 #[test]
 fn board_images_fit_their_text_budgets() {

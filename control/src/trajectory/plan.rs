@@ -132,7 +132,9 @@ impl Segment {
     ///
     /// At `u = 1` both give `p0 + (v0 + v1) duration / 2` (the sine terms vanish exactly).
     fn eval(&self, tau: i128) -> State {
-        let tau = tau.clamp(0, self.duration);
+        // The upper bound floored at 0: the bounds are then ordered for the compiler too, and `clamp` has no
+        // formatted 128-bit panic to keep (1.7 KB of formatting in the images that print panics, issue 17).
+        let tau = tau.clamp(0, self.duration.max(0));
         let pv = self.p0.saturating_add(mul_shr(self.v0, tau, 32));
         if self.dv == 0 {
             return State { p: pv, v: self.v0, a: 0 };
@@ -388,7 +390,7 @@ pub(super) fn plan_position(
         // Normalised to the direction of the target: s = +-1, so the products are sign flips.
         let dn = d.saturating_mul(s);
         let u0 = b.v.saturating_mul(s);
-        let wn = end_velocity.saturating_mul(s).clamp(0, lim.vmax);
+        let wn = end_velocity.saturating_mul(s).clamp(0, lim.vmax.max(0));
         if u0 < 0 {
             b.ramp_to(0, lim.dec);
             continue;

@@ -99,7 +99,10 @@ impl AutoSetup {
 }
 
 impl Drive {
-    /// One slow tick of the auto setup (after the axis step).
+    /// One slow tick of the auto setup (after the axis step). Out of line and cold: it runs only in mode -2,
+    /// and inlined into [`Drive::slow_tick`] it would only grow that (flash, issue 17).
+    #[inline(never)]
+    #[cold]
     pub(super) fn run_auto_setup(&mut self) {
         let start_bit = self.dictionary.get(h::CONTROLWORD) & START_BIT != 0;
         let rising = start_bit && !self.auto_setup.last_start_bit;

@@ -25,12 +25,15 @@ pub const RUN: u8 = 1;
 /// 0x3205:05 after a successful run.
 pub const RESULT_DONE: u8 = 1;
 
-/// Reads a value from the dictionary's value storage (the type's default for a slot outside it).
+/// Reads a value from the dictionary's value storage (the type's default for a slot outside it). Out of line, as
+/// [`set`]: one copy per type instead of one per object (flash, issue 17).
+#[inline(never)]
 fn get<T: Scalar>(values: &[u8], handle: Handle<T>) -> T {
     values.get(handle.offset()..).and_then(|rest| rest.get(..T::SIZE)).and_then(T::from_le).unwrap_or_default()
 }
 
 /// Writes a value into the dictionary's value storage (no checks: the drive's own path, as `Dictionary::set`).
+#[inline(never)]
 fn set<T: Scalar>(values: &mut [u8], handle: Handle<T>, value: T) {
     if let Some(slot) = values.get_mut(handle.offset()..).and_then(|rest| rest.get_mut(..T::SIZE)) {
         value.to_le(slot);

@@ -304,13 +304,16 @@ struct AngleMean {
     n: i64,
 }
 
+/// Out of line: three means (offset, index, Hall edges) each inline them otherwise (flash, issue 17).
 impl AngleMean {
+    #[inline(never)]
     fn add(&mut self, angle: u32) {
         let first = *self.first.get_or_insert(angle);
         self.sum = self.sum.wrapping_add(i64::from(angle.wrapping_sub(first).cast_signed()));
         self.n = self.n.wrapping_add(1);
     }
 
+    #[inline(never)]
     fn mean(&self) -> Option<u32> {
         let first = self.first?;
         let mean = self.sum.checked_div(self.n)?;
@@ -503,6 +506,8 @@ impl ElectricalIdentification {
         status
     }
 
+    /// Out of line, as the other outputs: each step returns them from several places (flash, issue 17).
+    #[inline(never)]
     fn current(&self, i_d: f32) -> IdentificationStatus {
         IdentificationStatus::Running(Injection::Current {
             angle: ElectricalAngle(self.angle),
@@ -607,6 +612,7 @@ impl ElectricalIdentification {
         (amplitude * 1000.0).clamp(20.0, 8_000.0) as i16
     }
 
+    #[inline(never)]
     fn inductance_output(&self) -> IdentificationStatus {
         let positive = self.half.is_multiple_of(2);
         let swing = if positive { self.amplitude_mv } else { self.amplitude_mv.wrapping_neg() };
@@ -667,6 +673,7 @@ impl ElectricalIdentification {
         self.square_output()
     }
 
+    #[inline(never)]
     fn square_output(&self) -> IdentificationStatus {
         IdentificationStatus::Running(Injection::Square {
             on_d: !self.square_on_q,
@@ -709,6 +716,7 @@ impl ElectricalIdentification {
 
     /// The electrical angle the encoder shows at `position` (counts), in the field's direction, without the
     /// commutation offset.
+    #[inline(never)]
     fn encoder_angle(&self, position: i32) -> u32 {
         let counts = position.wrapping_mul(self.direction).cast_unsigned();
         counts.wrapping_mul(u32::from(self.config.pole_pairs.max(1))).wrapping_mul(self.angle_per_count)

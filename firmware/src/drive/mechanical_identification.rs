@@ -222,18 +222,28 @@ struct BlockSums {
 }
 
 impl BlockSums {
-    /// The rising half of the tent (weights 2m - 1): this block is the first of the pair.
+    /// The rising half of the tent (weights 2m - 1): this block is the first of the pair. Out of line, as
+    /// [`Self::falling`]: the pair's three regressors would inline each three times (flash, issue 17).
+    #[inline(never)]
     fn rising(&self, k: usize) -> i64 {
         let (s0, s1) = (get(&self.s0, k), get(&self.s1, k));
         s1.saturating_mul(2).saturating_sub(s0)
     }
 
     /// The falling half of the tent (weights 2N - 2m + 1): this block is the second of the pair.
+    #[inline(never)]
     fn falling(&self, k: usize) -> i64 {
         let (s0, s1) = (get(&self.s0, k), get(&self.s1, k));
         let n = i64::from(BLOCK_TICKS);
         s0.saturating_mul(n.saturating_mul(2).saturating_add(1)).saturating_sub(s1.saturating_mul(2))
     }
+}
+
+/// `a b`, saturated: the 64-bit overflow-checked product is some 20 instructions, once here instead of at each
+/// use (flash, issue 17).
+#[inline(never)]
+fn sat_mul(a: i64, b: i64) -> i64 {
+    a.saturating_mul(b)
 }
 
 fn get(a: &[i64; 3], k: usize) -> i64 {
@@ -415,14 +425,14 @@ impl MechanicalIdentification {
             }
             Phase::Stop { direction } => {
                 self.record(sample, increment, position);
-                if speed.saturating_mul(direction) <= 0 {
+                if sat_mul(speed, direction) <= 0 {
                     self.demand = 0;
                     if self.half_cycles < MIN_FIT_HALF_CYCLES {
                         return MechanicalStatus::Failed(MechanicalError::Timeout);
                     }
                     self.phase = Phase::Solve(0);
                 } else {
-                    self.ramp_towards(direction.saturating_neg().saturating_mul(self.relay_current));
+                    self.ramp_towards(sat_mul(direction.saturating_neg(), self.relay_current));
                 }
             }
             Phase::Solve(part) => {
@@ -458,11 +468,8 @@ impl MechanicalIdentification {
         if reached || (ticks >= PROBE_TICKS && last_level && gained >= i64::from(SPEED_TICKS)) {
             // Acceleration a_p = gained / ticks (counts per block per tick) at `current`; the relay wants
             // a_r = 2 w / T: I = current a_r / a_p = current 2 w ticks / (T gained).
-            let num = i128::from(current).saturating_mul(2).saturating_mul(i128::from(self.relay_speed));
-            let num = num.saturating_mul(i128::from(ticks));
-            let den = i128::from(HALF_CYCLE_TARGET_TICKS).saturating_mul(i128::from(gained.max(1)));
-            let wanted = i64::try_from(num.checked_div(den).unwrap_or(0)).unwrap_or(limit);
-            self.relay_current = wanted.clamp(limit >> (PROBE_LEVELS.saturating_add(1)), limit);
+            let wanted = relay_current_for(current, self.relay_speed, ticks, gained.max(1)).unwrap_or(limit);
+            self.relay_current = wanted.max(limit >> (PROBE_LEVELS.saturating_add(1))).min(limit);
             self.phase = Phase::Relay { direction: 1 };
             self.half_start = (0, speed);
             self.block_start = self.last_position;
@@ -489,11 +496,10 @@ impl MechanicalIdentification {
         if enough || self.relay_ticks >= MAX_RELAY_TICKS {
             let moving = if speed < 0 { -1 } else { 1 };
             self.phase = Phase::Stop { direction: moving };
-            self.ramp_towards(self.relay_current.saturating_mul(moving.saturating_neg()));
+            self.ramp_towards(sat_mul(self.relay_current, moving.saturating_neg()));
             return;
         }
-        let reached =
-            speed.saturating_mul(direction) >= self.relay_speed || (headroom && speed.saturating_mul(direction) > 0);
+        let reached = sat_mul(speed, direction) >= self.relay_speed || (headroom && sat_mul(speed, direction) > 0);
         let direction = if reached {
             self.half_cycles = self.half_cycles.saturating_add(1);
             if self.half_cycles <= ADAPTED_HALF_CYCLES {
@@ -515,7 +521,7 @@ impl MechanicalIdentification {
             direction
         };
         self.phase = Phase::Relay { direction };
-        self.ramp_towards(direction.saturating_mul(self.relay_current));
+        self.ramp_towards(sat_mul(direction, self.relay_current));
     }
 
     /// Scales the relay current by the half cycle's acceleration against the one wanted (2 w per
@@ -526,23 +532,19 @@ impl MechanicalIdentification {
         let ticks = self.relay_ticks.saturating_sub(start_tick);
         let gained = speed.saturating_sub(start_speed).saturating_abs().max(1);
         let current = self.relay_current;
-        let wanted = i128::from(current)
-            .saturating_mul(2)
-            .saturating_mul(i128::from(self.relay_speed))
-            .saturating_mul(i128::from(ticks))
-            .checked_div(i128::from(HALF_CYCLE_TARGET_TICKS).saturating_mul(i128::from(gained)))
-            .and_then(|w| i64::try_from(w).ok())
-            .unwrap_or(current);
+        let wanted = relay_current_for(current, self.relay_speed, ticks, gained).unwrap_or(current);
         let limit = i64::from(self.config.current_limit.to_bits());
-        let wanted = wanted.clamp(current / 2, current.saturating_mul(2));
-        self.relay_current = wanted.clamp(limit >> PROBE_LEVELS.saturating_add(1), limit);
+        let wanted = wanted.max(current / 2).min(current.saturating_mul(2));
+        self.relay_current = wanted.max(limit >> PROBE_LEVELS.saturating_add(1)).min(limit);
     }
 
-    /// Moves the demand towards `target` by at most a [`RAMP_TICKS`]-th of a full reversal.
+    /// Moves the demand towards `target` by at most a [`RAMP_TICKS`]-th of a full reversal. The bounds here and in
+    /// the relay current's are ordered (a positive limit and rate) and taken with max/min: `clamp` would assert
+    /// their order with a formatted panic (flash in the images that print panics, issue 17).
     fn ramp_towards(&mut self, target: i64) {
         let rate = self.relay_current.saturating_mul(2).checked_div(i64::from(RAMP_TICKS)).unwrap_or(0);
         let rate = rate.max(1);
-        let change = target.saturating_sub(self.demand).clamp(rate.saturating_neg(), rate);
+        let change = target.saturating_sub(self.demand).max(rate.saturating_neg()).min(rate);
         self.demand = self.demand.saturating_add(change);
     }
 
@@ -567,7 +569,7 @@ impl MechanicalIdentification {
         // the dead-time voltage is a function of the sign alone; by the demand's sign, which includes the braking
         // ticks whose current fell short, the gimbal's kt was 1.8 % off instead of 0.7 %).
         if !excluded && i_q.saturating_mul(2).abs() >= self.relay_current {
-            let resistance_drop = i64::from(self.config.phase_resistance_milliohm).saturating_mul(i_q) / 1000;
+            let resistance_drop = sat_mul(i64::from(self.config.phase_resistance_milliohm), i_q) / 1000;
             let y = i64::from(sample.v_q.to_bits()).saturating_sub(resistance_drop);
             self.electrical.add([increment, i_q.signum(), 1], y);
         }
@@ -580,7 +582,7 @@ impl MechanicalIdentification {
         for (k, x) in values.iter().enumerate() {
             if let (Some(s0), Some(s1)) = (self.block.s0.get_mut(k), self.block.s1.get_mut(k)) {
                 *s0 = s0.saturating_add(*x);
-                *s1 = s1.saturating_add(x.saturating_mul(m));
+                *s1 = s1.saturating_add(sat_mul(*x, m));
             }
         }
         if self.block_tick >= BLOCK_TICKS {
@@ -671,6 +673,19 @@ impl MechanicalIdentification {
     }
 }
 
+/// The relay current that gains the relay speed `w` in [`HALF_CYCLE_TARGET_TICKS`] where `current` gained `gained`
+/// (at least 1) in `ticks`: `current 2 w ticks / (T gained)`; `None` beyond `i64`. The wrapping products are
+/// exact: |current| <= 2^31 (a current's bits), |w| < 2^63 and ticks < 2^32 keep the numerator below 2^127, and
+/// T < 2^32 with gained < 2^63 the denominator below 2^95. One function for the probe and the relay's
+/// adaptation: 128-bit arithmetic inlined at both costs flash (issue 17).
+#[inline(never)]
+fn relay_current_for(current: i64, relay_speed: i64, ticks: u32, gained: i64) -> Option<i64> {
+    let num = i128::from(current).wrapping_mul(2).wrapping_mul(i128::from(relay_speed)).wrapping_mul(i128::from(ticks));
+    let den = i128::from(HALF_CYCLE_TARGET_TICKS).wrapping_mul(i128::from(gained));
+    // The truncated quotient on the hardware divider (the library's 128-bit division is inlined in full).
+    i64::try_from(wide::div_shl(num, den, 0)).ok()
+}
+
 /// Normal equations of a three-coefficient least-squares fit `y = b . x` (no constant unless one of `x` is 1),
 /// accumulated in `i128`: each product of two `i64` fits, and 2^63 sums of them would be needed to overflow.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -708,7 +723,8 @@ pub struct Solution3 {
 }
 
 impl Regression3 {
-    /// Adds one equation.
+    /// Adds one equation. The sums wrap exactly as they would saturate: each product is below 2^126 and no
+    /// experiment adds 2^63 equations (the type's note).
     pub fn add(&mut self, x: [i64; 3], y: i64) {
         let p = |a: i64, b: i64| i128::from(a).wrapping_mul(i128::from(b));
         for j in 0..3 {
@@ -716,14 +732,14 @@ impl Regression3 {
             for k in j..3 {
                 let xk = x.get(k).copied().unwrap_or(0);
                 if let Some(s) = self.xx.get_mut(sym(j, k)) {
-                    *s = s.saturating_add(p(xj, xk));
+                    *s = s.wrapping_add(p(xj, xk));
                 }
             }
             if let Some(s) = self.xy.get_mut(j) {
-                *s = s.saturating_add(p(xj, y));
+                *s = s.wrapping_add(p(xj, y));
             }
         }
-        self.yy = self.yy.saturating_add(p(y, y));
+        self.yy = self.yy.wrapping_add(p(y, y));
     }
 
     /// Solves by Cramer's rule on the equations scaled so that each diagonal entry (and y y) has at most
@@ -731,19 +747,13 @@ impl Regression3 {
     /// Cauchy-Schwarz). `None` for singular equations.
     #[must_use]
     pub fn solve(&self) -> Option<Solution3> {
-        let shift_for = |v: i128| -> u32 {
-            let bits = 128u32.saturating_sub(v.unsigned_abs().leading_zeros());
-            bits.saturating_sub(SCALED_BITS).div_ceil(2)
-        };
-        let e = [0, 1, 2].map(|j| shift_for(self.xx.get(sym(j, j)).copied().unwrap_or(0)));
-        let ey = shift_for(self.yy);
+        let e = [0, 1, 2].map(|j| scale_shift(self.xx.get(sym(j, j)).copied().unwrap_or(0)));
+        let ey = scale_shift(self.yy);
         let ej = |j: usize| e.get(j).copied().unwrap_or(0);
-        let shr = |v: i128, s: u32| {
-            let v = if s == 0 { v } else { wide::round_shr(v, s.min(126)) };
-            i64::try_from(v.clamp(i128::from(-ENTRY_BOUND), i128::from(ENTRY_BOUND))).unwrap_or(0)
+        let m = |j: usize, k: usize| {
+            scaled_entry(self.xx.get(sym(j, k)).copied().unwrap_or(0), ej(j).saturating_add(ej(k)))
         };
-        let m = |j: usize, k: usize| shr(self.xx.get(sym(j, k)).copied().unwrap_or(0), ej(j).saturating_add(ej(k)));
-        let r = |j: usize| shr(self.xy.get(j).copied().unwrap_or(0), ej(j).saturating_add(ey));
+        let r = |j: usize| scaled_entry(self.xy.get(j).copied().unwrap_or(0), ej(j).saturating_add(ey));
         let a = [[m(0, 0), m(0, 1), m(0, 2)], [m(1, 0), m(1, 1), m(1, 2)], [m(2, 0), m(2, 1), m(2, 2)]];
         let rhs = [r(0), r(1), r(2)];
         let det = det3(&a);
@@ -766,6 +776,20 @@ impl Regression3 {
     }
 }
 
+/// The shift of a column (or of y) that leaves its diagonal entry with at most [`SCALED_BITS`] bits.
+fn scale_shift(v: i128) -> u32 {
+    let bits = 128u32.saturating_sub(v.unsigned_abs().leading_zeros());
+    bits.saturating_sub(SCALED_BITS).div_ceil(2)
+}
+
+/// A sum shifted right by `s` (rounded) and clamped to [`ENTRY_BOUND`]. Out of line: [`Regression3::solve`]
+/// scales twelve entries, and the 128-bit shift and clamp inlined at each cost kilobytes of flash (issue 17).
+#[inline(never)]
+fn scaled_entry(v: i128, s: u32) -> i64 {
+    let v = if s == 0 { v } else { wide::round_shr(v, s.min(126)) };
+    i64::try_from(v.clamp(i128::from(-ENTRY_BOUND), i128::from(ENTRY_BOUND))).unwrap_or(0)
+}
+
 /// The largest magnitude of a scaled entry: 2^41 (the scaling leaves them at or below 2^40 plus rounding; the clamp
 /// makes the bound hold whatever the sums).
 const ENTRY_BOUND: i64 = 1 << 41;
@@ -773,6 +797,7 @@ const ENTRY_BOUND: i64 = 1 << 41;
 /// The determinant of a 3x3 matrix of entries of at most [`ENTRY_BOUND`]: minors below 2^83, terms below 2^124, the
 /// sum below 2^126, so the wrapping operations are exact (and cheap on the Cortex-M4: 64 x 64-bit products for the
 /// minors, one 128-bit product per term).
+#[inline(never)]
 fn det3(a: &[[i64; 3]; 3]) -> i128 {
     let e = |r: usize, c: usize| i128::from(a.get(r).and_then(|row| row.get(c)).copied().unwrap_or(0));
     let minor = |r0: usize, r1: usize, c0: usize, c1: usize| {
@@ -827,9 +852,10 @@ fn fraction(num: i128, den: i128, exp: i32, mul: u64, div: u64) -> Option<i64> {
     if den == 0 {
         return None;
     }
-    // |num| < 2^62, mul < 2^64: the product is below 2^126; so is den div.
-    let p = num.checked_mul(i128::from(mul))?;
-    let mut q = den.checked_mul(i128::from(div))?;
+    // |num| < 2^62, mul < 2^64: the product is below 2^126; so is den div. The wrapping products are exact (and
+    // far smaller in flash than the overflow-checked ones, issue 17).
+    let p = num.wrapping_mul(i128::from(mul));
+    let mut q = den.wrapping_mul(i128::from(div));
     // One extra bit for the rounding.
     let s = if exp >= 0 {
         u32::try_from(exp).ok()?.saturating_add(1)

@@ -921,10 +921,11 @@ impl Drive {
         self.update_demand();
     }
 
-    /// Clamps the loops' demand to the current limit in force.
+    /// Clamps the loops' demand to the current limit in force (max/min: `clamp` would assert the bounds' order with
+    /// a formatted panic, flash in the images that print panics, issue 17; a limit is not negative).
     fn clamp_internal_demand(&mut self) {
         let limit = self.scale.current_limit().to_bits();
-        self.internal = Amps::from_bits(self.internal.to_bits().clamp(limit.wrapping_neg(), limit));
+        self.internal = Amps::from_bits(self.internal.to_bits().max(limit.wrapping_neg()).min(limit));
     }
 
     /// Reads encoder, pole pairs and Hall objects (writable only with the power disabled) into the commutation

@@ -251,7 +251,8 @@ impl Loops {
                 let clamped = i16::try_from(permille).unwrap_or(if permille < 0 { i16::MIN } else { i16::MAX });
                 let (_, i) = scale.torque_to_current(clamped, 0);
                 let l = limit.to_bits().max(0);
-                let bits = i.to_bits().clamp(l.wrapping_neg(), l);
+                // max/min as `Drive::clamp_internal_demand` (no formatted panic for the bounds' order).
+                let bits = i.to_bits().max(l.wrapping_neg()).min(l);
                 (Amps::from_bits(bits), bits != i.to_bits(), 0, Active::Torque)
             }
         };
