@@ -173,10 +173,8 @@ impl Drive {
                 let average = |k: usize, last: i32| {
                     let previous = self.auto_setup.last_q_sums.and_then(|(_, sums)| sums.get(k).copied());
                     let now = report.q_sums.get(k).copied().unwrap_or(0);
-                    previous
-                        .and_then(|p| now.wrapping_sub(p).checked_div(i32::try_from(periods).ok()?))
-                        .filter(|_| periods > 0)
-                        .unwrap_or(last)
+                    // No previous report, or no period between the two (a division by zero): the last period's.
+                    previous.and_then(|p| now.wrapping_sub(p).checked_div(i32::try_from(periods).ok()?)).unwrap_or(last)
                 };
                 let sample = MechanicalSample {
                     position: report.encoder_position,
@@ -347,9 +345,7 @@ impl Drive {
             Ok(()) => self.finish_auto_setup(),
             Err(_) => {
                 let reason = i32::from(self.dictionary.get(h::AUTO_TUNING_RESULT));
-                self.auto_setup.phase = Phase::Failed;
-                self.dictionary.set(h::IDENTIFICATION_STEP, step::FAILED);
-                self.raise(FaultId::AutoTuningParameter, reason);
+                self.end_with_fault(FaultId::AutoTuningParameter, reason);
             }
         }
     }
@@ -362,11 +358,7 @@ impl Drive {
             MechanicalError::SampleMismatch => FaultId::AutoTuningSampleMismatch,
             MechanicalError::InvalidConfig => FaultId::AutoTuningParameter,
         };
-        self.auto_setup.phase = Phase::Failed;
-        self.dictionary.set(h::IDENTIFICATION_STEP, step::FAILED);
-        self.setpoint.i_q = Amps::ZERO;
-        self.setpoint.i_d = Amps::ZERO;
-        self.raise(fault, i32::from(error.code()));
+        self.end_with_fault(fault, i32::from(error.code()));
     }
 
     fn finish_auto_setup(&mut self) {
@@ -377,11 +369,16 @@ impl Drive {
     }
 
     fn fail_auto_setup(&mut self, error: IdentificationError) {
+        self.end_with_fault(error.fault(), error.detail());
+    }
+
+    /// Every way the procedure fails: step 255, no current demanded, and the fault raised (class d: `raise`
+    /// switches the power stage off at once).
+    fn end_with_fault(&mut self, fault: FaultId, detail: i32) {
         self.auto_setup.phase = Phase::Failed;
         self.dictionary.set(h::IDENTIFICATION_STEP, step::FAILED);
         self.setpoint.i_q = Amps::ZERO;
         self.setpoint.i_d = Amps::ZERO;
-        // Class d: `raise` switches the power stage off at once.
-        self.raise(error.fault(), error.detail());
+        self.raise(fault, detail);
     }
 }

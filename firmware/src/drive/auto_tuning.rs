@@ -14,7 +14,7 @@ use super::tuning::{tune, GainObject, PlantValue, Resonance, TunedGains, TuningE
 use crate::od::abort::SdoAbort;
 use crate::od::entry::Handle;
 use crate::od::generated::handles as h;
-use crate::od::values::Scalar;
+use crate::od::values::{read_slot, write_slot, Scalar};
 
 /// 0x3205 *Auto tuning*.
 pub const AUTO_TUNING: u16 = 0x3205;
@@ -29,15 +29,13 @@ pub const RESULT_DONE: u8 = 1;
 /// [`set`]: one copy per type instead of one per object (flash, issue 17).
 #[inline(never)]
 fn get<T: Scalar>(values: &[u8], handle: Handle<T>) -> T {
-    values.get(handle.offset()..).and_then(|rest| rest.get(..T::SIZE)).and_then(T::from_le).unwrap_or_default()
+    read_slot(values, handle)
 }
 
 /// Writes a value into the dictionary's value storage (no checks: the drive's own path, as `Dictionary::set`).
 #[inline(never)]
 fn set<T: Scalar>(values: &mut [u8], handle: Handle<T>, value: T) {
-    if let Some(slot) = values.get_mut(handle.offset()..).and_then(|rest| rest.get_mut(..T::SIZE)) {
-        value.to_le(slot);
-    }
+    write_slot(values, handle, value);
 }
 
 /// The plant as the motor data objects give it: 0x3002:01 (uOhm), :02 Lq and :03 Ld (uH, 0 = Lq), 0x3001:05 kt

@@ -386,20 +386,18 @@ impl Tier1State {
             let mut v_dq = Dq::new(volts(packed), volts(packed >> 16));
             let sc = sin_cos(angle);
             let i_dq = park(clarke(i_abc), sc);
-            if level == PowerLevel::InjectSquareQ {
-                v_dq.q = self.square.step(i_dq.q, v_dq.q);
-                // The running totals travel in the report's (unused) current reference.
-                self.signals.i_ref =
-                    Dq::new(Amps::from_bits(self.square.sum), Amps::from_bits(self.square.count.cast_signed()));
-            } else if level == PowerLevel::InjectSquareD {
-                let swing = self.square.step(i_dq.d, v_dq.q);
-                v_dq = Dq::new(Volts::from_bits(v_dq.d.to_bits().wrapping_add(swing.to_bits())), Volts::ZERO);
-                // The running totals travel in the report's (unused) current reference.
-                self.signals.i_ref =
-                    Dq::new(Amps::from_bits(self.square.sum), Amps::from_bits(self.square.count.cast_signed()));
-            } else {
-                self.signals.i_ref = Dq::default();
-            }
+            self.signals.i_ref = match level {
+                PowerLevel::InjectSquareQ => {
+                    v_dq.q = self.square.step(i_dq.q, v_dq.q);
+                    self.square.totals()
+                }
+                PowerLevel::InjectSquareD => {
+                    let swing = self.square.step(i_dq.d, v_dq.q);
+                    v_dq = Dq::new(Volts::from_bits(v_dq.d.to_bits().wrapping_add(swing.to_bits())), Volts::ZERO);
+                    self.square.totals()
+                }
+                _ => Dq::default(),
+            };
             let modulator = self.controller.modulator();
             let modulated = modulator.modulate(inverse_park(v_dq, sc), v_bus);
             let mut c = modulated.compare_ticks;
@@ -509,6 +507,12 @@ impl Tier1State {
 }
 
 impl SquareWave {
+    /// The running totals as they travel in the report's current reference, unused during an injection: the sum
+    /// of the signed increments (d) and their count (q).
+    fn totals(&self) -> Dq<Amps> {
+        Dq::new(Amps::from_bits(self.sum), Amps::from_bits(self.count.cast_signed()))
+    }
+
     /// One period with the q current `i_q` sampled: the q voltage to apply (+-`amplitude`).
     fn step(&mut self, i_q: Amps, amplitude: Volts) -> Volts {
         let tick = self.tick;

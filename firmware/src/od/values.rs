@@ -95,6 +95,22 @@ pub fn set_unsigned(bytes: &mut [u8], entry: &Entry, value: u64) -> bool {
     }
 }
 
+/// Reads the value of `handle` from a value storage's bytes ([`Values::get`], and the application objects, which
+/// are handed the storage as bytes); a slot outside `bytes` reads as the type's default.
+#[inline]
+pub fn read_slot<T: Scalar>(bytes: &[u8], handle: Handle<T>) -> T {
+    bytes.get(handle.offset()..).and_then(|rest| rest.get(..T::SIZE)).and_then(T::from_le).unwrap_or_default()
+}
+
+/// Writes the value of `handle` into a value storage's bytes without checks ([`Values::set`]); a slot outside
+/// `bytes` is ignored.
+#[inline]
+pub fn write_slot<T: Scalar>(bytes: &mut [u8], handle: Handle<T>, value: T) {
+    if let Some(slot) = bytes.get_mut(handle.offset()..).and_then(|rest| rest.get_mut(..T::SIZE)) {
+        value.to_le(slot);
+    }
+}
+
 /// The value storage of a dictionary: `N` bytes (by default the generated `VALUE_BYTES`) holding every RAM entry.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Values<const N: usize = VALUE_BYTES> {
@@ -133,16 +149,14 @@ impl<const N: usize> Values<N> {
     /// handles never do) reads as the type's default.
     #[inline]
     pub fn get<T: Scalar>(&self, handle: Handle<T>) -> T {
-        self.bytes.get(handle.offset()..).and_then(|rest| rest.get(..T::SIZE)).and_then(T::from_le).unwrap_or_default()
+        read_slot(&self.bytes, handle)
     }
 
     /// Writes a typed value without the SDO checks (limits, access, state): the control tiers' path for values
     /// they own (actual values, statusword). A slot outside the storage is ignored.
     #[inline]
     pub fn set<T: Scalar>(&mut self, handle: Handle<T>, value: T) {
-        if let Some(slot) = self.bytes.get_mut(handle.offset()..).and_then(|rest| rest.get_mut(..T::SIZE)) {
-            value.to_le(slot);
-        }
+        write_slot(&mut self.bytes, handle, value);
     }
 
     /// The whole storage, for the parameter store.

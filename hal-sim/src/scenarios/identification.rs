@@ -8,7 +8,7 @@ use firmware::comm::sdo::server::SdoServer;
 use firmware::drive::DriveConfig;
 use firmware::od::access::{AccessContext, CommState, NoApplicationObjects};
 
-use crate::plant::{PlantParams, PERIOD_S};
+use crate::plant::PlantParams;
 use crate::sim::Simulation;
 
 /// Periods between the master's polls (10 ms).
@@ -268,7 +268,6 @@ pub fn identify(params: &PlantParams, seed: u64, setup: impl FnOnce(&mut Simulat
         hall_offset: read(0x301A, 3) as u16,
         encoder_type: read(0x3010, 2) as u16,
     };
-    let _ = PERIOD_S;
     let parameters = Parameters {
         values: IDENTIFIED_OBJECTS
             .iter()
