@@ -64,6 +64,24 @@
 //! (above 1,030 per mille) or a heavy rigid load needs more; then Ki is held at that maximum (a smaller integral
 //! gain only slows the friction's compensation) and [`TuningDesign::position_integral_limited`] says so.
 //!
+//! # What no gain here removes: the current sensing on a small motor
+//! Below the current loop's bandwidth the loop makes the *measured* current follow its reference, so the true
+//! current carries the measurement's error: the ADC's step (8 mA on the reference power stage's +-16.5 A span) and
+//! its noise. That error is a torque `kt dI` on the inertia J, which the velocity loop rejects only below its
+//! crossover (bounded by the 2.5 kHz loops' delay, [`STIFFNESS_RANGE_PERMILLE`]); the speed ripple it leaves grows
+//! with `kt / J` and not with any gain of the current loop (its bandwidth changes what lies above the velocity
+//! crossover only). The small gimbal (`hal-sim/presets/small-gimbal.toml`, kt / J = 50,000 1/(A s^2) against the
+//! reference's 1,903) keeps 1.8 rpm RMS of speed ripple under its 24 rpm `drive-sim csv-sweep` step (0.9 rpm
+//! without the shunt noise), which puts the step's peak 17.5 to 23.5 % over the target and leaves the CSP move
+//! stopped 1 to 5 increments (of 16,384 per turn) off its target, stuck on the Coulomb friction (12 mA) that the
+//! position PID's proportional part alone meets only 27 increments away. Tried on that preset and not taken, as
+//! they trade one figure for another or for stability (`tests/tests/drive/auto_tune_scenarios.rs`): the velocity
+//! filter at 1,250 Hz (mean peak 20.6 -> 19.3 %), the observer (0x30A3: twice the ripple, its estimate follows the
+//! model's current, not the true one), 1.5 to 2 times the velocity crossover (17 to 18 %), the velocity integral
+//! 3 times (21 %), a Coulomb friction feed-forward (22 %: a faster rise under the same ripple), the position
+//! integral 2 times (settle 1 to 3 increments; without the loops' delay it leaves the integral pair a damping of
+//! 0.13 against the design's 0.34, and 2.5 times oscillates).
+//!
 //! All gains are rounded to their objects' units; a gain that its object (or the fixed-point range of the
 //! controller behind it: 64 V/A for 0x30A0:01, `control::pi`) cannot hold is an error naming the object.
 

