@@ -3,6 +3,7 @@
 //! The file is `include!`d inside `pub mod generated { use super::entry::*; ... }` and holds:
 //! - `ENTRIES`: one `Entry` per (index, sub-index), sorted, for binary search (architecture convention 7);
 //! - `OBJECTS`: one `Object` per index, sorted, pointing into `ENTRIES`;
+//! - `NAMES`: the text of every object's and entry's name, each `Name` a place in it;
 //! - `VALUE_BYTES` and `DEFAULT_VALUES`: the RAM value storage image with every default, little-endian;
 //! - `handles`: a typed `Handle<T>` per `handle` attribute, so that the control tiers never search;
 //! - the device constants (identity, CANopen defaults, PDO limits, sync-manager layout).
@@ -184,16 +185,48 @@ fn storage(s: &SubObject, slot: Option<RamSlot>) -> Result<String, String> {
             let slot = slot.ok_or("RAM entry without a slot")?;
             format!("Storage::Ram {{ offset: {}, len: {} }}", slot.offset, slot.len)
         }
-        StorageKind::Const => match (&s.default, s.data_type.fixed_size()) {
-            (Value::Text(t), _) => format!("Storage::Const({})", byte_string(t.as_bytes())),
-            (v, Some(n)) => {
-                let bytes: Vec<String> = value_bytes(v, n).iter().map(|b| format!("0x{b:02X}")).collect();
-                format!("Storage::Const(&[{}])", bytes.join(", "))
-            }
-            (_, None) => "Storage::Const(&[])".to_string(),
-        },
+        // `Storage::Const` holds a reference to the bytes' slice (`entry.rs`).
+        StorageKind::Const => {
+            let bytes = match (&s.default, s.data_type.fixed_size()) {
+                (Value::Text(t), _) => t.as_bytes().to_vec(),
+                (v, Some(n)) => value_bytes(v, n),
+                (_, None) => Vec::new(),
+            };
+            format!("Storage::Const(&({} as &[u8]))", byte_string(&bytes))
+        }
         StorageKind::Application => "Storage::Application".to_string(),
     })
+}
+
+/// Where each name lies in the text of every name: its offset and length, by the name.
+type NamePlaces<'a> = BTreeMap<&'a str, (u16, u8)>;
+
+/// The text of every name (`NAMES`) and where each name lies in it: every distinct name once, the longest first,
+/// and a name that is already part of the text not again.
+fn name_text(d: &Description) -> Result<(String, NamePlaces<'_>), String> {
+    let mut names: Vec<&str> = d
+        .objects
+        .iter()
+        .flat_map(|o| std::iter::once(o.name.as_str()).chain(o.subs.iter().map(|s| s.name.as_str())))
+        .filter(|n| !n.is_empty())
+        .collect();
+    names.sort_by(|a, b| b.len().cmp(&a.len()).then(a.cmp(b)));
+    names.dedup();
+    let mut text = String::new();
+    let mut places = BTreeMap::new();
+    for name in names {
+        let at = text.find(name).unwrap_or_else(|| {
+            text.push_str(name);
+            text.len() - name.len()
+        });
+        let (Ok(offset), Ok(len)) = (u16::try_from(at), u8::try_from(name.len())) else {
+            return Err(format!(
+                "the name '{name}' does not fit a Name (longer than 255 bytes or past 64 KiB of names)"
+            ));
+        };
+        places.insert(name, (offset, len));
+    }
+    Ok((text, places))
 }
 
 /// Renders `od_generated.rs` for `d`. Fails only when the tables outgrow their index types (64 Ki entries or
@@ -206,7 +239,11 @@ pub fn rust(d: &Description) -> Result<String, String> {
 /// no names (the CANopen image: only the CoE SDO information service sends them) then leaves the strings out of
 /// flash.
 pub fn rust_with_names(d: &Description, names: bool) -> Result<String, String> {
-    let name = |n: &str| if names { n.to_string() } else { String::new() };
+    let (text, places) = if names { name_text(d)? } else { (String::new(), BTreeMap::new()) };
+    let name = |n: &str| match places.get(n) {
+        Some((offset, len)) => format!("Name::new({offset}, {len})"),
+        None => "Name::EMPTY".to_string(),
+    };
     let layout = ram_layout(d)?;
     let entry_count: usize = d.objects.iter().map(|o| o.subs.len()).sum();
     if entry_count > usize::from(u16::MAX) {
@@ -229,12 +266,11 @@ pub fn rust_with_names(d: &Description, names: bool) -> Result<String, String> {
         for s in &o.subs {
             let _ = writeln!(
                 w,
-                "    Entry {{ index: 0x{:04X}, sub: 0x{:02X}, name: {:?}, object_code: {}, data_type: {}, access: {}, \
-                 pdo: {}, persistent: {}, write_condition: {}, limits: &{}, storage: {}, node_id_relative: {} }},",
+                "    Entry {{ index: 0x{:04X}, sub: 0x{:02X}, name: {}, data_type: {}, access: {}, pdo: {}, \
+                 persistent: {}, write_condition: {}, limits: &{}, storage: {}, node_id_relative: {} }},",
                 o.index,
                 s.sub,
                 name(&s.name),
-                object_code(o.code),
                 data_type(s.data_type),
                 access(s.access),
                 pdo(s.pdo),
@@ -257,7 +293,7 @@ pub fn rust_with_names(d: &Description, names: bool) -> Result<String, String> {
         let max_sub = o.subs.iter().map(|s| s.sub).max().unwrap_or(0);
         let _ = writeln!(
             w,
-            "    Object {{ index: 0x{:04X}, name: {:?}, object_code: {}, max_sub: {max_sub}, first_entry: {first}, \
+            "    Object {{ index: 0x{:04X}, name: {}, object_code: {}, max_sub: {max_sub}, first_entry: {first}, \
              entry_count: {} }},",
             o.index,
             name(&o.name),
@@ -267,6 +303,9 @@ pub fn rust_with_names(d: &Description, names: bool) -> Result<String, String> {
         first += o.subs.len();
     }
     let _ = writeln!(w, "];\n");
+
+    let _ = writeln!(w, "/// The text of every name; each `Name` of `ENTRIES` and `OBJECTS` is a place in it.");
+    let _ = writeln!(w, "pub static NAMES: &str = {text:?};\n");
 
     let mut image = vec![0u8; layout.value_bytes];
     for o in &d.objects {

@@ -21,7 +21,7 @@ mod generated {
 }
 
 use entry::{Limits, Storage};
-use generated::{handles, DEFAULT_VALUES, ENTRIES, OBJECTS};
+use generated::{handles, DEFAULT_VALUES, ENTRIES, NAMES, OBJECTS};
 
 fn fixture(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures").join(name)
@@ -68,7 +68,7 @@ fn entries_are_sorted_and_objects_point_at_them() {
     for o in &OBJECTS {
         assert_eq!(usize::from(o.first_entry), next);
         let entries = &ENTRIES[next..next + usize::from(o.entry_count)];
-        assert!(entries.iter().all(|e| e.index == o.index && e.object_code == o.object_code));
+        assert!(entries.iter().all(|e| e.index == o.index));
         assert_eq!(entries.iter().map(|e| e.sub).max(), Some(o.max_sub));
         next += usize::from(o.entry_count);
     }
@@ -86,8 +86,9 @@ fn limits_storage_and_node_id_defaults() {
     assert_eq!(*entry(0x6060, 0).limits, Limits::Signed { min: -1, max: 127 });
     assert_eq!(*entry(0x1400, 2).limits, Limits::Unsigned { min: 0, max: 255 });
     assert_eq!(*entry(0x6040, 0).limits, Limits::None);
-    assert_eq!(entry(0x1008, 0).storage, Storage::Const(b"FIX-1"));
-    assert_eq!(entry(0x1018, 1).storage, Storage::Const(&[0xCE, 0x0A, 0x00, 0x00]));
+    assert_eq!(entry(0x1008, 0).storage.constant(), Some(&b"FIX-1"[..]));
+    assert_eq!(entry(0x1018, 1).storage.constant(), Some(&[0xCE, 0x0A, 0x00, 0x00][..]));
+    assert_eq!(entry(0x1400, 1).storage.constant(), None);
     assert_eq!(entry(0x1F50, 1).storage, Storage::Application);
     assert!(entry(0x1400, 1).node_id_relative);
     assert!(!entry(0x1400, 2).node_id_relative);
@@ -172,22 +173,48 @@ fn errors_stop_generation_with_the_full_report() {
     assert!(!out.exists());
 }
 
+/// Every object and entry finds its own name in `NAMES`, which holds each distinct name once at most (the
+/// description repeats "Highest sub-index supported" and others).
+#[test]
+fn names_are_places_in_the_name_text() {
+    let d = description();
+    for (o, object) in d.objects.iter().zip(&OBJECTS) {
+        assert_eq!(object.name.as_str(), o.name, "0x{:04X}", o.index);
+        for s in &o.subs {
+            assert_eq!(entry(o.index, s.sub).name.as_str(), s.name, "0x{:04X}:{:02X}", o.index, s.sub);
+        }
+    }
+    let mut distinct: Vec<&str> = d
+        .objects
+        .iter()
+        .flat_map(|o| std::iter::once(&o.name).chain(o.subs.iter().map(|s| &s.name)))
+        .map(String::as_str)
+        .collect();
+    distinct.sort_unstable();
+    distinct.dedup();
+    assert!(NAMES.len() <= distinct.iter().map(|n| n.len()).sum::<usize>(), "a name written twice");
+    assert!(NAMES.len() < d.objects.iter().flat_map(|o| &o.subs).map(|s| s.name.len()).sum::<usize>());
+}
+
 /// Without names (the firmware's CANopen image on the target, which serves no names), every object and entry of
-/// the generated tables has an empty name and nothing else differs.
+/// the generated tables has an empty name, the name text is empty, and nothing else differs.
 #[test]
 fn tables_without_names_differ_only_in_the_names() {
     let with = od_gen::rust_gen::rust(&description()).expect("generation");
     let without = od_gen::rust_gen::rust_with_names(&description(), false).expect("generation");
-    // `name: "..."` emptied in the tables with names (no name holds an escaped quote).
+    // Every `Name::new(offset, len)` emptied, and the text of `NAMES` too.
     let mut emptied = String::new();
     let mut rest = with.as_str();
-    while let Some(at) = rest.find("name: \"") {
-        let (head, tail) = rest.split_at(at + "name: \"".len());
-        emptied.push_str(head);
-        let end = tail.find('"').expect("a closing quote");
-        rest = &tail[end..];
+    while let Some(at) = rest.find("Name::new(") {
+        emptied.push_str(&rest[..at]);
+        emptied.push_str("Name::EMPTY");
+        let tail = &rest[at..];
+        rest = &tail[tail.find(')').expect("a closing parenthesis") + 1..];
     }
     emptied.push_str(rest);
+    let names_line = format!("pub static NAMES: &str = {NAMES:?};");
+    assert!(emptied.contains(&names_line), "the name text as generated");
+    let emptied = emptied.replace(&names_line, "pub static NAMES: &str = \"\";");
     assert_ne!(with, without, "the description has names");
     assert_eq!(emptied, without);
 }

@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use firmware::od::entry::{Access, Storage};
-use firmware::od::generated::{DEFAULT_VALUES, ENTRIES};
+use firmware::od::generated::{DEFAULT_VALUES, ENTRIES, OBJECTS};
 
 fn workspace() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
@@ -60,8 +60,8 @@ fn entries_json(node_id: u8) -> String {
              \"pdo\": {}, \"node_id_relative\": {}, \"default\": {}}}{}",
             e.index,
             e.sub,
-            json_string(e.name),
-            e.object_code.code(),
+            json_string(e.name.as_str()),
+            OBJECTS.iter().find(|o| o.index == e.index).expect("the entry's object").object_code.code(),
             e.data_type.code(),
             e.pdo != firmware::od::entry::PdoMapping::No,
             e.node_id_relative,

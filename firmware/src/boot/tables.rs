@@ -22,8 +22,8 @@ pub const BOOTLOADER_DEVICE_TYPE: u32 = 0x0000_012E;
 /// 0x100A *Manufacturer software version*.
 pub const MANUFACTURER_SOFTWARE_VERSION: u16 = 0x100A;
 
-const DEVICE_TYPE_BYTES: [u8; 4] = BOOTLOADER_DEVICE_TYPE.to_le_bytes();
-const ZERO_U32: [u8; 4] = [0; 4];
+const DEVICE_TYPE_BYTES: &[u8] = &BOOTLOADER_DEVICE_TYPE.to_le_bytes();
+const ZERO_U32: &[u8] = &[0; 4];
 
 /// Objects the stopped program keeps (E4 Table 4-33, plus 0x1F57 from IDX L3413).
 const BOOTLOADER_OBJECTS: [u16; 7] = [0x1000, 0x1008, 0x1018, 0x1F50, 0x1F51, 0x1F56, 0x1F57];
@@ -147,7 +147,7 @@ mod tests {
         let t = BOOTLOADER_TABLE;
         assert_eq!(t.find(0x6040, 0).err(), Some(SdoAbort::ObjectDoesNotExist));
         assert_eq!(t.find(0x1010, 1).err(), Some(SdoAbort::ObjectDoesNotExist));
-        assert_eq!(t.find(0x1000, 0).map(|e| e.storage), Ok(Storage::Const(&[0x2E, 0x01, 0, 0])));
+        assert_eq!(t.find(0x1000, 0).map(|e| e.storage.constant()), Ok(Some(&[0x2E, 0x01, 0, 0][..])));
         for index in BOOTLOADER_OBJECTS {
             assert!(!t.entries_of(index).is_empty(), "{index:#06x}");
             let o = t.object(index).unwrap();

@@ -65,7 +65,7 @@ pub fn read<const N: usize>(d: &Dictionary<N>, index: u16, sub: u8) -> Option<u6
     match entry.storage {
         Storage::Const(bytes) if bytes.len() <= 8 => {
             let mut wide = [0u8; 8];
-            for (w, b) in wide.iter_mut().zip(bytes) {
+            for (w, b) in wide.iter_mut().zip(bytes.iter()) {
                 *w = *b;
             }
             Some(u64::from_le_bytes(wide))

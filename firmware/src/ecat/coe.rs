@@ -459,7 +459,7 @@ impl Coe {
         put(&mut buf, 0, &index.to_le_bytes());
         put(&mut buf, 2, &object_data_type(table, object).to_le_bytes());
         put(&mut buf, 4, &[object.max_sub, object.object_code.code()]);
-        let name = object.name.as_bytes();
+        let name = object.name.as_str().as_bytes();
         let name = name.get(..name.len().min(DESCRIPTION_BYTES - 6)).unwrap_or(&[]);
         put(&mut buf, 6, name);
         let len = 6usize.saturating_add(name.len());
@@ -476,7 +476,7 @@ impl Coe {
         put(&mut buf, 4, &entry.data_type.code().to_le_bytes());
         put(&mut buf, 6, &bit_length(entry).to_le_bytes());
         put(&mut buf, 8, &object_access(entry).to_le_bytes());
-        let name = entry.name.as_bytes();
+        let name = entry.name.as_str().as_bytes();
         let name = name.get(..name.len().min(DESCRIPTION_BYTES - 10)).unwrap_or(&[]);
         put(&mut buf, 10, name);
         let len = 10usize.saturating_add(name.len());

@@ -393,7 +393,7 @@ impl<const N: usize> Dictionary<N> {
         }
         let value = match entry.storage {
             Storage::Application => return app.read(entry, offset, buf),
-            Storage::Const(bytes) => bytes,
+            Storage::Const(bytes) => *bytes,
             Storage::Ram { .. } => self.values.raw(entry).ok_or(SdoAbort::InternalIncompatibility)?,
         };
         let value = if entry.data_type == DataType::VisibleString {
@@ -575,14 +575,13 @@ impl<const N: usize> Dictionary<N> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::od::entry::{Access, ObjectCode, PdoMapping};
+    use crate::od::entry::{Access, Name, ObjectCode, PdoMapping};
 
     const fn entry(index: u16, sub: u8, data_type: DataType, access: Access, storage: Storage) -> Entry {
         Entry {
             index,
             sub,
-            name: "test",
-            object_code: if sub == 0 { ObjectCode::Var } else { ObjectCode::Record },
+            name: Name::EMPTY,
             data_type,
             access,
             pdo: PdoMapping::No,
@@ -620,7 +619,7 @@ mod tests {
     }
 
     static ENTRIES: [Entry; 12] = [
-        entry(0x1008, 0, DataType::VisibleString, Access::Const, Storage::Const(b"OSD\0x")),
+        entry(0x1008, 0, DataType::VisibleString, Access::Const, Storage::Const(&(b"OSD\0x" as &[u8]))),
         entry(0x1010, 1, DataType::Unsigned32, Access::ReadWrite, Storage::Application),
         mapping(0x1600, 0, 0),
         mapping(0x1600, 1, 1),
@@ -641,7 +640,7 @@ mod tests {
     ];
 
     const fn object(index: u16, first_entry: u16, entry_count: u16) -> Object {
-        Object { index, name: "test", object_code: ObjectCode::Var, max_sub: 0, first_entry, entry_count }
+        Object { index, name: Name::EMPTY, object_code: ObjectCode::Var, max_sub: 0, first_entry, entry_count }
     }
 
     static OBJECTS: [Object; 9] = [

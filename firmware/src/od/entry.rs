@@ -43,11 +43,55 @@ pub enum Storage {
         /// Capacity in bytes (the type size, or the maximum length of a string).
         len: u16,
     },
-    /// A constant in flash (device name, version strings, constant identity fields).
-    Const(&'static [u8]),
+    /// A constant in flash (device name, version strings, constant identity fields). A thin reference to the
+    /// bytes' slice: 4 bytes instead of the slice's 8, which makes `Storage` 8 bytes instead of 12 in each of the
+    /// several hundred entries, for 8 bytes of slice per constant.
+    Const(&'static &'static [u8]),
     /// Read and written by the application (program data 0x1F50, store/restore signatures 0x1010/0x1011):
     /// the access layer checks permissions and sizes, then hands the transfer to the application.
     Application,
+}
+
+impl Storage {
+    /// The bytes of a constant entry, `None` for the others.
+    #[must_use]
+    pub const fn constant(self) -> Option<&'static [u8]> {
+        match self {
+            Self::Const(bytes) => Some(*bytes),
+            Self::Ram { .. } | Self::Application => None,
+        }
+    }
+}
+
+/// The name of an object or entry: its place in the generated text of every name, `NAMES` (od-gen writes each
+/// name once, and a name that is part of another one not at all). Three bytes instead of a `&str`'s eight in each
+/// entry and object; the CANopen image, which serves no names, has an empty `NAMES` and every name empty.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Name([u8; 3]);
+
+impl Name {
+    /// The empty name.
+    pub const EMPTY: Self = Self::new(0, 0);
+
+    /// The `len` bytes at `offset` in `NAMES`. Only generated code and tests create names.
+    pub const fn new(offset: u16, len: u8) -> Self {
+        let [lo, hi] = offset.to_le_bytes();
+        Self([lo, hi, len])
+    }
+
+    /// The text, empty when it lies outside `NAMES` (never for a generated name).
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        let [lo, hi, len] = self.0;
+        let start = usize::from(u16::from_le_bytes([lo, hi]));
+        super::generated::NAMES.get(start..start.saturating_add(usize::from(len))).unwrap_or("")
+    }
+}
+
+impl core::fmt::Display for Name {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(self.as_str())
+    }
 }
 
 /// One sub-object of the dictionary. The generated table holds one per (index, sub-index), sorted.
@@ -57,10 +101,8 @@ pub struct Entry {
     pub index: u16,
     /// Sub-index (0 for a VAR).
     pub sub: u8,
-    /// Name of the sub-object (for a VAR, the object's name).
-    pub name: &'static str,
-    /// Object code of the object this entry belongs to.
-    pub object_code: ObjectCode,
+    /// Name of the sub-object (for a VAR, the object's name). The object code is the object's ([`Object`]).
+    pub name: Name,
     /// Data type of the value.
     pub data_type: DataType,
     /// Access type.
@@ -72,7 +114,8 @@ pub struct Entry {
     /// When writes are accepted.
     pub write_condition: WriteCondition,
     /// Range for writes. A reference: most entries share a few ranges, and a 4-byte pointer instead of the
-    /// 24-byte enum in each of the several hundred entries saves about 8.5 KB of flash (56 to 36 bytes an entry).
+    /// 24-byte enum in each of the several hundred entries saves about 8.5 KB of flash (56 to 36 bytes an entry;
+    /// the thin [`Storage::Const`], the three-byte [`Name`] and the object code left to [`Object`] then 24).
     pub limits: &'static Limits,
     /// Where the value lives.
     pub storage: Storage,
@@ -98,7 +141,7 @@ pub struct Object {
     /// Object index.
     pub index: u16,
     /// Name of the object.
-    pub name: &'static str,
+    pub name: Name,
     /// VAR, ARRAY or RECORD.
     pub object_code: ObjectCode,
     /// Highest sub-index declared for the object.

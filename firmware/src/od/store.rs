@@ -40,6 +40,7 @@
 //!          to the flash write size
 //! ```
 
+use crate::boot::crc32::Crc32;
 use crate::hal::flash::{FlashError, Geometry, NorFlash};
 use crate::od::abort::SdoAbort;
 use crate::od::access::{ApplicationObjects, ReadOutcome};
@@ -297,56 +298,14 @@ pub const fn sequence_newer(a: u32, b: u32) -> bool {
 }
 
 // ---------------------------------------------------------------------------------------------------------------
-// CRC-32 (IEEE 802.3, reflected polynomial 0xEDB88320, initial value and final XOR 0xFFFFFFFF).
-
-const fn crc_table() -> [u32; 256] {
-    let mut table = [0u32; 256];
-    let mut i: u32 = 0;
-    while i < 256 {
-        let mut c = i;
-        let mut k: u32 = 0;
-        while k < 8 {
-            c = if c & 1 != 0 { 0xEDB8_8320 ^ (c >> 1) } else { c >> 1 };
-            k = k.wrapping_add(1);
-        }
-        // In bounds: i < 256 = table length. Const evaluation would fail the build otherwise.
-        #[allow(clippy::indexing_slicing)]
-        {
-            table[i as usize] = c;
-        }
-        i = i.wrapping_add(1);
-    }
-    table
-}
-
-static CRC_TABLE: [u32; 256] = crc_table();
-
-/// Running CRC-32 state.
-#[derive(Clone, Copy, Debug)]
-struct Crc32(u32);
-
-impl Crc32 {
-    const fn new() -> Self {
-        Self(0xFFFF_FFFF)
-    }
-
-    fn update(&mut self, data: &[u8]) {
-        for &b in data {
-            let i = usize::from((self.0 as u8) ^ b);
-            self.0 = CRC_TABLE.get(i).copied().unwrap_or(0) ^ (self.0 >> 8);
-        }
-    }
-
-    const fn finish(self) -> u32 {
-        !self.0
-    }
-}
+// CRC-32 (IEEE 802.3, reflected polynomial 0xEDB88320, initial value and final XOR 0xFFFFFFFF): the records share
+// the update code's half-byte-table CRC (`boot::crc32`), which the bootloader needs anyway to read the stored
+// communication settings (`boot::stored_comms`); a byte table of its own here cost 1 KiB of flash. The store runs
+// it at start-up and on 0x1010 "save" only, in no tick.
 
 /// CRC-32 (IEEE 802.3) of `data`, the checksum the record format uses (check value of "123456789": 0xCBF43926).
 pub fn crc32(data: &[u8]) -> u32 {
-    let mut c = Crc32::new();
-    c.update(data);
-    c.finish()
+    crate::boot::crc32::checksum(data)
 }
 
 // ---------------------------------------------------------------------------------------------------------------
@@ -588,7 +547,7 @@ impl<F: NorFlash> ParamStore<F> {
             left = left.saturating_sub(n);
         }
         crc.update(hdr.get(..CRC_HEADER_LEN).unwrap_or(&[]));
-        if crc.finish() != le_u32(&hdr, OFF_CRC) {
+        if crc.finalize() != le_u32(&hdr, OFF_CRC) {
             return Ok(None);
         }
         // Structure: exactly `items` items filling exactly the payload.
@@ -779,7 +738,7 @@ impl<F: NorFlash> ParamStore<F> {
         put(&mut hdr, 20, &0u32.to_le_bytes());
         let mut crc = crc;
         crc.update(hdr.get(..CRC_HEADER_LEN).unwrap_or(&[]));
-        put(&mut hdr, OFF_CRC, &crc.finish().to_le_bytes());
+        put(&mut hdr, OFF_CRC, &crc.finalize().to_le_bytes());
         program_rel(&mut self.flash, base, 0, &hdr)?;
 
         // 4. Read back and verify before committing.

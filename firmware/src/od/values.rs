@@ -194,14 +194,13 @@ impl<const N: usize> Values<N> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::od::entry::{Access, DataType, Limits, ObjectCode, PdoMapping, WriteCondition};
+    use crate::od::entry::{Access, DataType, Limits, Name, PdoMapping, WriteCondition};
 
     const fn ram(index: u16, data_type: DataType, offset: u16, len: u16, node_id_relative: bool) -> Entry {
         Entry {
             index,
             sub: 0,
-            name: "test",
-            object_code: ObjectCode::Var,
+            name: Name::EMPTY,
             data_type,
             access: Access::ReadWrite,
             pdo: PdoMapping::No,

@@ -153,7 +153,7 @@ fn object_and_entry_descriptions_come_from_the_dictionary() {
     let object = Table::GENERATED.object(0x1018).expect("0x1018");
     assert_eq!(u16::from_le_bytes([od[0], od[1]]), 0x1018);
     assert_eq!((od[4], od[5]), (object.max_sub, 0x09), "max sub-index, RECORD");
-    assert_eq!(&od[6..], object.name.as_bytes());
+    assert_eq!(&od[6..], object.name.as_str().as_bytes());
 
     let (opcode, ed, _) = sdo_info(&mut b, &[0x05, 0x00, 0x00, 0x00, 0x60, 0x60, 0x00, 0x00]);
     assert_eq!(opcode, 0x06);
@@ -165,7 +165,7 @@ fn object_and_entry_descriptions_come_from_the_dictionary() {
     assert_ne!(access & 0x08, 0, "writable in PRE-OP");
     assert_ne!(access & 0x40, 0, "RxPDO mappable");
     let entry = Table::GENERATED.find(0x6060, 0).expect("0x6060");
-    assert_eq!(&ed[10..], entry.name.as_bytes());
+    assert_eq!(&ed[10..], entry.name.as_str().as_bytes());
 }
 
 #[test]

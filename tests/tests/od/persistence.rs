@@ -13,7 +13,7 @@
 use firmware::hal::flash::NorFlash;
 use firmware::od::abort::SdoAbort;
 use firmware::od::access::{AccessContext, CommState, Dictionary};
-use firmware::od::entry::{Access, DataType, Entry, Limits, ObjectCode, PdoMapping, Storage, WriteCondition};
+use firmware::od::entry::{Access, DataType, Entry, Limits, Name, PdoMapping, Storage, WriteCondition};
 use firmware::od::generated::ENTRIES;
 use firmware::od::store::{
     store_group_of, Group, ParamStore, Selection, StoreError, StoreObjects, LOAD_SIGNATURE, RECORD_HEADER_LEN,
@@ -39,8 +39,7 @@ fn ram_entry(index: u16, sub: u8, data_type: DataType, persistent: bool, offset:
     Entry {
         index,
         sub,
-        name: "test",
-        object_code: if sub == 0 { ObjectCode::Var } else { ObjectCode::Record },
+        name: Name::EMPTY,
         data_type,
         access: Access::ReadWrite,
         pdo: PdoMapping::No,
