@@ -68,8 +68,8 @@
 //! kt`): above the resonance the PID acts on the motor inertia alone, as the reference's defaults do on theirs,
 //! and its D part's fixed 390.61 rad/s filter (`control::position`) lies below `wc_s`, so that crossover, not the
 //! load, is what limits `Kd` (in the slow loops' simulated timing `drive-sim csp` on the geared preset rings at
-//! 175 Hz from `Kd` = 6 x the design's). Below the anti-resonance the whole inertia moves, and `Kd` alone
-//! crosses over at the low `wc`; the rigid rule `Kp = Kd wc / 4` then leaves a stiffness `kt Kp` of 0.08 Nm/rad
+//! 175 Hz with `Kd` = 7 x the design's, not with 6 x). Below the anti-resonance the whole inertia moves, and `Kd`
+//! alone crosses over at the low `wc`; the rigid rule `Kp = Kd wc / 4` then leaves a stiffness `kt Kp` of 0.08 Nm/rad
 //! on the geared preset, where the friction of motor and load (0.02 Nm at the motor) alone holds 210 increments
 //! of following error. So the PD zero moves up to `Kp / Kd = 3 wc` (`Kp = 3 Kd wc`, 12 x the rigid rule): on the
 //! total inertia `J s^2 = kt Kd (s + 3 wc)` crosses over at about `sqrt 3 wc` with
@@ -85,7 +85,7 @@
 //! What is left of the 3 deg (41.7 increments at 5,000 counts/rev) is not in reach of this `Kd`: the peak
 //! falls as `Kd` grows (the stiffness the low crossover allows grows with `Kd^2`): 45 increments with 2 x `Kd` and
 //! `Kp` 16 A/rad, 24 with 4 x and 32 A/rad, where the motor-side loop has lost most of its margin (ringing at 150
-//! to 180 Hz in the simulation, unstable from 6 x).
+//! to 180 Hz in the simulation, unstable at 7 x).
 //!
 //! All gains are rounded to their objects' units; a gain that its object (or the fixed-point range of the
 //! controller behind it: 64 V/A for 0x30A0:01, `control::pi`) cannot hold is an error naming the object.
