@@ -8,6 +8,9 @@ use firmware::comm::sdo::server::SdoServer;
 use firmware::drive::DriveConfig;
 use firmware::od::access::{AccessContext, CommState, NoApplicationObjects};
 
+use firmware::od::store::ParamStore;
+
+use crate::flash::SimFlash;
 use crate::plant::PlantParams;
 use crate::sim::Simulation;
 
@@ -279,10 +282,15 @@ pub fn identify_then(
                 break;
             }
         }
-        let written = master.download(&mut sim, 0x3205, 3, &r.to_le_bytes())
-            && master.download(&mut sim, 0x3205, 4, &ar.to_le_bytes())
-            && master.download(&mut sim, 0x3205, 1, &[1]);
-        assert!(written, "the drive refused the master's resonance pair {r}/{ar} (0.1 Hz) or its auto-tuning");
+        // Through the drive's own dictionary access (the command 0x3205:01 is an application object, which this
+        // master's plain SDO server does not serve), with the power stage off as 0x3205:01 requires.
+        let mut store = ParamStore::new(SimFlash::params());
+        let ctx = AccessContext { comm_state: CommState::Operational, power_stage_enabled: false, max_pdo_bytes: 8 };
+        for (sub, data) in [(3u8, r.to_le_bytes().to_vec()), (4, ar.to_le_bytes().to_vec()), (1, vec![1])] {
+            if let Err(abort) = sim.drive.sdo_write(0x3205, sub, &data, ctx, &mut store) {
+                panic!("the drive refused the master's 0x3205:{sub:02X} = {data:?} (pair {r}/{ar} x 0.1 Hz): {abort:?}");
+            }
+        }
         sim.run(50);
     }
     let mut read = |index: u16, sub: u8| master.upload(&mut sim, index, sub).unwrap_or(0);

@@ -14,4 +14,5 @@ mod io;
 mod mechanical_identification;
 mod parameters;
 mod regeneration;
+mod resonance_identification;
 mod sensor_configuration;
