@@ -9,7 +9,7 @@
 //!    system speed. The bias keeps the gear's teeth in contact on one flank (the load's friction preloads it) and
 //!    the frictions on one side of their sign change, so that a sine on top sees a linear plant; at rest a small
 //!    sine would rattle inside the backlash (geared-36v: 1.5 deg at the motor) and see the rotor alone.
-//! 2. Sine dwells on top of the bias at [`PERIODS`] (whole slow-tick periods from 6 Hz to 250 Hz, about 12 %
+//! 2. Sine dwells on top of the bias at [`PERIODS`] (whole slow-tick periods from 6 Hz to 227 Hz, about 12 %
 //!    apart): each dwell settles, then correlates the measured q current (the slow tick's average) and the motor
 //!    speed (the position difference per tick) with the sine and cosine over whole periods (one DFT bin; the bias
 //!    speed and the speed loop's slow current correlate to nothing over whole periods, and the encoder's
@@ -45,9 +45,12 @@ use super::mechanical_identification::MechanicalSample;
 const TICK_HZ: f32 = SLOW_TICK_HZ as f32;
 /// Number of sine dwells.
 pub const DWELLS: usize = 30;
-/// The dwells' periods in slow ticks, 417 (6.0 Hz) down to 10 (250 Hz), each 0.88 times the one before (about
-/// 12 % in frequency, rounded to whole ticks so that each correlation covers whole periods exactly).
-pub const PERIODS: [u16; DWELLS] = periods();
+/// The dwells' periods in slow ticks, 417 (6.0 Hz) down to 11 (227 Hz), each 0.88 times the one before rounded
+/// (about 12 % in frequency; whole ticks, so that each correlation covers whole periods exactly).
+pub const PERIODS: [u16; DWELLS] = [
+    417, 367, 323, 284, 250, 220, 194, 171, 150, 132, 116, 102, 90, 79, 70, 62, 55, 48, 42, 37, 33, 29, 26, 23, 20, 18,
+    16, 14, 12, 11,
+];
 /// Ticks of the run-up to the bias speed (a ramp), and as many again for the speed loop to settle.
 const RUN_UP_TICKS: u32 = 250;
 /// Ticks of the run-down (a ramp to rest), and as many again to come to rest.
@@ -70,18 +73,6 @@ const BIAS_LOOP_HZ: f32 = 1.5;
 pub const DIP_MAX: f32 = 0.5;
 /// A peak is a resonance only over this multiple of the rigid response.
 pub const PEAK_MIN: f32 = 2.0;
-
-const fn periods() -> [u16; DWELLS] {
-    let mut p = [0u16; DWELLS];
-    let mut x = 417u32;
-    let mut k = 0;
-    while k < DWELLS {
-        p[k] = x as u16;
-        x = (x * 88 + 50) / 100;
-        k += 1;
-    }
-    p
-}
 
 /// What the step needs to know (from 0x3001, 0x3010, 0x30A3:05 and the procedure's limits).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -203,7 +194,7 @@ impl ResonanceIdentification {
         let bias = max_rad_s / BIAS_DIVISOR;
         let loop_w = core::f32::consts::TAU * BIAS_LOOP_HZ;
         // The first dwell's amplitude: a quarter of the bias on the rigid response.
-        let w0 = core::f32::consts::TAU * TICK_HZ / f32::from(PERIODS[0]);
+        let w0 = core::f32::consts::TAU * TICK_HZ / f32::from(PERIODS.first().copied().unwrap_or(1));
         let amplitude = if kt_per_j > 0.0 { speed_amplitude(bias, w0) * w0 / kt_per_j } else { 0.0 };
         let valid = kt_per_j > 0.0 && bias > 0.0 && config.counts_per_rev > 0 && config.current_limit > Amps::ZERO;
         Self {
@@ -233,7 +224,7 @@ impl ResonanceIdentification {
     pub fn progress_per_mille(&self) -> u16 {
         match self.phase {
             Phase::RunUp => 0,
-            Phase::Dwell { index, .. } => (index.saturating_mul(1000) / DWELLS) as u16,
+            Phase::Dwell { index, .. } => index.saturating_mul(1000).checked_div(DWELLS).unwrap_or(0) as u16,
             Phase::RunDown { .. } => 1000,
         }
     }
@@ -278,7 +269,7 @@ impl ResonanceIdentification {
                 let measure = MIN_MEASURE_TICKS.div_ceil(period).max(1).saturating_mul(period);
                 // The sample ends the tick whose demand was set at `angle` one step ago: correlate with that
                 // angle.
-                let step = u32::MAX / period;
+                let step = u32::MAX.checked_div(period).unwrap_or(0);
                 let previous = sin_cos(ElectricalAngle(self.angle.wrapping_sub(step)));
                 if ticks >= settle {
                     let (s, c) = (i2f30(previous.sin.to_bits()), i2f30(previous.cos.to_bits()));
@@ -413,7 +404,7 @@ pub fn find_resonance(periods: &[u16], response: &[f32]) -> Option<(f32, f32)> {
     if !(interior(dip) && interior(peak) && at(dip) < DIP_MAX * DIP_MAX && at(peak) > PEAK_MIN * PEAK_MIN) {
         return None;
     }
-    let anti = vertex(f2, |k| at(k), dip);
+    let anti = vertex(f2, at, dip);
     let resonance = vertex(f2, |k| 1.0 / at(k).max(f32::MIN_POSITIVE), peak);
     Some((sqrt(anti), sqrt(resonance)))
 }

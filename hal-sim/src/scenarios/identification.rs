@@ -288,7 +288,9 @@ pub fn identify_then(
         let ctx = AccessContext { comm_state: CommState::Operational, power_stage_enabled: false, max_pdo_bytes: 8 };
         for (sub, data) in [(3u8, r.to_le_bytes().to_vec()), (4, ar.to_le_bytes().to_vec()), (1, vec![1])] {
             if let Err(abort) = sim.drive.sdo_write(0x3205, sub, &data, ctx, &mut store) {
-                panic!("the drive refused the master's 0x3205:{sub:02X} = {data:?} (pair {r}/{ar} x 0.1 Hz): {abort:?}");
+                panic!(
+                    "the drive refused the master's 0x3205:{sub:02X} = {data:?} (pair {r}/{ar} x 0.1 Hz): {abort:?}"
+                );
             }
         }
         sim.run(50);

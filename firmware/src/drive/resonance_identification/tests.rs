@@ -50,14 +50,13 @@ fn error_pct(found: f32, truth: f64) -> f64 {
     (f64::from(found) - truth) / truth * 100.0
 }
 
-/// The sweep's grid: 6 Hz to 250 Hz, periods decreasing, no step above 25 % (the parabola needs neighbours
-/// close enough that the peak and the dip are among three points).
+/// The sweep's grid: 6 Hz to 227 Hz, each period 0.88 times the one before rounded (the parabola needs
+/// neighbours close enough that the peak and the dip are among three points; whole ticks for whole periods).
 #[test]
-fn the_periods_span_6_to_250_hz_in_small_steps() {
-    assert_eq!(PERIODS[0], 417);
-    assert!(PERIODS[DWELLS - 1] >= 10 && 2500.0 / f32::from(PERIODS[DWELLS - 1]) >= 200.0);
+fn the_periods_span_6_to_227_hz_in_12_pct_steps() {
+    assert_eq!((PERIODS[0], PERIODS[DWELLS - 1]), (417, 11));
     for pair in PERIODS.windows(2) {
-        assert!(pair[1] < pair[0] && u32::from(pair[0]) * 100 <= u32::from(pair[1]) * 125, "{pair:?}");
+        assert_eq!(u32::from(pair[1]), (u32::from(pair[0]) * 88 + 50) / 100, "{pair:?}");
     }
 }
 
