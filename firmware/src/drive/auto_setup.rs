@@ -439,6 +439,8 @@ impl Drive {
 
 /// The sample of the mechanical and resonance steps: the q current and voltage averaged over the periods since
 /// the last report (one slow tick); the first tick, without a report before it, takes the last period's values.
+/// Out of line: both steps' arms would inline it (flash, issue 17).
+#[inline(never)]
 fn averaged_sample(last_q_sums: &mut Option<(u32, [i32; 2])>, report: &super::blocks::Tier1Report) -> MechanicalSample {
     let s = &report.signals;
     let periods = last_q_sums.map_or(0, |(period, _)| report.period.wrapping_sub(period));

@@ -176,6 +176,8 @@ pub struct ResonanceIdentification {
     /// The sine: phase (2^32 = one period) and the current amplitude (A).
     angle: u32,
     amplitude: f32,
+    /// Sine and cosine of the phase the last tick's demand was set at.
+    last_sin_cos: [f32; 2],
     /// Correlation sums of the dwell: current with sin, cos; speed (counts/tick) with sin, cos.
     sums: [f32; 4],
     /// Normalized response |G|^2 (1 = rigid) per dwell.
@@ -214,6 +216,7 @@ impl ResonanceIdentification {
             friction_current: if kt > 0.0 { config.coulomb_friction as f32 * 1e-6 / kt } else { 0.0 },
             angle: 0,
             amplitude,
+            last_sin_cos: [0.0; 2],
             sums: [0.0; 4],
             response: [0.0; DWELLS],
         }
@@ -267,12 +270,10 @@ impl ResonanceIdentification {
                 let period = u32::from(PERIODS.get(index).copied().unwrap_or(1));
                 let settle = period.max(MIN_SETTLE_TICKS);
                 let measure = MIN_MEASURE_TICKS.div_ceil(period).max(1).saturating_mul(period);
-                // The sample ends the tick whose demand was set at `angle` one step ago: correlate with that
-                // angle.
                 let step = u32::MAX.checked_div(period).unwrap_or(0);
-                let previous = sin_cos(ElectricalAngle(self.angle.wrapping_sub(step)));
                 if ticks >= settle {
-                    let (s, c) = (i2f30(previous.sin.to_bits()), i2f30(previous.cos.to_bits()));
+                    // The sample ends the tick whose demand the last tick set: correlate with its sine.
+                    let [s, c] = self.last_sin_cos;
                     let current = sample.i_q.to_bits() as f32 / 65_536.0;
                     let products = [current * s, current * c, speed_counts * s, speed_counts * c];
                     for (sum, p) in self.sums.iter_mut().zip(products) {
@@ -294,7 +295,9 @@ impl ResonanceIdentification {
                 };
                 let now = sin_cos(ElectricalAngle(self.angle));
                 self.angle = self.angle.wrapping_add(step);
-                (self.bias_rad_s, self.amplitude * i2f30(now.sin.to_bits()))
+                let sine = i2f30(now.sin.to_bits());
+                self.last_sin_cos = [sine, i2f30(now.cos.to_bits())];
+                (self.bias_rad_s, self.amplitude * sine)
             }
             Phase::RunDown { ticks } => {
                 let ticks = ticks.saturating_add(1);
@@ -314,10 +317,12 @@ impl ResonanceIdentification {
         // PI speed loop: P at the crossover, the integrator's corner at a quarter of it.
         let error = reference - self.speed_rad_s;
         let integral_gain = self.kp * core::f32::consts::TAU * BIAS_LOOP_HZ / 4.0 / TICK_HZ;
-        self.integral = (self.integral + integral_gain * error).clamp(-self.current_limit, self.current_limit);
+        // max/min, not clamp: f32::clamp asserts its bounds' order with a formatted panic (float formatting, some
+        // 19 KB in the images that print panics; flash, issue 17).
+        let limit = self.current_limit;
+        self.integral = (self.integral + integral_gain * error).max(-limit).min(limit);
         let feedforward = if reference > 0.0 { self.friction_current } else { 0.0 };
-        let demand =
-            (feedforward + self.integral + self.kp * error + sine).clamp(-self.current_limit, self.current_limit);
+        let demand = (feedforward + self.integral + self.kp * error + sine).max(-limit).min(limit);
         ResonanceStatus::Running { i_q_demand: Amps::from_bits((demand * 65_536.0) as i32) }
     }
 
@@ -360,7 +365,8 @@ fn i2f30(bits: i32) -> f32 {
 
 /// Frequency in 0.1 Hz, saturated to `u16`.
 fn decihertz(hz: f32) -> u16 {
-    (hz * 10.0 + 0.5).clamp(0.0, f32::from(u16::MAX)) as u16
+    // `as` saturates (and takes NaN to 0).
+    (hz * 10.0 + 0.5) as u16
 }
 
 /// Square root by Newton's iteration from a bit-level first guess (no `libm` in the firmware; the M4F's
@@ -382,10 +388,6 @@ fn sqrt(x: f32) -> f32 {
 /// [`DIP_MAX`], the peak above [`PEAK_MIN`], and both inside the sweep (a neighbour on each side).
 #[must_use]
 pub fn find_resonance(periods: &[u16], response: &[f32]) -> Option<(f32, f32)> {
-    let f2 = |k: usize| -> f32 {
-        let f = TICK_HZ / f32::from(periods.get(k).copied().unwrap_or(1));
-        f * f
-    };
     let at = |k: usize| response.get(k).copied().unwrap_or(0.0);
     let last = response.len().min(periods.len()).checked_sub(1)?;
     let mut dip = 0;
@@ -404,26 +406,27 @@ pub fn find_resonance(periods: &[u16], response: &[f32]) -> Option<(f32, f32)> {
     if !(interior(dip) && interior(peak) && at(dip) < DIP_MAX * DIP_MAX && at(peak) > PEAK_MIN * PEAK_MIN) {
         return None;
     }
-    let anti = vertex(f2, at, dip);
-    let resonance = vertex(f2, |k| 1.0 / at(k).max(f32::MIN_POSITIVE), peak);
-    Some((sqrt(anti), sqrt(resonance)))
+    Some((vertex(periods, response, dip, false), vertex(periods, response, peak, true)))
 }
 
-/// The x (here f^2) of the minimum of the parabola through the points k - 1, k, k + 1; the point's own x where
-/// the three are not convex, and never outside the neighbours.
-fn vertex(x: impl Fn(usize) -> f32, y: impl Fn(usize) -> f32, k: usize) -> f32 {
-    let (x0, x1, x2) = (x(k.saturating_sub(1)), x(k), x(k.saturating_add(1)));
-    let (y0, y1, y2) = (y(k.saturating_sub(1)), y(k), y(k.saturating_add(1)));
-    // Divided differences: y = y1 + a (x - x1) + b (x - x1)(x - x0)... as the Newton form of the parabola.
+/// The frequency (Hz) of the minimum of the parabola in f^2 through the points k - 1, k, k + 1 of `response`
+/// (of its inverse at a `peak`); the point's own where the three are not convex, and never outside the
+/// neighbours. One copy for both uses, out of line (flash, issue 17).
+#[inline(never)]
+fn vertex(periods: &[u16], response: &[f32], k: usize, peak: bool) -> f32 {
+    let point = |j: usize| {
+        let f = TICK_HZ / f32::from(periods.get(j).copied().unwrap_or(1));
+        let y = response.get(j).copied().unwrap_or(0.0);
+        (f * f, if peak { 1.0 / y.max(f32::MIN_POSITIVE) } else { y })
+    };
+    let ((x0, y0), (x1, y1), (x2, y2)) = (point(k.saturating_sub(1)), point(k), point(k.saturating_add(1)));
+    // Newton's form: y = y0 + d01 (x - x0) + b (x - x0)(x - x1), whose derivative is zero at
+    // x = (x0 + x1) / 2 - d01 / (2 b).
     let d01 = (y1 - y0) / (x1 - x0);
     let d12 = (y2 - y1) / (x2 - x1);
     let b = (d12 - d01) / (x2 - x0);
-    if b.is_nan() || b <= 0.0 {
-        return x1;
-    }
-    // y = y0 + d01 (x - x0) + b (x - x0)(x - x1); dy/dx = 0 at x = (x0 + x1) / 2 - d01 / (2 b).
-    let v = 0.5 * (x0 + x1) - d01 / (2.0 * b);
-    v.clamp(x0.min(x2), x0.max(x2))
+    let x = if b.is_nan() || b <= 0.0 { x1 } else { 0.5 * (x0 + x1) - d01 / (2.0 * b) };
+    sqrt(x.max(x0.min(x2)).min(x0.max(x2)))
 }
 
 #[cfg(test)]
