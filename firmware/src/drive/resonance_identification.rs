@@ -5,10 +5,11 @@
 //!
 //! # The experiment
 //! FOC with the commutation known, d current zero; the step returns the q current demand once per slow tick.
-//! 1. Run-up: a slow speed loop (PI, crossover [`BIAS_LOOP_HZ`]) takes the motor to a bias speed, 1/8 of the max
-//!    system speed. The bias keeps the gear's teeth in contact on one flank (the load's friction preloads it) and
-//!    the frictions on one side of their sign change, so that a sine on top sees a linear plant; at rest a small
-//!    sine would rattle inside the backlash (geared-36v: 1.5 deg at the motor) and see the rotor alone.
+//! 1. Run-up: a slow speed loop (PI with the Coulomb friction of 0x3204:05 as feedforward, crossover 1.5 Hz, under
+//!    the sweep) takes the motor to a bias speed, a quarter of the max system speed. The bias keeps the load's
+//!    friction on one side of its sign change (it preloads the gear's teeth on one flank while the sine is small
+//!    against it), so that the sine on top sees a steadier plant; at rest a small sine would rattle inside the
+//!    backlash (geared-36v: 1.5 deg at the motor) and see the rotor alone.
 //! 2. Sine dwells on top of the bias at [`PERIODS`] (whole slow-tick periods from 6 Hz to 227 Hz, about 12 %
 //!    apart): each dwell settles, then correlates the measured q current (the slow tick's average) and the motor
 //!    speed (the position difference per tick) with the sine and cosine over whole periods (one DFT bin; the bias
@@ -17,9 +18,12 @@
 //!    is the plant's velocity response whatever the speed loop adds to the current; divided by the rigid
 //!    response kt / (J_total w) (J_total and kt from the mechanical step, 0x30A3:05 and 0x3001:05) it is 1 for a
 //!    rigid load at every frequency, and for a two-mass load dips at the anti-resonance and peaks at the
-//!    resonance. The current amplitude of each dwell is set from the last dwell's response so that the speed's
-//!    amplitude is about a quarter of the bias (the motor does not reverse, the resonance is not driven to the
-//!    speed limit).
+//!    resonance. The current amplitude of each dwell is set from the last dwell's response (at most 3/4 of the
+//!    current limit) so that the motor's speed amplitude is a quarter of the bias or, where that is more, 0.15 rad
+//!    of motor angle, at most the bias: at a resonance the motor's angle is the coupling's twist, which must be
+//!    large against the backlash for the teeth-in-contact stiffness to dominate (with a quarter of the bias alone
+//!    the geared preset's peak came at 45 Hz instead of 60 Hz), and the speed stays within bias +- bias, far
+//!    from the max system speed.
 //! 3. Run-down: the speed loop takes the motor back to rest, then the result.
 //!
 //! # The estimate
@@ -79,7 +83,7 @@ pub const PEAK_MIN: f32 = 2.0;
 pub struct ResonanceConfig {
     /// The largest q current amplitude (bias and sine together), e.g. the motor's nominal current 0x3001:01.
     pub current_limit: Amps,
-    /// Max system speed in rpm: exceeding it ends the step (IDX 0xFF22); the bias is 1/8 of it.
+    /// Max system speed in rpm: exceeding it ends the step (IDX 0xFF22); the bias is a quarter of it.
     pub max_speed_rpm: u32,
     /// Encoder counts per motor revolution.
     pub counts_per_rev: u32,

@@ -2,8 +2,6 @@
 
 use super::*;
 
-use core::f32::consts::TAU;
-
 /// Motor-side two-mass model (all at the motor shaft): rotor `jm`, load `jl`, coupling `k`, `c`.
 #[derive(Clone, Copy)]
 struct TwoMass {
@@ -77,7 +75,7 @@ fn the_estimator_finds_a_two_mass_response_pair_within_5_pct() {
 #[test]
 fn the_estimator_finds_other_pairs_within_5_pct() {
     let stiffer = TwoMass { k: GEARED.k * (40.0f64 / 15.0).powi(2), ..GEARED };
-    let lighter = TwoMass { jl: 4e-5, k: 4e-5 * (TAU as f64 * 30.0).powi(2), c: 1e-5, ..GEARED };
+    let lighter = TwoMass { jl: 4e-5, k: 4e-5 * (core::f64::consts::TAU * 30.0).powi(2), c: 1e-5, ..GEARED };
     for model in [stiffer, lighter] {
         let (anti, resonance) = find_resonance(&PERIODS, &sweep(model)).expect("an elastic load");
         assert!(error_pct(anti, model.anti_resonance_hz()).abs() < 5.0, "{anti} / {}", model.anti_resonance_hz());
