@@ -536,13 +536,6 @@ pub async fn bench() {
     ));
     print(format_args!("insn.slow_tick_max={slow_max}\ninsn.slow_tick_csp={slow_csp}\n"));
     let (plan_max, command_max, step_max) = profile_generator_max();
-    let (resonance_step, resonance_estimate) = resonance_step_max();
-    print(format_args!(
-        "source.resonance_step_max=drive::resonance_identification::ResonanceIdentification::step (the auto \
-         setup's step 7, mode -2, in the slow tick in place of the loops), every tick of a whole sweep on a rigid \
-         shaft; and find_resonance on a two-mass response (the sweep's last tick runs it)\n\
-         insn.resonance_step_max={resonance_step}\ninsn.resonance_estimate={resonance_estimate}\n"
-    ));
     print(format_args!(
         "source.profile_plan_max=control::trajectory::ProfileGenerator::prepare: planning a move and a velocity \
          command from the step after they were given (tier 2's background step, outside the slow tick); both \
@@ -628,6 +621,14 @@ pub async fn bench() {
     print(format_args!("insn.report_publish_max={}\n", tier1::REPORT_MAX.load(Ordering::Relaxed)));
     print(format_args!("count.timed_periods={}\ncount.timed_fast_ticks={}\n", timed.periods, timed.fast_ticks));
     print(format_args!("count.timed_tier3_sdo_exchanges={}\n", timed.sdo_exchanges));
+    // After the timed part, so that its phase against the period timer stays what it was without this item.
+    let (resonance_step, resonance_estimate) = resonance_step_max();
+    print(format_args!(
+        "source.resonance_step_max=drive::resonance_identification::ResonanceIdentification::step (the auto \
+         setup's step 7, mode -2, in the slow tick in place of the loops), every tick of a whole sweep on a rigid \
+         shaft; and find_resonance on a two-mass response (the sweep's last tick runs it)\n\
+         insn.resonance_step_max={resonance_step}\ninsn.resonance_estimate={resonance_estimate}\n"
+    ));
 
     let mut ok = true;
     let mut check = |cond: bool, what: &str| {
