@@ -77,6 +77,8 @@ fn geared_36v_preset_has_the_issue_ratings() {
     // The file's stiffness is rounded to 4 decimals: 60 Hz within 0.01 Hz by the formula (the simulated
     // resonance is checked in tests/drivetrain.rs).
     assert!((p.coupling_resonance_hz() - 60.0).abs() < 0.01, "{} Hz", p.coupling_resonance_hz());
+    // The anti-resonance, the load alone on the coupling: sqrt(66.6198 / 0.0075) / 2 pi = 15.0 Hz (60 / sqrt 16).
+    assert!((p.coupling_anti_resonance_hz() - 15.0).abs() < 0.01, "{} Hz", p.coupling_anti_resonance_hz());
     assert_eq!(p.encoder_counts_per_rev, 5_000, "1,250 lines");
     assert_eq!((p.nominal_current_a, p.peak_current_a, p.max_speed_rpm), (5.0, 12.0, 2000.0));
     assert_reference_power_stage(&p);

@@ -9,8 +9,11 @@
 //! from what it found (Hall sector or forced alignment; the index applies the new offset); 6 the mechanical
 //! experiment in FOC ([`super::mechanical_identification`]: torque constant into 0x3001:05, total inertia into
 //! 0x30A3:05 and 0x3204:06, viscous friction into 0x30A3:04, Coulomb friction into 0x3204:05; skipped with
-//! 0x3204:01 bit 0); 7 the auto-tuning from the results ([`super::auto_tuning`], the gains 0x30A0..0x30A3 for the
-//! stiffness 0x3205:02; skipped with bit 1); then done (8). The
+//! 0x3204:01 bit 0, which skips the two steps after it too); 7 the load's first resonance and anti-resonance
+//! ([`super::resonance_identification`], into 0x3205:03/04, 0 for a rigid load; skipped with bit 2, which leaves
+//! 0x3205:03/04 as they are); 8 the auto-tuning from the results ([`super::auto_tuning`], the gains
+//! 0x30A0..0x30A3 for the stiffness 0x3205:02 and the resonance pair 0x3205:03/04; skipped with bit 1); then
+//! done (9). The
 //! results: 0x3002:01 R, :02 Lq, :03 Ld; 0x3010:02 bit 4 (the counting direction, toggled when the encoder
 //! counts against the field), 0x3010:05 the electrical angle at the index (with an index), 0x301A:03 the Hall
 //! offset (with Halls), 0x3204:04 the pole pairs measured. They are persistent objects: 0x1010 keeps them (the
@@ -27,6 +30,9 @@ use super::identification::{
 use super::mechanical_identification::{
     MechanicalConfig, MechanicalError, MechanicalIdentification, MechanicalResult, MechanicalSample, MechanicalStatus,
 };
+use super::resonance_identification::{
+    ResonanceConfig, ResonanceError, ResonanceIdentification, ResonanceResult, ResonanceStatus,
+};
 use super::{DemandSource, Drive};
 use crate::control::frames::{Amps, Volts};
 use crate::fault::table::FaultId;
@@ -41,6 +47,8 @@ pub const TIMEOUT_TICKS: u32 = 50_000;
 const OPTION_SKIP_MECHANICAL: u16 = 1 << 0;
 /// 0x3204:01 bit 1: skip the auto-tuning.
 const OPTION_SKIP_TUNING: u16 = 1 << 1;
+/// 0x3204:01 bit 2: skip the resonance step (it takes some 5 s; 0x3205:03/04 keep what a master wrote).
+const OPTION_SKIP_RESONANCE: u16 = 1 << 2;
 /// Slow ticks the restarted commutation may take to become valid (a forced alignment takes 0.5 s).
 const COMMUTATION_TICKS: u32 = 5_000;
 
@@ -52,10 +60,12 @@ pub mod step {
     pub const COMMUTATION: u8 = 5;
     /// The mechanical experiment (torque constant, inertia, friction).
     pub const MECHANICAL: u8 = 6;
+    /// The load's resonance (frequency response of the drive train).
+    pub const RESONANCE: u8 = 7;
     /// The auto-tuning of the gains.
-    pub const TUNING: u8 = 7;
+    pub const TUNING: u8 = 8;
     /// Finished successfully.
-    pub const DONE: u8 = 8;
+    pub const DONE: u8 = 9;
     /// Failed (the fault tells why).
     pub const FAILED: u8 = 255;
 }
@@ -69,6 +79,7 @@ enum Phase {
     Electrical(ElectricalIdentification),
     Commutation { ticks: u32 },
     Mechanical(MechanicalIdentification),
+    Resonance(ResonanceIdentification),
     Done,
     Failed,
 }
@@ -94,7 +105,10 @@ impl AutoSetup {
     /// Whether the procedure drives tier 1 now.
     #[must_use]
     pub const fn running(&self) -> bool {
-        matches!(self.phase, Phase::Electrical(_) | Phase::Commutation { .. } | Phase::Mechanical(_))
+        matches!(
+            self.phase,
+            Phase::Electrical(_) | Phase::Commutation { .. } | Phase::Mechanical(_) | Phase::Resonance(_)
+        )
     }
 }
 
@@ -138,7 +152,7 @@ impl Drive {
                 let shown = identification.step_in_progress().number();
                 let progress = identification.progress_per_mille();
                 self.dictionary.set(h::IDENTIFICATION_STEP, shown);
-                self.dictionary.set(h::IDENTIFICATION_PROGRESS, progress.saturating_mul(9) / 10);
+                self.dictionary.set(h::IDENTIFICATION_PROGRESS, progress / 2);
                 match status {
                     IdentificationStatus::Running(injection) => self.inject(injection),
                     IdentificationStatus::Done(result) => {
@@ -166,38 +180,37 @@ impl Drive {
                 }
             }
             Phase::Mechanical(mechanical) => {
-                let s = &report.signals;
-                // The averages over the periods since the last report (one slow tick); the first tick, without a
-                // report before it, takes the last period's values.
-                let periods = self.auto_setup.last_q_sums.map_or(0, |(period, _)| report.period.wrapping_sub(period));
-                let average = |k: usize, last: i32| {
-                    let previous = self.auto_setup.last_q_sums.and_then(|(_, sums)| sums.get(k).copied());
-                    let now = report.q_sums.get(k).copied().unwrap_or(0);
-                    // No previous report, or no period between the two (a division by zero): the last period's.
-                    previous.and_then(|p| now.wrapping_sub(p).checked_div(i32::try_from(periods).ok()?)).unwrap_or(last)
-                };
-                let sample = MechanicalSample {
-                    position: report.encoder_position,
-                    i_q: Amps::from_bits(average(0, s.i_dq.q.to_bits())),
-                    v_q: Volts::from_bits(average(1, s.v_dq.q.to_bits())),
-                    v_bus: s.v_bus,
-                };
-                self.auto_setup.last_q_sums = Some((report.period, report.q_sums));
+                let sample = averaged_sample(&mut self.auto_setup.last_q_sums, &report);
                 let status = mechanical.step(&sample);
-                let progress = 900u16.saturating_add(mechanical.progress_per_mille() / 10);
+                let progress = 500u16.saturating_add(mechanical.progress_per_mille() / 5);
                 self.dictionary.set(h::IDENTIFICATION_PROGRESS, progress.min(999));
                 match status {
                     MechanicalStatus::Running { i_q_demand } => self.set_identification_current(i_q_demand),
                     MechanicalStatus::Done(result) => {
                         self.set_identification_current(Amps::ZERO);
                         self.write_mechanical_results(&result);
-                        if self.dictionary.get(h::IDENTIFICATION_OPTIONS) & OPTION_SKIP_TUNING == 0 {
-                            self.tune_from_results();
+                        if self.dictionary.get(h::IDENTIFICATION_OPTIONS) & OPTION_SKIP_RESONANCE == 0 {
+                            self.start_resonance();
                         } else {
-                            self.finish_auto_setup();
+                            self.tune_or_finish();
                         }
                     }
                     MechanicalStatus::Failed(e) => self.fail_mechanical(e),
+                }
+            }
+            Phase::Resonance(resonance) => {
+                let sample = averaged_sample(&mut self.auto_setup.last_q_sums, &report);
+                let status = resonance.step(&sample);
+                let progress = 700u16.saturating_add(resonance.progress_per_mille().saturating_mul(3) / 10);
+                self.dictionary.set(h::IDENTIFICATION_PROGRESS, progress.min(999));
+                match status {
+                    ResonanceStatus::Running { i_q_demand } => self.set_identification_current(i_q_demand),
+                    ResonanceStatus::Done(result) => {
+                        self.set_identification_current(Amps::ZERO);
+                        self.write_resonance_results(&result);
+                        self.tune_or_finish();
+                    }
+                    ResonanceStatus::Failed(e) => self.fail_resonance(e),
                 }
             }
             Phase::Idle | Phase::Done | Phase::Failed => {}
@@ -316,6 +329,47 @@ impl Drive {
         self.dictionary.set(h::IDENTIFICATION_STEP, step::MECHANICAL);
     }
 
+    /// Step 7: the load's resonance, with the inertia and torque constant step 6 wrote (0x30A3:05, 0x3001:05).
+    fn start_resonance(&mut self) {
+        let d = &self.dictionary;
+        let config = ResonanceConfig {
+            current_limit: Amps::from_milliamps(i32::try_from(d.get(h::MOTOR_NOMINAL_CURRENT)).unwrap_or(i32::MAX)),
+            max_speed_rpm: d.get(h::MAX_MOTOR_SPEED),
+            counts_per_rev: self.settings.commutation.encoder.counts_per_rev,
+            inertia: d.get(h::OBSERVER_INERTIA),
+            torque_constant: d.get(h::MOTOR_TORQUE_CONSTANT),
+            coulomb_friction: d.get(h::IDENTIFICATION_COULOMB_FRICTION),
+            timeout_ticks: TIMEOUT_TICKS.saturating_sub(self.auto_setup.ticks),
+        };
+        self.auto_setup.phase = Phase::Resonance(ResonanceIdentification::new(&config));
+        self.auto_setup.last_q_sums = None;
+        self.dictionary.set(h::IDENTIFICATION_STEP, step::RESONANCE);
+    }
+
+    /// The resonance pair for the auto-tuning (0 and 0: rigid).
+    fn write_resonance_results(&mut self, r: &ResonanceResult) {
+        self.dictionary.set(h::AUTO_TUNING_RESONANCE, r.resonance_dhz);
+        self.dictionary.set(h::AUTO_TUNING_ANTI_RESONANCE, r.anti_resonance_dhz);
+    }
+
+    fn fail_resonance(&mut self, error: ResonanceError) {
+        let fault = match error {
+            ResonanceError::SpeedLimit => FaultId::AutoTuningMaxSpeed,
+            ResonanceError::Timeout => FaultId::AutoTuningTimeout,
+            ResonanceError::InvalidConfig => FaultId::AutoTuningParameter,
+        };
+        self.end_with_fault(fault, i32::from(error.code()));
+    }
+
+    /// Step 8 unless 0x3204:01 bit 1 skips it.
+    fn tune_or_finish(&mut self) {
+        if self.dictionary.get(h::IDENTIFICATION_OPTIONS) & OPTION_SKIP_TUNING == 0 {
+            self.tune_from_results();
+        } else {
+            self.finish_auto_setup();
+        }
+    }
+
     /// The q current of the mechanical step, through the loops' path: the current limits and the bus-voltage
     /// limiter (which brakes with d current when the relay's reversals regenerate) act on it as on the loops'.
     fn set_identification_current(&mut self, i_q: Amps) {
@@ -334,7 +388,7 @@ impl Drive {
         d.set(h::IDENTIFICATION_COULOMB_FRICTION, r.coulomb_friction);
     }
 
-    /// Step 7: the auto-tuning from the identified plant and the requested stiffness 0x3205:02
+    /// Step 8: the auto-tuning from the identified plant and the requested stiffness 0x3205:02
     /// ([`super::auto_tuning`]): the gains 0x30A0..0x30A3 are written and taken into force by the next background
     /// step as any write of them. A plant the tuning refuses fails the procedure with 0xFF16 (its reason, as
     /// 0x3205:05 shows it, in the detail).
@@ -381,4 +435,27 @@ impl Drive {
         self.setpoint.i_d = Amps::ZERO;
         self.raise(fault, detail);
     }
+}
+
+/// The sample of the mechanical and resonance steps: the q current and voltage averaged over the periods since
+/// the last report (one slow tick); the first tick, without a report before it, takes the last period's values.
+/// Out of line: both steps' arms would inline it (flash, issue 17).
+#[inline(never)]
+fn averaged_sample(last_q_sums: &mut Option<(u32, [i32; 2])>, report: &super::blocks::Tier1Report) -> MechanicalSample {
+    let s = &report.signals;
+    let periods = last_q_sums.map_or(0, |(period, _)| report.period.wrapping_sub(period));
+    let average = |k: usize, last: i32| {
+        let previous = last_q_sums.and_then(|(_, sums)| sums.get(k).copied());
+        let now = report.q_sums.get(k).copied().unwrap_or(0);
+        // No previous report, or no period between the two (a division by zero): the last period's.
+        previous.and_then(|p| now.wrapping_sub(p).checked_div(i32::try_from(periods).ok()?)).unwrap_or(last)
+    };
+    let sample = MechanicalSample {
+        position: report.encoder_position,
+        i_q: Amps::from_bits(average(0, s.i_dq.q.to_bits())),
+        v_q: Volts::from_bits(average(1, s.v_dq.q.to_bits())),
+        v_bus: s.v_bus,
+    };
+    *last_q_sums = Some((report.period, report.q_sums));
+    sample
 }

@@ -68,6 +68,7 @@ pub mod mechanical_identification;
 pub mod objects;
 pub mod protection;
 pub mod regeneration;
+pub mod resonance_identification;
 pub mod scaling;
 pub mod tier1;
 pub mod tuning;

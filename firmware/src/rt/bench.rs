@@ -621,6 +621,14 @@ pub async fn bench() {
     print(format_args!("insn.report_publish_max={}\n", tier1::REPORT_MAX.load(Ordering::Relaxed)));
     print(format_args!("count.timed_periods={}\ncount.timed_fast_ticks={}\n", timed.periods, timed.fast_ticks));
     print(format_args!("count.timed_tier3_sdo_exchanges={}\n", timed.sdo_exchanges));
+    // After the timed part, so that its phase against the period timer stays what it was without this item.
+    let (resonance_step, resonance_estimate) = resonance_step_max();
+    print(format_args!(
+        "source.resonance_step_max=drive::resonance_identification::ResonanceIdentification::step (the auto \
+         setup's step 7, mode -2, in the slow tick in place of the loops), every tick of a whole sweep on a rigid \
+         shaft; and find_resonance on a two-mass response (the sweep's last tick runs it)\n\
+         insn.resonance_step_max={resonance_step}\ninsn.resonance_estimate={resonance_estimate}\n"
+    ));
 
     let mut ok = true;
     let mut check = |cond: bool, what: &str| {
@@ -925,6 +933,57 @@ fn can_sync_max(drive: &mut Drive) -> Option<CanSync> {
             && counters.tx_dropped == 0;
     }
     Some(best)
+}
+
+/// The auto setup's resonance step alone (counter units): the longest `step` over a whole sweep on a rigid shaft
+/// (the geared preset's inertia and torque constant; the position the double integral of the demand), and
+/// `find_resonance` on the normalized response the geared preset gave (a dip and a peak, so both parabolas run).
+fn resonance_step_max() -> (u32, u32) {
+    use crate::drive::mechanical_identification::MechanicalSample;
+    use crate::drive::resonance_identification::{
+        find_resonance, ResonanceConfig, ResonanceIdentification, ResonanceStatus, PERIODS,
+    };
+    /// |G|^2 of the geared preset's sweep (drive-sim identify), rounded.
+    const GEARED_RESPONSE: [f32; 30] = [
+        0.77, 0.67, 0.57, 0.45, 0.31, 0.16, 0.04, 0.005, 0.2, 0.87, 2.6, 6.7, 15.6, 34.7, 79.2, 193.1, 586.0, 2888.0,
+        12688.0, 1866.0, 1146.0, 744.0, 583.0, 458.0, 384.0, 349.0, 333.0, 332.0, 336.0, 332.0,
+    ];
+    let config = ResonanceConfig {
+        current_limit: Amps::from_milliamps(5_000),
+        max_speed_rpm: 2_000,
+        counts_per_rev: 5_000,
+        inertia: 3_200_000,
+        torque_constant: 100_000,
+        coulomb_friction: 20_000,
+        timeout_ticks: 50_000,
+    };
+    let mut step = ResonanceIdentification::new(&config);
+    // Rigid shaft: 0.1 Nm/A / 3.2e-4 kg m^2, in counts per tick^2 per A: 312.5 rad/s^2 x 5000 / 2 pi / 2500^2.
+    let (mut position, mut speed, mut i_q) = (0.0f32, 0.0f32, 0.0f32);
+    let mut step_max = 0u32;
+    loop {
+        speed += i_q * 0.039_8;
+        position += speed;
+        let sample = MechanicalSample {
+            position: position as i32,
+            i_q: Amps::from_bits((i_q * 65_536.0) as i32),
+            ..MechanicalSample::default()
+        };
+        let start = counter::now();
+        compiler_fence(Ordering::SeqCst);
+        let status = black_box(step.step(black_box(&sample)));
+        compiler_fence(Ordering::SeqCst);
+        step_max = step_max.max(counter::now().wrapping_sub(start));
+        match status {
+            ResonanceStatus::Running { i_q_demand } => i_q = i_q_demand.to_bits() as f32 / 65_536.0,
+            ResonanceStatus::Done(_) | ResonanceStatus::Failed(_) => break,
+        }
+    }
+    let start = counter::now();
+    compiler_fence(Ordering::SeqCst);
+    black_box(find_resonance(black_box(&PERIODS), black_box(&GEARED_RESPONSE)));
+    compiler_fence(Ordering::SeqCst);
+    (step_max, counter::now().wrapping_sub(start))
 }
 
 /// The profile generator alone (`control::trajectory::ProfileGenerator`), both profile types (0x6086 = 0, 1) at

@@ -55,9 +55,10 @@ use hal_sim::sim::trace::Trace;
 const PLANT_HELP: &str = "--plant FILE: run on the plant of a TOML plant file (keys: PlantParams' fields; presets in \
 hal-sim/presets/). The drive gets the plant's motor data (0x3001, 0x3010:01, 0x6073, 0x6080, 0x607F); the gains stay \
 the reference-tuned ones unless --auto-tune, which first runs the identification with its auto-tuning (drive-sim \
-identify) on the plant and commissions every drive of the scenario with the parameters it found; --resonance F_R,F_AR \
-(Hz) is what a master writes into 0x3205:03/04 before it for an elastic load (the identification does not measure \
-the resonance; without it the tuning is the rigid one). Scaling against the reference plant, so a scenario means the same on every plant: speeds, \
+identify) on the plant and commissions every drive of the scenario with the parameters it found (the identification \
+measures the load's resonance pair into 0x3205:03/04, 0 for a rigid load, and the tuning takes the elastic design \
+from it); --resonance F_R,F_AR (Hz) is a master's own pair instead, written into 0x3205:03/04 after the \
+identification, followed by the auto-tuning 0x3205:01 = 1 again. Scaling against the reference plant, so a scenario means the same on every plant: speeds, \
 accelerations and distances in revolutions x max_speed_rpm / 5000 (a move keeps its timing); currents (steps, \
 sweep bias and amplitude, spinning base and high current) x peak_current_a / 10; load torques (at the output) x \
 kt * peak_current_a * gear_ratio * gear_efficiency / 0.335 N m. Scaled: current-step, spinning, csp, csv-sweep, ppm \
@@ -82,7 +83,7 @@ struct Args {
     /// parameters found.
     auto_tune: bool,
     /// `--resonance F_R,F_AR`: the load's resonance and anti-resonance (Hz) a master writes into 0x3205:03/04
-    /// before the identification, for the auto-tuning's elastic design (the identification does not measure them).
+    /// after the identification (in place of the pair it measured), then running the auto-tuning again.
     resonance: Option<(f64, f64)>,
     seed: u64,
     default_gains: bool,
@@ -678,7 +679,7 @@ fn identify(args: &Args) -> Result<(), String> {
          10 ms, then reads the results back (seed {})",
         args.seed
     );
-    let run = identification::identify(&params, args.seed, resonance_setup(args));
+    let run = identification::identify_then(&params, args.seed, |_| {}, resonance_override(args));
     let id = &run.identified;
     let err = IdentifyRun::error_pct;
     println!(
@@ -725,6 +726,24 @@ fn identify(args: &Args) -> Result<(), String> {
     let coulomb_at_motor =
         params.coulomb_friction_nm + params.load_coulomb_friction_nm / (params.gear_ratio * params.gear_efficiency);
     println!("friction_error_pct={}", pct(id.coulomb_friction_nm, coulomb_at_motor));
+    // The load's resonance pair (0x3205:03/04) against the two-mass truth: "none" where the drive found a rigid
+    // load, the error "none" where both agree on rigid, "spurious" where the plant is rigid but the drive found a
+    // pair, "missed" where the plant is elastic and the drive found none.
+    let pair = [
+        ("resonance", id.resonance_hz, params.coupling_resonance_hz()),
+        ("anti_resonance", id.anti_resonance_hz, params.coupling_anti_resonance_hz()),
+    ];
+    for (name, found, truth) in pair {
+        let shown = if found > 0.0 { format!("{found:.1}") } else { "none".to_owned() };
+        let error = match (found > 0.0, truth > 0.0) {
+            (true, true) => format!("{:.2}", err(found, truth)),
+            (false, false) => "none".to_owned(),
+            (true, false) => "spurious".to_owned(),
+            (false, true) => "missed".to_owned(),
+        };
+        println!("{name}_hz={shown}");
+        println!("{name}_error_pct={error}");
+    }
     println!("identify_s={:.3}", run.identify_s);
     println!("sdo_requests={}", run.sdo.requests);
     println!("sdo_answered={}", run.sdo.answered);
@@ -977,17 +996,10 @@ fn main() -> ExitCode {
     }
 }
 
-/// What the master writes before the identification: `--resonance`'s pair into 0x3205:03/04 (0.1 Hz).
-fn resonance_setup(args: &Args) -> impl FnOnce(&mut hal_sim::sim::Simulation) {
-    let resonance = args.resonance;
-    move |sim| {
-        if let Some((r, ar)) = resonance {
-            use firmware::od::generated::handles as h;
-            let d = sim.drive.dictionary_mut();
-            d.set(h::AUTO_TUNING_RESONANCE, (r * 10.0).round() as u16);
-            d.set(h::AUTO_TUNING_ANTI_RESONANCE, (ar * 10.0).round() as u16);
-        }
-    }
+/// What the master writes after the identification (which measured its own pair) before it runs the auto-tuning
+/// 0x3205:01 again: `--resonance`'s pair for 0x3205:03/04 (0.1 Hz).
+fn resonance_override(args: &Args) -> Option<(u16, u16)> {
+    args.resonance.map(|(r, ar)| ((r * 10.0).round() as u16, (ar * 10.0).round() as u16))
 }
 
 /// `--auto-tune`: the identification with its auto-tuning (`drive-sim identify`'s run) on the plant, and the
@@ -997,7 +1009,7 @@ fn auto_tuned(args: &Args, params: &PlantParams) -> Result<hal_sim::scenarios::i
     if matches!(args.scenario.as_str(), "identify" | "bench" | "ethercat" | "canopen") {
         return Err(format!("--auto-tune applies to the simulated scenarios, not to {}", args.scenario));
     }
-    let run = identification::identify(params, args.seed, resonance_setup(args));
+    let run = identification::identify_then(params, args.seed, |_| {}, resonance_override(args));
     let id = &run.identified;
     println!(
         "auto-tune: identified in {:.2} s (simulated): R {:.4} ohm, Ld {:.1} uH, Lq {:.1} uH, kt {:.4} Nm/A, \

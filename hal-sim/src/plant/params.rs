@@ -304,6 +304,16 @@ impl PlantParams {
             / (2.0 * PI)
     }
 
+    /// Anti-resonance of the two-mass system seen from the motor (the load alone on the coupling, the motor held),
+    /// in Hz: `sqrt(k / J_load) / 2 pi`; 0 when rigid. With the resonance of [`Self::coupling_resonance_hz`] it is
+    /// the truth of the identification's resonance step (0x3205:03/04).
+    pub fn coupling_anti_resonance_hz(&self) -> f64 {
+        if !self.coupling_is_compliant() {
+            return 0.0;
+        }
+        (self.coupling_stiffness_nm_per_rad / self.load_inertia_kg_m2).sqrt() / (2.0 * PI)
+    }
+
     /// Electrical time constant of the winding alone, `Lq / R`, in s (0.635 ms for the reference plant).
     pub fn winding_time_constant_electrical_s(&self) -> f64 {
         self.lq_h / self.phase_resistance_ohm

@@ -8,6 +8,9 @@ use firmware::comm::sdo::server::SdoServer;
 use firmware::drive::DriveConfig;
 use firmware::od::access::{AccessContext, CommState, NoApplicationObjects};
 
+use firmware::od::store::ParamStore;
+
+use crate::flash::SimFlash;
 use crate::plant::PlantParams;
 use crate::sim::Simulation;
 
@@ -52,6 +55,10 @@ pub struct Identified {
     pub hall_offset: u16,
     /// 0x3010:02.
     pub encoder_type: u16,
+    /// 0x3205:03 (0.1 Hz), Hz: the load's first resonance (0: rigid, or not identified).
+    pub resonance_hz: f64,
+    /// 0x3205:04 (0.1 Hz), Hz: the anti-resonance under it (0: rigid, or not identified).
+    pub anti_resonance_hz: f64,
 }
 
 /// How the run ended.
@@ -215,6 +222,18 @@ pub fn commission(sim: &mut Simulation, parameters: &Parameters) -> Result<(), S
 /// Runs the identification on `params` (noise seeded with `seed`), after `setup` (fault injection, a wrong
 /// parameter) has acted on the commissioned simulation.
 pub fn identify(params: &PlantParams, seed: u64, setup: impl FnOnce(&mut Simulation)) -> IdentifyRun {
+    identify_then(params, seed, setup, None)
+}
+
+/// [`identify`], and then, when `resonance` is given, a master's own resonance pair (0.1 Hz: resonance,
+/// anti-resonance) in place of the one the identification measured: with the power stage off it writes
+/// 0x3205:03/04 and runs the auto-tuning again (0x3205:01 = 1); the parameters are read after it.
+pub fn identify_then(
+    params: &PlantParams,
+    seed: u64,
+    setup: impl FnOnce(&mut Simulation),
+    resonance: Option<(u16, u16)>,
+) -> IdentifyRun {
     let mut sim = Simulation::new(params.clone(), seed, DriveConfig::DEFAULT);
     sim.commission_motor_data(params);
     setup(&mut sim);
@@ -255,6 +274,27 @@ pub fn identify(params: &PlantParams, seed: u64, setup: impl FnOnce(&mut Simulat
         }
     };
     let identify_s = sim.time_s() - start_s;
+    if let (Some((r, ar)), Outcome::Done) = (resonance, outcome) {
+        master.download(&mut sim, 0x6040, 0, &0x0006u16.to_le_bytes());
+        for _ in 0..400 {
+            sim.run(25);
+            if statusword(&mut master, &mut sim) & 0x6F == 0x21 {
+                break;
+            }
+        }
+        // Through the drive's own dictionary access (the command 0x3205:01 is an application object, which this
+        // master's plain SDO server does not serve), with the power stage off as 0x3205:01 requires.
+        let mut store = ParamStore::new(SimFlash::params());
+        let ctx = AccessContext { comm_state: CommState::Operational, power_stage_enabled: false, max_pdo_bytes: 8 };
+        for (sub, data) in [(3u8, r.to_le_bytes().to_vec()), (4, ar.to_le_bytes().to_vec()), (1, vec![1])] {
+            if let Err(abort) = sim.drive.sdo_write(0x3205, sub, &data, ctx, &mut store) {
+                panic!(
+                    "the drive refused the master's 0x3205:{sub:02X} = {data:?} (pair {r}/{ar} x 0.1 Hz): {abort:?}"
+                );
+            }
+        }
+        sim.run(50);
+    }
     let mut read = |index: u16, sub: u8| master.upload(&mut sim, index, sub).unwrap_or(0);
     let identified = Identified {
         resistance_ohm: f64::from(read(0x3002, 1)) * 1e-6,
@@ -267,6 +307,8 @@ pub fn identify(params: &PlantParams, seed: u64, setup: impl FnOnce(&mut Simulat
         index_offset: read(0x3010, 5) as i32,
         hall_offset: read(0x301A, 3) as u16,
         encoder_type: read(0x3010, 2) as u16,
+        resonance_hz: f64::from(read(0x3205, 3)) * 0.1,
+        anti_resonance_hz: f64::from(read(0x3205, 4)) * 0.1,
     };
     let parameters = Parameters {
         values: IDENTIFIED_OBJECTS

@@ -48,7 +48,7 @@ fn electrical_identification_meets_its_tolerances_on_every_preset() {
         let params = preset(name);
         let run = identify(&params, 1, electrical_only);
         assert_eq!(run.outcome, Outcome::Done, "{name}: statusword bit 12");
-        assert_eq!(run.last_step, 8, "{name}: 0x3204:02 shows done");
+        assert_eq!(run.last_step, 9, "{name}: 0x3204:02 shows done");
         let id = &run.identified;
         assert_within("R", name, id.resistance_ohm, params.phase_resistance_ohm, 3.0);
         assert_within("Ld", name, id.ld_h, params.ld_h, 5.0);

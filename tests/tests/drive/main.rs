@@ -15,4 +15,5 @@ mod io;
 mod mechanical_identification;
 mod parameters;
 mod regeneration;
+mod resonance_identification;
 mod sensor_configuration;
