@@ -52,9 +52,10 @@ const ECAT_CYCLE_BUDGET: u64 = 1_500;
 /// back 7,160 bytes in the CAN image and 9,384 in EtherCAT with defmt. Lowered again once the dictionary's entries
 /// shrank from 36 to 24 bytes (names in one text, thin constants), the parameter store shared the update code's
 /// CRC and the filters' `exp_neg_q31` worked in 64-bit values: -11,392 bytes in the CAN image, -11,948 in
-/// EtherCAT with defmt, which brought the CAN image back under its 200 KiB ceiling. Measured at the last change:
-/// 195,948, 226,036 and 232,040.
-const TEXT_BUDGETS: [(&str, u64); 3] = [("can", 193 * 1024), ("ethercat", 222 * 1024), ("ethercat_defmt", 228 * 1024)];
+/// EtherCAT with defmt, which brought the CAN image back under its 200 KiB ceiling. Raised by 3 KiB for the
+/// identification's resonance step (the motor-side frequency response of an elastic load, +3,164 bytes in every
+/// image), still under both ceilings. Measured at the last change: 199,136, 229,224 and 235,228.
+const TEXT_BUDGETS: [(&str, u64); 3] = [("can", 196 * 1024), ("ethercat", 225 * 1024), ("ethercat_defmt", 231 * 1024)];
 
 #[test]
 fn board_images_fit_their_text_budgets() {

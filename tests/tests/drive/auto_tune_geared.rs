@@ -1,6 +1,6 @@
-//! `drive-sim --auto-tune --resonance 60,15` on the geared, elastic preset (`hal-sim/presets/geared-36v.toml`: 5:1
-//! gear with 0.3 deg backlash, load 15 x the reflected rotor on a coupling, resonance 60 Hz, anti-resonance 15 Hz,
-//! 5,000 counts/rev): the identification with the resonance pair a master writes into 0x3205:03/04, its
+//! `drive-sim --auto-tune` on the geared, elastic preset (`hal-sim/presets/geared-36v.toml`: 5:1 gear with
+//! 0.3 deg backlash, load 15 x the reflected rotor on a coupling, resonance 60 Hz, anti-resonance 15 Hz,
+//! 5,000 counts/rev): the identification with the resonance pair its own step 7 measures into 0x3205:03/04, its
 //! auto-tuning's elastic design (`firmware::drive::tuning`, "Position loop"), and the scenarios of issue 18 "What
 //! it must show" on that plant, scaled as `drive-sim --plant` scales them.
 //!
@@ -8,7 +8,6 @@
 //! design replaces (`Kp = Kd wc / 4`) gave a CSP peak of 290 increments, rms 157 and 88 left after the move, so
 //! the CSP bounds fail without it.
 
-use firmware::od::generated::handles as h;
 use hal_sim::plant::PlantParams;
 use hal_sim::scenarios::identification::{self, Outcome};
 use hal_sim::scenarios::{self, motion, PlantScale, Setup};
@@ -19,23 +18,19 @@ fn geared() -> PlantParams {
     PlantParams::from_toml_file(Path::new(&path)).expect("geared preset")
 }
 
-/// The identification with 0x3205:03/04 = 60 Hz / 15 Hz (0.1 Hz units), as `drive-sim --resonance 60,15`.
+/// The whole identification (with its resonance step: 59.3 Hz / 14.2 Hz measured on seed 1) and its tuning.
 fn auto_tuned(params: &PlantParams) -> identification::Parameters {
-    let run = identification::identify(params, 1, |sim| {
-        let d = sim.drive.dictionary_mut();
-        d.set(h::AUTO_TUNING_RESONANCE, 600u16);
-        d.set(h::AUTO_TUNING_ANTI_RESONANCE, 150u16);
-    });
+    let run = identification::identify(params, 1, |_| {});
     assert_eq!(run.outcome, Outcome::Done, "identification finished");
     run.parameters
 }
 
-/// CSP (4 revolutions up to 1,200 rpm, jerk-limited, 1 ms set-points): following error peak 79 increments
-/// (5.7 deg of the motor shaft; the issue asks 3 deg = 41.7, out of reach of the motor-side design's D gain, see
-/// `firmware::drive::tuning`), rms 34.4, 3 increments 20 ms after the last set-point. Tolerances: peak and rms
-/// +10 % (seeds 1..3 give 78 to 82 and 34 to 41: the plant's noise and the identification's inertia move them),
-/// the settle error +-5 increments (seeds 1..3 leave 3 to 8: where the motor stops in the backlash and the
-/// stiction holds it is a matter of a few increments). The velocity step (100 rpm x 0.4): overshoot <= 15 %
+/// CSP (4 revolutions up to 1,200 rpm, jerk-limited, 1 ms set-points): following error peak 85 increments
+/// (6.1 deg of the motor shaft; the issue asks 3 deg = 41.7, out of reach of the motor-side design's D gain, see
+/// `firmware::drive::tuning`), rms 39.9, 13 increments 20 ms after the last set-point. Tolerances: the largest
+/// figure of seeds 1..3 (`drive-sim csp --plant ... --auto-tune --seed N`: peak 85 to 101, rms 39.9 to 47.8,
+/// settle 13 to 24) +10 %: the seed moves the identified inertia and resonance pair the gains come from, and
+/// where the motor stops in the backlash under stiction. The velocity step (100 rpm x 0.4): overshoot <= 15 %
 /// (the issue's; 6.4 % reached). The current step: overshoot <= 10 % (the issue's; 0.3 % reached).
 #[test]
 fn auto_tuned_geared_axis_follows_csp_within_its_reached_figures() {
@@ -57,9 +52,9 @@ fn auto_tuned_geared_axis_follows_csp_within_its_reached_figures() {
             (csp, velocity, step)
         })
     });
-    assert!(csp.following_error_peak_inc <= 79.0 * 1.1, "csp peak {} inc", csp.following_error_peak_inc);
-    assert!(csp.following_error_rms_inc <= 34.4 * 1.1, "csp rms {} inc", csp.following_error_rms_inc);
-    assert!(csp.settle_error_inc <= 3.0 + 5.0, "csp settle {} inc", csp.settle_error_inc);
+    assert!(csp.following_error_peak_inc <= 101.0 * 1.1, "csp peak {} inc", csp.following_error_peak_inc);
+    assert!(csp.following_error_rms_inc <= 47.8 * 1.1, "csp rms {} inc", csp.following_error_rms_inc);
+    assert!(csp.settle_error_inc <= 24.0 * 1.1, "csp settle {} inc", csp.settle_error_inc);
     assert!(velocity.overshoot_pct <= 15.0, "csv step overshoot {} %", velocity.overshoot_pct);
     assert!(step.overshoot_pct <= 10.0, "current step overshoot {} %", step.overshoot_pct);
 }
