@@ -37,6 +37,14 @@
 //!   the geared preset made the inertia 16 % too large; between the ramps the motor's mean acceleration is the
 //!   whole drivetrain's, and the fit sees the total inertia.
 //!
+//! - Plausibility: the even and the odd full relay cycles are two experiments, each fitted alone; their inertias
+//!   must agree within a quarter of the whole fit's, and the Coulomb and viscous friction torques (at the relay
+//!   speed) must be below the relay current's torque, which moved the shaft. Otherwise the step fails
+//!   ([`MechanicalError::SampleMismatch`]) rather than write a value the loops would be tuned from. A relay that
+//!   does not reach its speed in [`STALL_TICKS`] (a current below the breakaway torque: the probe's and the
+//!   adaptation's accelerations include the friction's share) doubles its current, and blocks in which the shaft
+//!   stood count in no fit (static friction is not `Tc sign(w)`).
+//!
 //! Each fit accumulates its normal equations in `i128` ([`Regression3`]) and is solved once at the end by
 //! Cramer's rule on the equations scaled to 40 bits. Cost per slow tick: a few dozen 64-bit products; the solve
 //! at the end, spread over three slow ticks: 3 x 4 determinants of the scaled equations (64 x 64-bit minors, one
@@ -161,7 +169,8 @@ pub enum MechanicalError {
     /// obstructed).
     Obstructed,
     /// The motor turned against the current, or the fit gave a non-physical plant (kt or inertia not positive,
-    /// singular equations): IDX 0xFF15 "Auto tuning sample mismatch error".
+    /// singular equations, a friction torque at or above the relay's), or the even and odd relay cycles
+    /// disagree on the inertia: IDX 0xFF15 "Auto tuning sample mismatch error".
     SampleMismatch,
     /// A configuration value is zero: IDX 0xFF16 "Auto tuning parameter error".
     InvalidConfig,
@@ -206,8 +215,8 @@ enum Phase {
     Relay { direction: i64 },
     /// Braking against `direction`, the sign of the speed when the relay ended.
     Stop { direction: i64 },
-    /// Solving, one part per slow tick (0: the torque-constant fit, 1: the mechanical fit, 2: the results), so
-    /// that no slow tick carries all of it.
+    /// Solving, one part per slow tick (0: the torque-constant fit, 1 and 2: the mechanical fits of the even and
+    /// the odd relay cycles, 3: the whole mechanical fit, 4: the results), so that no slow tick carries all of it.
     Solve(u8),
     /// Finished.
     Finished(MechanicalStatus),
@@ -703,9 +712,9 @@ impl MechanicalIdentification {
         // The relay moved, so its torque exceeded the Coulomb friction and, at the relay speed, the viscous
         // friction: a fit that says otherwise (in either sign) explained the data with the wrong terms. In uNm
         // times 65,536: the current is in bits.
-        let relay_torque = kt.saturating_mul(u64::try_from(self.relay_current).unwrap_or(0));
-        let viscous_torque = viscous.unsigned_abs().saturating_mul(u64::from(relay_speed_rpm)).saturating_mul(65) + 1;
-        if coulomb.unsigned_abs().saturating_mul(65_536) >= relay_torque || viscous_torque >= relay_torque {
+        let relay_torque = sat_mul(i64::try_from(kt).unwrap_or(i64::MAX), self.relay_current);
+        let viscous_torque = sat_mul(sat_mul(viscous.saturating_abs(), i64::from(relay_speed_rpm)), 65);
+        if sat_mul(coulomb.saturating_abs(), 65_536).max(viscous_torque) >= relay_torque {
             return None;
         }
         let clamp_u32 = |x: i64| u32::try_from(x.max(0)).unwrap_or(u32::MAX);
@@ -900,6 +909,7 @@ impl Solution3 {
 }
 
 /// `num / den * 2^exp * mul / div`, rounded to nearest; `None` for a zero denominator, saturated to `i64`.
+#[inline(never)]
 fn fraction(num: i128, den: i128, exp: i32, mul: u64, div: u64) -> Option<i64> {
     if den == 0 || div == 0 {
         return None;
