@@ -80,7 +80,7 @@ pub const MAX_RELAY_TICKS: u32 = 10_000;
 /// The first half cycles, each of which rescales the relay current.
 const ADAPTED_HALF_CYCLES: u16 = 3;
 /// Relay ticks without reaching the relay speed after which the current doubles (1 s, four target half cycles).
-const STALL_TICKS: u32 = 4 * HALF_CYCLE_TARGET_TICKS;
+pub const STALL_TICKS: u32 = 4 * HALF_CYCLE_TARGET_TICKS;
 /// The inertias of the even and the odd relay cycles may differ by 1/4 of the whole fit's.
 const REPEAT_SPREAD_DIVISOR: u64 = 4;
 /// Half cycles the fit needs at the least.
