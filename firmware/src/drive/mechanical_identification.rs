@@ -37,6 +37,14 @@
 //!   the geared preset made the inertia 16 % too large; between the ramps the motor's mean acceleration is the
 //!   whole drivetrain's, and the fit sees the total inertia.
 //!
+//! - Plausibility: the even and the odd full relay cycles are two experiments, each fitted alone; their inertias
+//!   must agree within a quarter of the whole fit's, and the Coulomb and viscous friction torques (at the relay
+//!   speed) must be below the relay current's torque, which moved the shaft. Otherwise the step fails
+//!   ([`MechanicalError::SampleMismatch`]) rather than write a value the loops would be tuned from. A relay that
+//!   does not reach its speed in [`STALL_TICKS`] (a current below the breakaway torque: the probe's and the
+//!   adaptation's accelerations include the friction's share) doubles its current, and blocks in which the shaft
+//!   stood count in no fit (static friction is not `Tc sign(w)`).
+//!
 //! Each fit accumulates its normal equations in `i128` ([`Regression3`]) and is solved once at the end by
 //! Cramer's rule on the equations scaled to 40 bits. Cost per slow tick: a few dozen 64-bit products; the solve
 //! at the end, spread over three slow ticks: 3 x 4 determinants of the scaled equations (64 x 64-bit minors, one
@@ -71,6 +79,10 @@ pub const MIN_RELAY_TICKS: u32 = 2_500;
 pub const MAX_RELAY_TICKS: u32 = 10_000;
 /// The first half cycles, each of which rescales the relay current.
 const ADAPTED_HALF_CYCLES: u16 = 3;
+/// Relay ticks without reaching the relay speed after which the current doubles (1 s, four target half cycles).
+pub const STALL_TICKS: u32 = 4 * HALF_CYCLE_TARGET_TICKS;
+/// The inertias of the even and the odd relay cycles may differ by 1/4 of the whole fit's.
+const REPEAT_SPREAD_DIVISOR: u64 = 4;
 /// Half cycles the fit needs at the least.
 pub const MIN_FIT_HALF_CYCLES: u16 = 2;
 /// The relay speed in per mille of the max system speed.
@@ -157,7 +169,8 @@ pub enum MechanicalError {
     /// obstructed).
     Obstructed,
     /// The motor turned against the current, or the fit gave a non-physical plant (kt or inertia not positive,
-    /// singular equations): IDX 0xFF15 "Auto tuning sample mismatch error".
+    /// singular equations, a friction torque at or above the relay's), or the even and odd relay cycles
+    /// disagree on the inertia: IDX 0xFF15 "Auto tuning sample mismatch error".
     SampleMismatch,
     /// A configuration value is zero: IDX 0xFF16 "Auto tuning parameter error".
     InvalidConfig,
@@ -202,8 +215,8 @@ enum Phase {
     Relay { direction: i64 },
     /// Braking against `direction`, the sign of the speed when the relay ended.
     Stop { direction: i64 },
-    /// Solving, one part per slow tick (0: the torque-constant fit, 1: the mechanical fit, 2: the results), so
-    /// that no slow tick carries all of it.
+    /// Solving, one part per slow tick (0: the torque-constant fit, 1 and 2: the mechanical fits of the even and
+    /// the odd relay cycles, 3: the whole mechanical fit, 4: the results), so that no slow tick carries all of it.
     Solve(u8),
     /// Finished.
     Finished(MechanicalStatus),
@@ -217,8 +230,11 @@ struct BlockSums {
     s1: [i64; 3],
     /// The block's position difference (counts).
     travel: i64,
-    /// The current demand changed in the block or the tick before it, or the bus was near the limiter's voltage.
+    /// The current demand changed in the block or the tick before it, or the bus was near the limiter's voltage,
+    /// or the shaft stood.
     ramping: bool,
+    /// Ticks of the block without a position change.
+    standing: u8,
 }
 
 impl BlockSums {
@@ -285,9 +301,12 @@ pub struct MechanicalIdentification {
     previous_block: Option<BlockSums>,
     block_start: i32,
     electrical: Regression3,
-    mechanical: Regression3,
+    /// The mechanical fit's equations of the even and the odd full relay cycles: each is an experiment of its
+    /// own, their inertias must agree (the plausibility check), and their sum is the fit.
+    mechanical: [Regression3; 2],
     electrical_solution: Option<Solution3>,
-    mechanical_solution: Option<Solution3>,
+    /// The solutions of the two halves and of the whole.
+    mechanical_solution: [Option<Solution3>; 3],
     /// The highest progress shown, per mille.
     progress: u16,
 }
@@ -326,9 +345,9 @@ impl MechanicalIdentification {
             previous_block: None,
             block_start: 0,
             electrical: Regression3::default(),
-            mechanical: Regression3::default(),
+            mechanical: [Regression3::default(); 2],
             electrical_solution: None,
-            mechanical_solution: None,
+            mechanical_solution: [None; 3],
             progress: 0,
         }
     }
@@ -499,7 +518,16 @@ impl MechanicalIdentification {
             self.ramp_towards(sat_mul(self.relay_current, moving.saturating_neg()));
             return;
         }
-        let reached = sat_mul(speed, direction) >= self.relay_speed || (headroom && sat_mul(speed, direction) > 0);
+        let along = sat_mul(speed, direction);
+        let reached = along >= self.relay_speed || (headroom && along > 0);
+        if !reached && self.relay_ticks.saturating_sub(self.half_start.0) > STALL_TICKS {
+            // The relay speed not reached in four target half cycles: the current does not overcome the friction
+            // (the shaft sticks) or is far too small for the inertia. Doubled, up to the limit, every
+            // [`STALL_TICKS`]; a stuck shaft adds nothing to the fits (blocks with a standing tick count in none).
+            let limit = i64::from(self.config.current_limit.to_bits());
+            self.relay_current = self.relay_current.saturating_mul(2).min(limit);
+            self.half_start.0 = self.relay_ticks;
+        }
         let direction = if reached {
             self.half_cycles = self.half_cycles.saturating_add(1);
             if self.half_cycles <= ADAPTED_HALF_CYCLES {
@@ -529,9 +557,9 @@ impl MechanicalIdentification {
     /// first turns alone through the backlash) falsify its short acceleration. At most a factor 2 per half cycle.
     fn adapt_relay_current(&mut self, speed: i64) {
         let (start_tick, start_speed) = self.half_start;
+        let current = self.relay_current;
         let ticks = self.relay_ticks.saturating_sub(start_tick);
         let gained = speed.saturating_sub(start_speed).saturating_abs().max(1);
-        let current = self.relay_current;
         let wanted = relay_current_for(current, self.relay_speed, ticks, gained).unwrap_or(current);
         let limit = i64::from(self.config.current_limit.to_bits());
         let wanted = wanted.max(current / 2).min(current.saturating_mul(2));
@@ -575,6 +603,7 @@ impl MechanicalIdentification {
         }
         // Mechanics: block sums, one equation per pair of complete blocks at a steady current demand.
         self.block.ramping |= excluded || self.demand != self.previous_demand;
+        self.block.standing = self.block.standing.saturating_add(u8::from(increment == 0));
         self.previous_demand = self.demand;
         self.block_tick = self.block_tick.saturating_add(1);
         let m = i64::from(self.block_tick);
@@ -587,10 +616,19 @@ impl MechanicalIdentification {
         }
         if self.block_tick >= BLOCK_TICKS {
             self.block.travel = i64::from(position.wrapping_sub(self.block_start));
+            // A block with two or more standing ticks leaves the fit: the shaft stuck (static friction holds any
+            // torque below the breakaway, which the sign(w) model cannot express; such blocks made the small
+            // gimbal's inertia 34 times too large with 2.5 times its Coulomb friction, and those where it sticks
+            // or breaks away up to 70 % too large with 5 times). A single standing tick at a reversal stays: on
+            // the geared axis (few counts per tick) leaving those blocks out made the inertia up to 15 % off.
+            self.block.ramping |= self.block.standing >= 2;
             self.block_start = position;
             if let Some(previous) = self.previous_block.filter(|p| !p.ramping && !self.block.ramping) {
                 let x = [0, 1, 2].map(|k| previous.rising(k).saturating_add(self.block.falling(k)));
-                self.mechanical.add(x, self.block.travel.saturating_sub(previous.travel));
+                let repeat = usize::from(self.half_cycles / 2 % 2 == 1);
+                if let Some(fit) = self.mechanical.get_mut(repeat) {
+                    fit.add(x, self.block.travel.saturating_sub(previous.travel));
+                }
             }
             self.previous_block = Some(self.block);
             self.block = BlockSums::default();
@@ -608,9 +646,15 @@ impl MechanicalIdentification {
                     return mismatch;
                 }
             }
-            1 => {
-                self.mechanical_solution = self.mechanical.solve();
-                if self.mechanical_solution.is_none() {
+            1..=3 => {
+                // Part 1 and 2 the halves, part 3 the whole (the sum of their normal equations).
+                let k = usize::from(part.saturating_sub(1));
+                let [even, odd] = &self.mechanical;
+                let solution = self.mechanical.get(k).map_or_else(|| even.plus(odd), |fit| *fit).solve();
+                if let Some(slot) = self.mechanical_solution.get_mut(k) {
+                    *slot = solution;
+                }
+                if solution.is_none() {
                     return mismatch;
                 }
             }
@@ -637,18 +681,42 @@ impl MechanicalIdentification {
         let flux = kt.saturating_mul(2).checked_div(3u64.saturating_mul(u64::from(self.config.pole_pairs)))?;
         // Coefficient 1: V bits per sign of i_q.
         let sign_voltage = el.scaled(1, 1000, 65_536)?;
-        let me = self.mechanical_solution?;
+        let [even, odd, me] = self.mechanical_solution;
+        let me = me?;
         // D2 = b0 W_i + b1 W_s + b2 W_p: b0 = cpr kt / (4 pi J f^2 65536) (i in bits, kt in Nm/A, J in kg m^2),
         // b1 = -cpr Tc / (4 pi J f^2), b2 = -B / (2 J f).
         // J in 0.001 g cm^2 (1e-10 kg m^2): cpr kt_u 1e4 / (4 pi f^2 65536 b0) = cpr kt_u 113 / ((f^2 / 1e4) 1420 65536 b0).
         let f2_per_1e4 = f.saturating_mul(f).checked_div(10_000)?;
-        let inertia =
-            me.inverse_scaled(0, cpr.saturating_mul(kt).saturating_mul(113), f2_per_1e4.saturating_mul(1420 * 65_536))?;
+        let (mul, div) = (cpr.saturating_mul(kt).saturating_mul(113), f2_per_1e4.saturating_mul(1420 * 65_536));
+        let inertia = me.inverse_scaled(0, mul, div)?;
         let inertia = u64::try_from(inertia).ok().filter(|&j| j > 0)?;
+        // Plausibility (a wrong value is worse than none: the loops are tuned from it): the even and the odd
+        // cycles, two experiments, agree on the inertia within 1/REPEAT_SPREAD_DIVISOR of it.
+        let spread = even?.inverse_scaled(0, mul, div)?.abs_diff(odd?.inverse_scaled(0, mul, div)?);
+        if spread.saturating_mul(REPEAT_SPREAD_DIVISOR) > inertia {
+            return None;
+        }
         // Tc = -b1 / b0 kt / 65536 (uNm); B = -b2 / b0 cpr kt / (2 pi f 65536) Nm s/rad per Nm/A, in 0.001 uNm/rpm
         // (x 2 pi / 60 x 1e9, and kt_u = 1e6 kt): -b2 / b0 cpr kt_u / (60 f 65536 / 1000) with the 2 pi cancelled.
         let coulomb = me.ratio(1, 0, kt, 65_536)?.saturating_neg();
         let viscous = me.ratio(2, 0, cpr.saturating_mul(kt), f.saturating_mul(60 * 65_536 / 1000))?.saturating_neg();
+        let relay_speed_rpm = u32::try_from(
+            u64::try_from(self.relay_speed)
+                .unwrap_or(0)
+                .saturating_mul(60)
+                .saturating_mul(f)
+                .checked_div(cpr.saturating_mul(u64::from(SPEED_TICKS)))
+                .unwrap_or(0),
+        )
+        .unwrap_or(u32::MAX);
+        // The relay moved, so its torque exceeded the Coulomb friction and, at the relay speed, the viscous
+        // friction: a fit that says otherwise (in either sign) explained the data with the wrong terms. In uNm
+        // times 65,536: the current is in bits.
+        let relay_torque = sat_mul(i64::try_from(kt).unwrap_or(i64::MAX), self.relay_current);
+        let viscous_torque = sat_mul(sat_mul(viscous.saturating_abs(), i64::from(relay_speed_rpm)), 65);
+        if sat_mul(coulomb.saturating_abs(), 65_536).max(viscous_torque) >= relay_torque {
+            return None;
+        }
         let clamp_u32 = |x: i64| u32::try_from(x.max(0)).unwrap_or(u32::MAX);
         Some(MechanicalResult {
             torque_constant: u32::try_from(kt).unwrap_or(u32::MAX),
@@ -659,15 +727,7 @@ impl MechanicalIdentification {
             current_sign_voltage_mv: i32::try_from(sign_voltage).unwrap_or(0),
             relay_current: Amps::from_bits(wide::sat_i32(i128::from(self.relay_current))),
             half_cycles: self.half_cycles,
-            relay_speed_rpm: u32::try_from(
-                u64::try_from(self.relay_speed)
-                    .unwrap_or(0)
-                    .saturating_mul(60)
-                    .saturating_mul(f)
-                    .checked_div(cpr.saturating_mul(u64::from(SPEED_TICKS)))
-                    .unwrap_or(0),
-            )
-            .unwrap_or(u32::MAX),
+            relay_speed_rpm,
             ticks: self.ticks,
         })
     }
@@ -723,6 +783,20 @@ pub struct Solution3 {
 }
 
 impl Regression3 {
+    /// The equations of both fits together.
+    #[must_use]
+    pub fn plus(&self, other: &Self) -> Self {
+        let mut sum = *self;
+        for (s, o) in sum.xx.iter_mut().zip(other.xx.iter()) {
+            *s = s.wrapping_add(*o);
+        }
+        for (s, o) in sum.xy.iter_mut().zip(other.xy.iter()) {
+            *s = s.wrapping_add(*o);
+        }
+        sum.yy = sum.yy.wrapping_add(other.yy);
+        sum
+    }
+
     /// Adds one equation. The sums wrap exactly as they would saturate: each product is below 2^126 and no
     /// experiment adds 2^63 equations (the type's note).
     pub fn add(&mut self, x: [i64; 3], y: i64) {
@@ -835,6 +909,7 @@ impl Solution3 {
 }
 
 /// `num / den * 2^exp * mul / div`, rounded to nearest; `None` for a zero denominator, saturated to `i64`.
+#[inline(never)]
 fn fraction(num: i128, den: i128, exp: i32, mul: u64, div: u64) -> Option<i64> {
     if den == 0 || div == 0 {
         return None;

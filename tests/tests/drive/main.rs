@@ -11,6 +11,7 @@ mod commutation;
 mod current_loop;
 mod encoder_resolution;
 mod identification;
+mod identification_robustness;
 mod io;
 mod mechanical_identification;
 mod parameters;

@@ -458,3 +458,86 @@ fn relay_speed_falls_until_braking_keeps_the_bus_below_the_limiter() {
     assert!(e[0].abs() < 3.0, "kt error {} %", e[0]);
     assert!(e[1].abs() < 10.0, "inertia error {} %", e[1]);
 }
+
+/// A Coulomb friction of 2.5 and 5 times the small gimbal's (1.5 and 3 mNm, 5 and 10 % of the nominal torque,
+/// as large as the relay's own torque): the relay current, adapted to the inertia alone, may fall below the
+/// breakaway torque; the relay doubles it when the speed is not reached, and blocks where the shaft stood stay out
+/// of the fit (static friction is not the sign(w) model). kt within 3 %, inertia within 5 % (issue 18, rigid).
+#[test]
+fn small_gimbal_with_up_to_five_times_its_friction_kt_within_3_pct_inertia_within_5_pct() {
+    let (_, e, _) = identify(Plant { coulomb_motor: 0.0015, ..Plant::small_gimbal() }, 0.6, 1200);
+    assert!(e[0].abs() < 3.0, "kt error {} %", e[0]);
+    assert!(e[1].abs() < 5.0, "inertia error {} %", e[1]);
+    // Five times: right values or the plausibility check's fault (on this model the even and odd cycles
+    // disagree), never a wrong value.
+    let mut plant = Plant { coulomb_motor: 0.003, ..Plant::small_gimbal() };
+    let truth = plant.clone();
+    match run(&mut plant, &config(&truth, 0.6, 1200)).status {
+        MechanicalStatus::Done(r) => {
+            let inertia = error_pct(f64::from(r.inertia) * 1e-10, truth.total_inertia());
+            let kt = error_pct(f64::from(r.torque_constant) * 1e-6, truth.kt);
+            assert!(kt.abs() < 3.0 && inertia.abs() < 5.0, "kt {kt} %, inertia {inertia} %");
+        }
+        other => assert_eq!(other, MechanicalStatus::Failed(MechanicalError::SampleMismatch)),
+    }
+}
+
+/// A relay current below the breakaway torque from the start of the relay: the shaft sticks, the relay doubles
+/// the current after [`STALL_TICKS`] without reaching the relay speed, and the step still ends with values within
+/// the tolerances (the stuck blocks count in no fit).
+#[test]
+fn a_stuck_relay_doubles_its_current_and_the_stuck_blocks_stay_out_of_the_fit() {
+    let mut plant = Plant { coulomb_motor: 0.0015, ..Plant::small_gimbal() };
+    let config = config(&plant, 0.6, 1200);
+    let truth = plant.clone();
+    let mut id = MechanicalIdentification::new(&config);
+    let mut demand = 0.0;
+    let mut stuck_ticks = 0u32;
+    let mut lowered = false;
+    let result = loop {
+        let sample = plant.tick(demand);
+        if let Phase::Relay { .. } = id.phase {
+            if id.half_cycles == 1 && !lowered {
+                lowered = true;
+                // After the first reversal: the current below the breakaway (0.0015 / 0.05 = 30 mA).
+                id.relay_current = (0.02 * 65_536.0) as i64;
+            }
+            stuck_ticks += u32::from(plant.omega == 0.0);
+        }
+        match id.step(&sample) {
+            MechanicalStatus::Running { i_q_demand } => demand = f64::from(i_q_demand.to_bits()) / 65_536.0,
+            MechanicalStatus::Done(result) => break result,
+            other => panic!("{other:?}"),
+        }
+    };
+    assert!(stuck_ticks > STALL_TICKS / 2, "the shaft stuck for {stuck_ticks} ticks");
+    let inertia = error_pct(f64::from(result.inertia) * 1e-10, truth.total_inertia());
+    let kt = error_pct(f64::from(result.torque_constant) * 1e-6, truth.kt);
+    assert!(kt.abs() < 3.0 && inertia.abs() < 5.0, "kt {kt} %, inertia {inertia} %, {result:?}");
+}
+
+/// The inertia doubles after the fourth half cycle (a load that couples in): the even relay cycles (half cycles
+/// 0-1 and 4-5) see both inertias, the odd ones (2-3) the first alone; they disagree by more than a quarter of the
+/// whole fit's inertia, and the step fails with `SampleMismatch`, IDX 0xFF15, instead of writing an inertia that
+/// is neither.
+#[test]
+fn relay_cycles_that_disagree_on_the_inertia_fail_sample_mismatch_0xff15() {
+    let mut plant = Plant::reference();
+    let config = config(&plant, 3.2, 5000);
+    let mut id = MechanicalIdentification::new(&config);
+    let mut demand = 0.0;
+    let mut doubled = false;
+    let status = loop {
+        let sample = plant.tick(demand);
+        if id.half_cycles == 4 && !doubled {
+            doubled = true;
+            plant.j_motor *= 2.0;
+            plant.j_load *= 2.0;
+        }
+        match id.step(&sample) {
+            MechanicalStatus::Running { i_q_demand } => demand = f64::from(i_q_demand.to_bits()) / 65_536.0,
+            other => break other,
+        }
+    };
+    assert_eq!(status, MechanicalStatus::Failed(MechanicalError::SampleMismatch));
+}
