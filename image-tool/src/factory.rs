@@ -80,28 +80,35 @@ pub fn elf_flash_blocks(elf: &[u8]) -> Result<Vec<Block>, String> {
     Ok(blocks)
 }
 
-/// The bootloader's flash contents from its ELF, refused unless all of it lies in BOOTLOADER (32 KiB).
+/// The bootloader's flash contents from its ELF, refused unless all of it lies in BOOTLOADER (32 KiB) and it
+/// starts at the boot address.
 pub fn bootloader_blocks(elf: &[u8]) -> Result<Vec<Block>, String> {
-    let blocks = elf_flash_blocks(elf).map_err(|e| format!("bootloader: {e}"))?;
+    let blocks = elf_flash_blocks(elf)?;
     if blocks.is_empty() {
-        return Err("bootloader: no loadable contents in flash".into());
+        return Err("no loadable contents in flash".into());
     }
     let region = u64::from(BOOTLOADER_START)..u64::from(BOOTLOADER_END);
-    for b in &blocks {
-        let end = u64::from(b.address) + b.data.len() as u64;
-        if !region.contains(&u64::from(b.address)) || end > region.end {
-            let used = blocks.iter().map(|b| u64::from(b.address) + b.data.len() as u64).max().unwrap_or(end);
-            return Err(format!(
-                "bootloader: contents at {:#010x}..{end:#010x} lie outside its 32 KiB region \
-                 {BOOTLOADER_START:#010x}..{BOOTLOADER_END:#010x} (it needs {} bytes from the region start)",
-                b.address,
-                used.saturating_sub(region.start)
-            ));
-        }
+    let end_of = |b: &Block| u64::from(b.address) + b.data.len() as u64;
+    if let Some(outside) = blocks.iter().find(|b| !region.contains(&u64::from(b.address))) {
+        return Err(format!(
+            "contents at {:#010x}..{:#010x} lie outside the bootloader's 32 KiB region \
+             {BOOTLOADER_START:#010x}..{BOOTLOADER_END:#010x} (not a bootloader ELF?)",
+            outside.address,
+            end_of(outside)
+        ));
+    }
+    let end = blocks.iter().map(end_of).max().unwrap_or(region.start);
+    if end > region.end {
+        return Err(format!(
+            "{} bytes do not fit the bootloader's 32 KiB region {BOOTLOADER_START:#010x}..{BOOTLOADER_END:#010x} \
+             ({} bytes)",
+            end - region.start,
+            region.end - region.start
+        ));
     }
     if !blocks.iter().any(|b| b.address == BOOTLOADER_START) {
         return Err(format!(
-            "bootloader: nothing at {BOOTLOADER_START:#010x}, where the core reads its stack pointer and reset vector"
+            "nothing at {BOOTLOADER_START:#010x}, where the core reads its stack pointer and reset vector"
         ));
     }
     Ok(blocks)
@@ -141,7 +148,7 @@ pub fn erased_boot_state() -> Block {
 
 /// The whole factory image: bootloader, erased update state, slot A.
 pub fn factory_blocks(bootloader_elf: &[u8], signed_image: &[u8]) -> Result<Vec<Block>, String> {
-    let mut blocks = bootloader_blocks(bootloader_elf)?;
+    let mut blocks = bootloader_blocks(bootloader_elf).map_err(|e| format!("bootloader: {e}"))?;
     blocks.push(erased_boot_state());
     blocks.extend(slot_a_blocks(signed_image)?);
     blocks.sort_by_key(|b| b.address);

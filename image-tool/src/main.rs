@@ -7,7 +7,7 @@ use std::process::ExitCode;
 use clap::{Args, Parser, Subcommand};
 use firmware::boot::image::HARDWARE_ID;
 use firmware::boot::keys::DEV_PUBLIC_KEY;
-use image_tool::factory::{check_image, factory_blocks, to_intel_hex};
+use image_tool::factory::{bootloader_blocks, check_image, factory_blocks, to_intel_hex};
 use image_tool::{
     describe, elf_payload, os_random, pack, parse_key_hex, parse_u32, parse_version, public_of, rust_key_file, to_hex,
     PackOptions,
@@ -245,7 +245,9 @@ fn run(command: Command) -> Result<String, String> {
             // The image must pass the bootloader's own check, or the board would stay in the fallback.
             let (pk, hw) = trust_key(&TrustArgs { public, hw_id: sign.fields.hw_id })?;
             let header = check_image(&image, &pk, hw)?;
-            let blocks = factory_blocks(&read(&bootloader)?, &image).map_err(|e| format!("--bootloader: {e}"))?;
+            let boot_elf = read(&bootloader)?;
+            bootloader_blocks(&boot_elf).map_err(|e| format!("--bootloader {}: {e}", bootloader.display()))?;
+            let blocks = factory_blocks(&boot_elf, &image)?;
             let text = to_intel_hex(&blocks)?;
             write(&out, text.as_bytes())?;
             let v = header.firmware_version;
