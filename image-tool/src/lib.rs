@@ -4,6 +4,8 @@
 //!
 //! Key files are text: the 32-byte Ed25519 secret seed (`*.secret`) or public key (`*.pub`) as 64 hex digits.
 
+pub mod factory;
+
 use std::fmt::Write as _;
 
 use firmware::boot::image::{ImageHeader, HARDWARE_ID, HEADER_LEN, MAX_PAYLOAD_LEN, VERSION_STRING_LEN};

@@ -216,22 +216,46 @@ pub fn run_image(elf: &Path) -> Result<Run, Error> {
     }
     let boot = elf.with_extension("boot.bin");
     std::fs::write(&boot, boot_words(elf)?).map_err(|e| Error::Run(format!("{}: {e}", boot.display())))?;
-    run_qemu(elf, &[(boot.as_path(), BOOT_ALIAS)])
+    run_qemu(Some(elf), &[(boot.as_path(), BOOT_ALIAS)])
 }
 
-/// One QEMU run of `kernel` (loaded at its link addresses) with raw files loaded at flash addresses first.
-fn run_qemu(kernel: &Path, raw_files: &[(&Path, u32)]) -> Result<Run, Error> {
+/// Runs an Intel HEX file of the whole flash, e.g. `drive-image factory`'s, as a programmer leaves the board:
+/// QEMU's generic loader reads the HEX records into flash at their addresses (no `-kernel`), and the core starts
+/// from the bootloader at 0x0800_0000 as at a reset. Same QEMU settings as [`run_image`].
+pub fn run_flash_hex(hex: &Path) -> Result<Run, Error> {
+    if !qemu_available() {
+        return Err(Error::QemuMissing);
+    }
+    let mut command = qemu_command();
+    command.arg("-device").arg(format!("loader,file={}", hex.display()));
+    finish_run(command)
+}
+
+/// `qemu-system-arm` with the settings every run uses: `netduinoplus2`, semihosting, exact instruction counting.
+fn qemu_command() -> Command {
     let mut command = Command::new("qemu-system-arm");
     command
         .args(["-machine", "netduinoplus2", "-cpu", "cortex-m4", "-display", "none", "-monitor", "none"])
         .args(["-serial", "none", "-semihosting-config", "enable=on,target=native"])
         .args(["-icount", "shift=0,align=off,sleep=off"]);
+    command
+}
+
+/// One QEMU run of `kernel` (loaded at its link addresses) with raw files loaded at flash addresses first.
+fn run_qemu(kernel: Option<&Path>, raw_files: &[(&Path, u32)]) -> Result<Run, Error> {
+    let mut command = qemu_command();
     for (file, addr) in raw_files {
         command.arg("-device").arg(format!("loader,file={},addr={addr:#010x},force-raw=on", file.display()));
     }
+    if let Some(kernel) = kernel {
+        command.arg("-kernel").arg(kernel);
+    }
+    finish_run(command)
+}
+
+/// Starts `command`, collects its output and exit status (killed after [`RUN_TIMEOUT`]).
+fn finish_run(mut command: Command) -> Result<Run, Error> {
     let mut child = command
-        .arg("-kernel")
-        .arg(kernel)
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
@@ -432,7 +456,7 @@ pub fn run_with_bootloader(bootloader: &Path, slot_a: &[u8], name: &str) -> Resu
     }
     let file = bootloader.with_extension(format!("{name}.slot-a.bin"));
     std::fs::write(&file, slot_a).map_err(|e| Error::Run(format!("{}: {e}", file.display())))?;
-    run_qemu(bootloader, &[(file.as_path(), firmware::flash_map::SLOT_A_START)])
+    run_qemu(Some(bootloader), &[(file.as_path(), firmware::flash_map::SLOT_A_START)])
 }
 
 /// Lowest and highest-plus-one load (physical) address of an ELF32's loadable contents in flash (PT_LOAD segments
