@@ -239,7 +239,21 @@ fn run(command: Command) -> Result<String, String> {
                     let payload = elf_payload(&read(elf)?).map_err(|e| format!("--elf {}: {e}", elf.display()))?;
                     pack_signed(&payload, key, version, &sign.fields)?
                 }
-                (None, Some(image), None, None) => read(image)?,
+                (None, Some(image), None, None) => {
+                    // The header of a signed image cannot change: a field for it would be ignored, so refuse it.
+                    let f = &sign.fields;
+                    let ignored = [
+                        (f.sw_id.is_some(), "--sw-id"),
+                        (f.version_string.is_some(), "--version-string"),
+                        (f.security_version.is_some(), "--security-version"),
+                    ];
+                    if let Some((_, name)) = ignored.iter().find(|(given, _)| *given) {
+                        return Err(format!(
+                            "{name} applies only with --elf: the image given by --image is already signed (pack it again)"
+                        ));
+                    }
+                    read(image)?
+                }
                 _ => return Err("factory needs --elf FILE with --key and --version, or --image FILE".into()),
             };
             // The image must pass the bootloader's own check, or the board would stay in the fallback.

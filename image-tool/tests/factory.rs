@@ -321,6 +321,17 @@ fn factory_argument_errors_name_the_option() {
         .unwrap();
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--key"), "{}", String::from_utf8_lossy(&out.stderr));
+    // A header field with an already signed image would be ignored: refused, naming the option.
+    let out = tool()
+        .args(["factory", "--bootloader", "b", "--image", "i", "--security-version", "3", "--out", "o"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("--security-version applies only with --elf"),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let out = tool().args(["factory", "--bootlodaer", "b"]).output().unwrap();
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--bootlodaer"), "{}", String::from_utf8_lossy(&out.stderr));
