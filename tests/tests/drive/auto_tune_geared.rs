@@ -25,11 +25,11 @@ fn auto_tuned(params: &PlantParams) -> identification::Parameters {
     run.parameters
 }
 
-/// CSP (4 revolutions up to 1,200 rpm, jerk-limited, 1 ms set-points): following error peak 85 increments
-/// (6.1 deg of the motor shaft; the issue asks 3 deg = 41.7, out of reach of the motor-side design's D gain, see
-/// `firmware::drive::tuning`), rms 39.9, 13 increments 20 ms after the last set-point. Tolerances: the largest
-/// figure of seeds 1..3 (`drive-sim csp --plant ... --auto-tune --seed N`: peak 85 to 101, rms 39.9 to 47.8,
-/// settle 13 to 24) +10 %: the seed moves the identified inertia and resonance pair the gains come from, and
+/// CSP (4 revolutions up to 1,200 rpm, jerk-limited, 1 ms set-points): following error peak 105 increments
+/// (7.6 deg of the motor shaft; the issue asks 3 deg = 41.7, out of reach of the motor-side design's D gain, see
+/// `firmware::drive::tuning`), rms 46.2, 20 increments 20 ms after the last set-point. Tolerances: the largest
+/// figure of seeds 1..3 (`drive-sim csp --plant ... --auto-tune --seed N`: peak 84 to 112, rms 39.5 to 49.0,
+/// settle 11 to 20) +10 %: the seed moves the identified inertia and resonance pair the gains come from, and
 /// where the motor stops in the backlash under stiction. The velocity step (100 rpm x 0.4): overshoot <= 15 %
 /// (the issue's; 6.4 % reached). The current step: overshoot <= 10 % (the issue's; 0.3 % reached).
 #[test]
@@ -52,9 +52,9 @@ fn auto_tuned_geared_axis_follows_csp_within_its_reached_figures() {
             (csp, velocity, step)
         })
     });
-    assert!(csp.following_error_peak_inc <= 101.0 * 1.1, "csp peak {} inc", csp.following_error_peak_inc);
-    assert!(csp.following_error_rms_inc <= 47.8 * 1.1, "csp rms {} inc", csp.following_error_rms_inc);
-    assert!(csp.settle_error_inc <= 24.0 * 1.1, "csp settle {} inc", csp.settle_error_inc);
+    assert!(csp.following_error_peak_inc <= 112.0 * 1.1, "csp peak {} inc", csp.following_error_peak_inc);
+    assert!(csp.following_error_rms_inc <= 49.0 * 1.1, "csp rms {} inc", csp.following_error_rms_inc);
+    assert!(csp.settle_error_inc <= 20.0 * 1.1, "csp settle {} inc", csp.settle_error_inc);
     assert!(velocity.overshoot_pct <= 15.0, "csv step overshoot {} %", velocity.overshoot_pct);
     assert!(step.overshoot_pct <= 10.0, "current step overshoot {} %", step.overshoot_pct);
 }
