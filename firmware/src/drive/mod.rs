@@ -510,7 +510,8 @@ impl Drive {
     fn limit_bus_voltage(&mut self) {
         let was_active = self.bus_limiter.active();
         self.bus_limiter.refresh(&self.dictionary);
-        self.bus_limiter.observe(self.report.signals.v_bus, self.scale.current_limit());
+        let signals = &self.report.signals;
+        self.bus_limiter.observe(signals.v_bus, signals.i_dq.q, self.scale.current_limit());
         if was_active || self.bus_limiter.active() {
             self.dictionary.set(h::BUS_LIMITER_STATE, self.bus_limiter.state_bits());
             self.update_demand();

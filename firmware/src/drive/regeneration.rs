@@ -35,6 +35,21 @@
 //! of the reduction. Both actions therefore act on the voltage the bus will have when a decision takes effect: the
 //! sample plus its rise over [`LOOKAHEAD_TICKS`] slow periods (a loop set-point decided in a slow tick applies in
 //! the middle of the next slow period, and the sample is up to one period old). A falling bus is taken as it is.
+//!
+//! # The current, not its reference
+//! The reduction sets a reference; the bus takes the current the motor actually carries. The current loop (a PI
+//! without back-EMF feed-forward) trails a back-EMF that ramps, and it ramps fastest when an elastic load throws
+//! the rotor back: on the geared preset the coupling accelerated the rotor by about 26,000 rad/s^2, the back-EMF
+//! rose by about 1,700 V/s, and 2.2 to 3 A of braking q current stayed under a zero reference, about 35 W into a
+//! bus that the loss braking (10 W in its 0.05 ohm) could not hold: 55 to 56 V in 1.7 ms, the trip. While the
+//! reduction acts, each sample of the measured q current is therefore compared with the braking reference handed
+//! out, and half of the excess moves the next reference toward driving (at most to the current limit): an
+//! integrator that brings the measured braking current, not only its reference, down to the factor.
+//!
+//! # Release
+//! The factor falls at once and grows back by at most [`RELEASE_STEP_Q16`] per sample. A rotor the load threw
+//! to a higher speed than the braking began at returns more power per amp: on the geared preset full braking at
+//! 1,700 rpm came back the moment the bus fell below the band and lifted it by 3 V in one slow period.
 
 use crate::control::frames::{Amps, Dq, Volts};
 use crate::control::wide::isqrt;
@@ -53,6 +68,10 @@ pub const LOOKAHEAD_TICKS: i32 = 2;
 
 /// Q16 one (a regenerative q current taken as it is).
 const SCALE_ONE: i32 = 1 << 16;
+
+/// The most the regenerative-current factor grows per slow period once the bus falls (module documentation,
+/// "Release"): an eighth, full braking again 8 slow periods (3.2 ms) after the bus left the band.
+pub const RELEASE_STEP_Q16: i32 = SCALE_ONE / 8;
 
 /// The limiter's objects as the dictionary holds them (compared every slow period, converted on a change).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -99,6 +118,13 @@ pub struct BusVoltageLimiter {
     regen_scale_q16: i32,
     /// The last [`BusVoltageLimiter::limit`] reduced a braking q current.
     braking_limited: bool,
+    /// The braking q reference the last [`BusVoltageLimiter::limit`] handed out, amp bits, and the velocity's sign
+    /// it braked against (0: it did not brake): what the measured current is compared with.
+    braking_reference: i32,
+    braking_sign: i32,
+    /// How far the q reference is moved toward driving, amp bits (>= 0), so that the measured braking current,
+    /// not only its reference, follows the reduction (module documentation, "The current, not its reference").
+    lag_correction: i32,
 }
 
 impl Default for BusVoltageLimiter {
@@ -115,6 +141,9 @@ impl Default for BusVoltageLimiter {
             limit_bits: 0,
             regen_scale_q16: SCALE_ONE,
             braking_limited: false,
+            braking_reference: 0,
+            braking_sign: 0,
+            lag_correction: 0,
         }
     }
 }
@@ -138,18 +167,23 @@ impl BusVoltageLimiter {
         self.regen_start = volts(objects.regen_zero_mv.saturating_sub(objects.regen_band_mv));
     }
 
-    /// One bus sample (tier 1's last, in [`super::Drive::background`]) with the current limit in force: the
-    /// loss-braking current and the regenerative-current factor, in force until the next sample, for the voltage
-    /// the bus will have when they take effect (module documentation, "Rate").
+    /// One bus sample and q current sample (tier 1's last, in [`super::Drive::background`]) with the current
+    /// limit in force: the loss-braking current and the regenerative-current factor, in force until the next
+    /// sample, for the voltage the bus will have when they take effect (module documentation, "Rate"), and the
+    /// correction for a braking current that lags its reduced reference ("The current, not its reference").
     #[inline(never)]
-    pub fn observe(&mut self, v_bus: Volts, current_limit: Amps) {
+    pub fn observe(&mut self, v_bus: Volts, i_q_measured: Amps, current_limit: Amps) {
         let v = v_bus.to_bits();
-        let rise = v.saturating_sub(self.last_v).max(0);
+        // No rise before the first sample.
+        let rise = if self.last_v == 0 { 0 } else { v.saturating_sub(self.last_v).max(0) };
         self.last_v = v;
         let v = v.saturating_add(rise.saturating_mul(LOOKAHEAD_TICKS));
-        if !self.enabled || (v <= self.loss_start && v <= self.regen_start) {
+        let below = v <= self.loss_start && v <= self.regen_start;
+        if !self.enabled || (below && self.regen_scale_q16 == SCALE_ONE) {
             self.loss_current = 0;
             self.regen_scale_q16 = SCALE_ONE;
+            self.lag_correction = 0;
+            self.braking_sign = 0;
             return;
         }
         let limit = current_limit.to_bits().max(0);
@@ -158,7 +192,7 @@ impl BusVoltageLimiter {
         let loss = (excess.saturating_mul(self.loss_gain_q16) >> 16).min(i64::from(limit));
         self.loss_current = i32::try_from(loss).unwrap_or(limit);
         self.limit_bits = limit;
-        self.regen_scale_q16 = if v >= self.regen_zero {
+        let scale = if v >= self.regen_zero {
             0
         } else if v <= self.regen_start {
             SCALE_ONE
@@ -168,6 +202,25 @@ impl BusVoltageLimiter {
             let den = i64::from(self.regen_zero.wrapping_sub(self.regen_start)).max(1);
             i32::try_from(num.checked_div(den).unwrap_or(0)).unwrap_or(SCALE_ONE)
         };
+        // Reduced at once, given back by at most a step per sample (module documentation, "Release").
+        self.regen_scale_q16 = scale.min(self.regen_scale_q16.saturating_add(RELEASE_STEP_Q16));
+        self.correct_lag(i_q_measured.to_bits());
+    }
+
+    /// Integrates how much more the motor brakes than the last reduced reference asked (the measured q current
+    /// against [`Self::braking_reference`], in the braking direction), by half of it per sample: the correction
+    /// [`Self::limit`] moves the next reference by (module documentation, "The current, not its reference").
+    /// None while the reduction does not act or the motor did not brake.
+    fn correct_lag(&mut self, i_q_measured: i32) {
+        if self.regen_scale_q16 == SCALE_ONE || self.braking_sign == 0 {
+            self.lag_correction = 0;
+            self.braking_sign = 0;
+            return;
+        }
+        // Braking currents have the sign opposite to the velocity: s x (reference - measured) > 0 when the motor
+        // brakes more than asked.
+        let lag = self.braking_sign.saturating_mul(self.braking_reference.saturating_sub(i_q_measured));
+        self.lag_correction = self.lag_correction.saturating_add(lag / 2).clamp(0, self.limit_bits);
     }
 
     /// Whether either action acts now.
@@ -202,10 +255,18 @@ impl BusVoltageLimiter {
         let demanded = i_q.to_bits();
         let braking = (demanded < 0 && velocity_bits > 0) || (demanded > 0 && velocity_bits < 0);
         if !braking {
+            self.braking_sign = 0;
             return Dq::new(Amps::ZERO, i_q);
         }
-        let q = i32::try_from(i64::from(demanded).saturating_mul(i64::from(self.regen_scale_q16)) >> 16)
+        let sign: i32 = if velocity_bits > 0 { 1 } else { -1 };
+        let scaled = i32::try_from(i64::from(demanded).saturating_mul(i64::from(self.regen_scale_q16)) >> 16)
             .unwrap_or(demanded);
+        // The lag correction moves the reference toward driving (the velocity's sign), at most to the limit.
+        let q = scaled
+            .saturating_add(sign.saturating_mul(self.lag_correction))
+            .clamp(self.limit_bits.wrapping_neg(), self.limit_bits);
+        self.braking_reference = q;
+        self.braking_sign = sign;
         self.braking_limited = q != demanded;
         // Loss braking takes what the limit leaves beside the q current, sqrt(limit^2 - q^2) (amp bits below 2^31:
         // the squares fit u64).
@@ -256,8 +317,8 @@ mod tests {
 
     /// A steady bus at `v` (two samples: no rise to look ahead by).
     fn steady(l: &mut BusVoltageLimiter, v: f64) {
-        l.observe(mv(v), amps(LIMIT));
-        l.observe(mv(v), amps(LIMIT));
+        l.observe(mv(v), Amps::ZERO, amps(LIMIT));
+        l.observe(mv(v), Amps::ZERO, amps(LIMIT));
     }
 
     fn near(a: Amps, expected_a: f64) -> bool {
@@ -315,6 +376,9 @@ mod tests {
         l.refresh(&d);
         steady(&mut l, 53.0);
         assert_eq!(l.limit(amps(-4.0), 1).q, amps(-4.0));
+        // A bus that stands at 54 V from the start (a step up would be looked ahead by, a step down released slowly).
+        let mut l = BusVoltageLimiter::default();
+        l.refresh(&d);
         steady(&mut l, 54.0);
         assert!(near(l.limit(amps(-4.0), 1).q, -2.0));
         assert!(l.braking_limited());
@@ -323,20 +387,84 @@ mod tests {
         assert_eq!(l.limit(amps(-4.0), 1).q, Amps::ZERO);
         // Driving current is never reduced.
         assert_eq!(l.limit(amps(4.0), 1).q, amps(4.0));
-        // Back below: all gone.
-        steady(&mut l, 40.0);
+        // Back below: given back an eighth per sample, then all gone.
+        for _ in 0..8 {
+            assert!(l.active());
+            l.observe(mv(40.0), Amps::ZERO, amps(LIMIT));
+        }
         assert!(!l.active());
+    }
+
+    #[test]
+    fn the_factor_is_given_back_an_eighth_per_sample_after_the_bus_left_the_band() {
+        let mut d = Dictionary::new(1);
+        d.set(h::BUS_LIMITER_LOSS_BRAKING_GAIN, 0);
+        let mut l = BusVoltageLimiter::default();
+        l.refresh(&d);
+        steady(&mut l, 55.0);
+        assert_eq!(l.limit(amps(-8.0), 1).q, Amps::ZERO);
+        // 8 A braking on the bus at 40 V: 1, 2, ... 7 A, then 8 A untouched (the limiter off).
+        for eighths in 1..8 {
+            l.observe(mv(40.0), amps(-f64::from(eighths - 1)), amps(LIMIT));
+            let i = l.limit(amps(-8.0), 1);
+            assert!(near(i.q, -f64::from(eighths)), "{eighths}: {i:?}");
+            assert!(l.braking_limited());
+        }
+        l.observe(mv(40.0), amps(-7.0), amps(LIMIT));
+        assert!(!l.active());
+        assert_eq!(l.limit(amps(-8.0), 1), Dq::new(Amps::ZERO, amps(-8.0)));
+    }
+
+    #[test]
+    fn a_braking_current_that_lags_its_reduced_reference_moves_the_reference_toward_driving() {
+        // Defaults without loss braking; bus at the zero level: a braking q reference becomes zero.
+        let mut d = Dictionary::new(1);
+        d.set(h::BUS_LIMITER_LOSS_BRAKING_GAIN, 0);
+        let mut l = BusVoltageLimiter::default();
+        l.refresh(&d);
+        steady(&mut l, 55.0);
+        assert_eq!(l.limit(amps(-6.0), 1).q, Amps::ZERO);
+        // The current loop still brakes with -3 A (a rotor the load accelerates): half of it moves the reference.
+        l.observe(mv(55.0), amps(-3.0), amps(LIMIT));
+        assert!(near(l.limit(amps(-6.0), 1).q, 1.5));
+        // Still -1 A against +1.5 A asked: 1.25 A more.
+        l.observe(mv(55.0), amps(-1.0), amps(LIMIT));
+        assert!(near(l.limit(amps(-6.0), 1).q, 2.75));
+        // The measured current follows (+2.75 A): the correction holds; a current above its reference takes it back.
+        l.observe(mv(55.0), amps(2.75), amps(LIMIT));
+        assert!(near(l.limit(amps(-6.0), 1).q, 2.75));
+        l.observe(mv(55.0), amps(4.75), amps(LIMIT));
+        assert!(near(l.limit(amps(-6.0), 1).q, 1.75));
+        // Negative velocity: the same in the mirror.
+        steady(&mut l, 40.0);
+        for _ in 0..8 {
+            l.observe(mv(40.0), Amps::ZERO, amps(LIMIT));
+        }
+        assert!(!l.active());
+        steady(&mut l, 55.0);
+        assert_eq!(l.limit(amps(6.0), -1).q, Amps::ZERO);
+        l.observe(mv(55.0), amps(3.0), amps(LIMIT));
+        assert!(near(l.limit(amps(6.0), -1).q, -1.5));
+        // Never beyond the current limit.
+        for _ in 0..20 {
+            l.observe(mv(55.0), amps(9.0), amps(LIMIT));
+        }
+        assert_eq!(l.limit(amps(6.0), -1).q, amps(-LIMIT));
+        // A motor that does not brake gets no correction (and resets it).
+        assert_eq!(l.limit(amps(-6.0), -1).q, amps(-6.0));
+        l.observe(mv(55.0), amps(9.0), amps(LIMIT));
+        assert_eq!(l.limit(amps(6.0), -1).q, Amps::ZERO);
     }
 
     #[test]
     fn a_rising_bus_is_met_where_it_will_be_two_slow_periods_later() {
         // 50.0 V, then 50.6 V: a rise of 0.6 V per period looks like 51.8 V, 0.8 V into loss braking (4 A).
         let mut l = limiter();
-        l.observe(mv(50.0), amps(LIMIT));
-        l.observe(mv(50.6), amps(LIMIT));
+        l.observe(mv(50.0), Amps::ZERO, amps(LIMIT));
+        l.observe(mv(50.6), Amps::ZERO, amps(LIMIT));
         assert!(near(l.limit(amps(-1.0), 1).d, -4.0));
         // A falling bus is taken as it is.
-        l.observe(mv(50.5), amps(LIMIT));
+        l.observe(mv(50.5), Amps::ZERO, amps(LIMIT));
         assert!(!l.active());
     }
 

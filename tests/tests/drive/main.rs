@@ -4,6 +4,7 @@
 //! One test binary for the area; each module is one of its test files.
 
 mod auto_tune_geared;
+mod auto_tune_geared_duty_cycle;
 mod auto_tune_scenarios;
 mod auto_tuning;
 mod cia402;
