@@ -54,8 +54,10 @@ const ECAT_CYCLE_BUDGET: u64 = 1_500;
 /// CRC and the filters' `exp_neg_q31` worked in 64-bit values: -11,392 bytes in the CAN image, -11,948 in
 /// EtherCAT with defmt, which brought the CAN image back under its 200 KiB ceiling. Raised by 3 KiB for the
 /// identification's resonance step (the motor-side frequency response of an elastic load, +3,164 bytes in every
-/// image), still under both ceilings. Measured at the last change: 199,136, 229,224 and 235,228.
-const TEXT_BUDGETS: [(&str, u64); 3] = [("can", 196 * 1024), ("ethercat", 225 * 1024), ("ethercat_defmt", 231 * 1024)];
+/// image), then by 1 to 2 KiB for the mechanical step's plausibility checks (+1,076) and the bus-voltage limiter's
+/// measured-current correction (+296 to +392), still under both ceilings. Measured at the last change: 200,508,
+/// 230,592 and 236,692.
+const TEXT_BUDGETS: [(&str, u64); 3] = [("can", 197 * 1024), ("ethercat", 227 * 1024), ("ethercat_defmt", 233 * 1024)];
 
 #[test]
 fn board_images_fit_their_text_budgets() {
