@@ -179,7 +179,16 @@ impl PhaseSupervision {
             return None;
         };
         // At most 0.23 turn per slow tick at 5,000 rpm: the wrapping difference is the travel.
-        self.travel = self.travel.saturating_add(i64::from(angle.difference(previous).turn_bits()));
+        let step = i64::from(angle.difference(previous).turn_bits());
+        if (step > 0 && self.travel < 0) || (step < 0 && self.travel > 0) {
+            // A reversal: the rotor dwelt near one angle while the current turned it round, so the phases
+            // legitimately differ over this window (a light rotor reverses within a few ms); no verdict, as for
+            // a window too slow to judge.
+            self.restart_window();
+            self.suspect = None;
+            return None;
+        }
+        self.travel = self.travel.saturating_add(step);
         self.samples = self.samples.saturating_add(1);
         let i = inputs.i_abc;
         for (sum, x) in self.sum_squares.iter_mut().zip([i.a, i.b, i.c]) {
