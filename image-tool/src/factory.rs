@@ -50,34 +50,11 @@ pub struct Block {
 /// at its load (physical) address, so `.data`'s initial values come at the place the start-up code copies them
 /// from. Segments at SRAM addresses (load address at or above 0x2000_0000) hold no flash contents and are skipped.
 pub fn elf_flash_blocks(elf: &[u8]) -> Result<Vec<Block>, String> {
-    let u16_at = |at: usize| elf.get(at..at + 2).map(|b| u16::from_le_bytes([b[0], b[1]]));
-    let u32_at = |at: usize| elf.get(at..at + 4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]));
-    if elf.get(..4) != Some(b"\x7fELF".as_slice()) {
-        return Err("not an ELF file".into());
-    }
-    if elf.get(4) != Some(&1) || elf.get(5) != Some(&1) {
-        return Err("only 32-bit little-endian ELF files (ARM Cortex-M) are supported".into());
-    }
-    let truncated = || "truncated ELF file".to_string();
-    let phoff = u32_at(28).ok_or_else(truncated)? as usize;
-    let phentsize = u16_at(42).ok_or_else(truncated)? as usize;
-    let phnum = u16_at(44).ok_or_else(truncated)? as usize;
-    let mut blocks = Vec::new();
-    for i in 0..phnum {
-        let ph = phoff + i * phentsize;
-        let (p_type, p_offset, p_paddr, p_filesz) = (
-            u32_at(ph).ok_or_else(truncated)?,
-            u32_at(ph + 4).ok_or_else(truncated)? as usize,
-            u32_at(ph + 12).ok_or_else(truncated)?,
-            u32_at(ph + 16).ok_or_else(truncated)? as usize,
-        );
-        if p_type != 1 || p_filesz == 0 || p_paddr >= RAM_START {
-            continue;
-        }
-        let data = elf.get(p_offset..p_offset + p_filesz).ok_or_else(truncated)?;
-        blocks.push(Block { address: p_paddr, data: data.to_vec() });
-    }
-    Ok(blocks)
+    Ok(crate::elf_load_segments(elf)?
+        .into_iter()
+        .filter(|&(address, _)| address < RAM_START)
+        .map(|(address, data)| Block { address, data: data.to_vec() })
+        .collect())
 }
 
 /// The bootloader's flash contents from its ELF, refused unless all of it lies in BOOTLOADER (32 KiB) and it

@@ -72,11 +72,9 @@ pub fn parse_u32(text: &str) -> Result<u32, String> {
     r.map_err(|_| format!("not a number: {text:?}"))
 }
 
-/// The bytes of slot A from an ELF32 little-endian executable: every PT_LOAD segment with file contents whose
-/// load (physical) address lies in slot A, placed at its offset from the slot start; gaps are 0xFF (erased
-/// flash), the result is padded with 0xFF to a multiple of 4. Segments entirely outside slot A (RAM, .bss)
-/// are skipped; one that straddles its border is an error.
-pub fn elf_payload(elf: &[u8]) -> Result<Vec<u8>, String> {
+/// The PT_LOAD segments with file contents of an ELF32 little-endian executable, in file order: each one's load
+/// (physical) address and its bytes. Shared by [`elf_payload`] and the factory image's ELF reading.
+pub fn elf_load_segments(elf: &[u8]) -> Result<Vec<(u32, &[u8])>, String> {
     let u16_at = |at: usize| elf.get(at..at + 2).map(|b| u16::from_le_bytes([b[0], b[1]]));
     let u32_at = |at: usize| elf.get(at..at + 4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]));
     if elf.get(..4) != Some(b"\x7fELF".as_slice()) {
@@ -89,8 +87,7 @@ pub fn elf_payload(elf: &[u8]) -> Result<Vec<u8>, String> {
     let phoff = u32_at(28).ok_or_else(truncated)? as usize;
     let phentsize = u16_at(42).ok_or_else(truncated)? as usize;
     let phnum = u16_at(44).ok_or_else(truncated)? as usize;
-    let slot_end = u64::from(SLOT_A_START) + u64::from(MAX_PAYLOAD_LEN);
-    let mut out: Vec<u8> = Vec::new();
+    let mut segments = Vec::new();
     for i in 0..phnum {
         let ph = phoff + i * phentsize;
         let (p_type, p_offset, p_paddr, p_filesz) = (
@@ -102,6 +99,20 @@ pub fn elf_payload(elf: &[u8]) -> Result<Vec<u8>, String> {
         if p_type != 1 || p_filesz == 0 {
             continue;
         }
+        segments.push((p_paddr, elf.get(p_offset..p_offset + p_filesz).ok_or_else(truncated)?));
+    }
+    Ok(segments)
+}
+
+/// The bytes of slot A from an ELF32 little-endian executable: every PT_LOAD segment with file contents whose
+/// load (physical) address lies in slot A, placed at its offset from the slot start; gaps are 0xFF (erased
+/// flash), the result is padded with 0xFF to a multiple of 4. Segments entirely outside slot A (RAM, .bss)
+/// are skipped; one that straddles its border is an error.
+pub fn elf_payload(elf: &[u8]) -> Result<Vec<u8>, String> {
+    let slot_end = u64::from(SLOT_A_START) + u64::from(MAX_PAYLOAD_LEN);
+    let mut out: Vec<u8> = Vec::new();
+    for (p_paddr, data) in elf_load_segments(elf)? {
+        let p_filesz = data.len();
         let start = u64::from(p_paddr);
         let end = start + p_filesz as u64;
         if end <= u64::from(SLOT_A_START) || start >= slot_end {
@@ -113,7 +124,6 @@ pub fn elf_payload(elf: &[u8]) -> Result<Vec<u8>, String> {
                  ({SLOT_A_START:#010x}..{slot_end:#010x})"
             ));
         }
-        let data = elf.get(p_offset..p_offset + p_filesz).ok_or_else(truncated)?;
         let at = (start - u64::from(SLOT_A_START)) as usize;
         if out.len() < at + data.len() {
             out.resize(at + data.len(), 0xFF);
