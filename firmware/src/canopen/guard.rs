@@ -11,6 +11,7 @@
 //! | 0x16xx/0x1Axx mapping | not changed while the PDO is valid (CiA 301 §7.5.2.36 step 1; CANopenNode answers 0x0601_0000) | 0x0601_0000 |
 //! | | sub 0 = n: the n entries fit a CAN frame (CiA 301 §7.5.2.36 step 4) | 0x0604_0042 |
 //! | 0x1016:xx consumer heartbeat | no second non-zero entry for the same producer (CiA 301 §7.5.2.20); bits 31..24 reserved 0 | 0x0604_0043 / 0x0609_0030 |
+//! | 0x1005 COB-ID SYNC | an 11-bit identifier only: bit 30 (SYNC producer; the drive consumes SYNC only) and bit 29 (29-bit identifier) refused as CiA 301 §7.5.2.5 prescribes | 0x0609_0030 |
 //! | 0x1019 SYNC counter overflow | not 1 (CiA 301 §7.5.2.22), and not changed while 0x1006 is not 0 | 0x0609_0030 / 0x0800_0022 |
 //!
 //! The objects concerned hold at most 4 bytes, which SDO clients send expedited (PyPI canopen, CANopenNode and
@@ -30,7 +31,7 @@ use crate::od::pdo_map::{self, Direction};
 
 /// Whether downloads to `index` are checked here.
 pub const fn is_guarded(index: u16) -> bool {
-    pdo::pdo_of(index).is_some() || matches!(index, 0x1016 | 0x1019)
+    pdo::pdo_of(index).is_some() || matches!(index, 0x1005 | 0x1016 | 0x1019)
 }
 
 /// Checks a download of `value` (the expedited data, little-endian, zero-extended; `None` for a segmented or
@@ -60,6 +61,7 @@ pub fn check_download<const N: usize>(
         return check_communication(d, direction, n, sub, value, valid);
     }
     match index {
+        0x1005 if value > 0x7FF => Err(SdoAbort::InvalidValue),
         0x1016 => check_consumer(d, sub, value),
         0x1019 => {
             if value == 1 {
