@@ -52,9 +52,9 @@ pub mod protocol {
 
 /// Whether the firmware's CoE server answers the SDO information service (ETG.1000.6 §5.6.3): `firmware::ecat::coe`.
 pub const SDO_INFO_SUPPORTED: bool = true;
-/// Whether the firmware's CoE server accepts complete access (ETG.1000.6 §5.6.2.1). Not yet; SOEM would use
-/// it to read the PDO mapping if the SII announced it.
-pub const COMPLETE_ACCESS_SUPPORTED: bool = false;
+/// Whether the firmware's CoE server accepts complete access (ETG.1000.6 §5.6.2.1.1: `firmware::comm::sdo::coe`).
+/// SOEM reads the PDO assignment and mapping with it when the SII announces it.
+pub const COMPLETE_ACCESS_SUPPORTED: bool = true;
 
 /// The mailbox features the ESI (`Mailbox/CoE` attributes) and the SII (GENERAL CoE/FoE details, word 0x1C)
 /// both announce.

@@ -141,7 +141,7 @@ fn sync_managers_pdos_mailbox_dc_eeprom() {
     assert!(xml.contains(
         "<Entry><Index>#x6064</Index><SubIndex>0</SubIndex><BitLen>32</BitLen><Name>Position actual value</Name><DataType>DINT</DataType></Entry>"
     ));
-    assert!(xml.contains("<CoE SdoInfo=\"true\" PdoAssign=\"true\" PdoConfig=\"true\" CompleteAccess=\"false\"/>"));
+    assert!(xml.contains("<CoE SdoInfo=\"true\" PdoAssign=\"true\" PdoConfig=\"true\" CompleteAccess=\"true\"/>"));
     assert!(xml.contains("<FoE/>"));
     assert!(xml.contains("<AssignActivate>#x0300</AssignActivate>"));
     assert_eq!(texts(&xml, "Name").iter().filter(|n| ["FreeRun", "SM-Synchron", "DC"].contains(n)).count(), 3);

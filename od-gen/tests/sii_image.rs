@@ -111,7 +111,7 @@ fn image_decodes_to_the_description() {
     assert_eq!(info.mailbox_protocols, sii::protocol::COE | sii::protocol::FOE);
     assert_eq!(info.eeprom_bytes, 2048);
     let g = info.general.as_ref().expect("GENERAL");
-    assert_eq!(g.coe_details, 0x0F, "SDO, SDO info, PDO assign, PDO config; no complete access");
+    assert_eq!(g.coe_details, 0x2F, "SDO, SDO info, PDO assign, PDO config, complete access");
     assert_eq!(g.foe_details, 1);
     assert_eq!(g.physical_ports, 0x0011);
     assert_eq!(g.name, "OSD-402");

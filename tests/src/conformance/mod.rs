@@ -3,11 +3,12 @@
 //! passed, failed (with what was seen instead) or skipped (with why a device of this kind need not support it).
 //!
 //! `cargo run -p drive-tests --bin conformance` prints every case and the summary line of each suite
-//! (`canopen_cases=N passed=P failed=F skipped=S`); `tests/tests/conformance.rs` runs the suites in CI and
+//! (`canopen_cases=N passed=P failed=F skipped=S`, `ecat_cases=...`); `tests/tests/conformance.rs` runs the suites in CI and
 //! fails on any failed case.
 
 pub mod canopen;
 pub mod eds;
+pub mod ethercat;
 
 use std::panic::{catch_unwind, AssertUnwindSafe};
 
