@@ -79,18 +79,24 @@ pub(crate) fn poll(
         let on = drive.power_stage_enabled();
         // One instance of the node's code for all three cases (`dyn`): the node and its SDO server are large, and
         // an instance per objects type would not fit slot A next to the EtherCAT slave.
-        let (mut with_program, mut store_only, mut none);
-        let objects: &mut dyn ApplicationObjects = match (params.as_mut(), program) {
-            (Some(store), Some(program)) => {
-                let port = SharedPort::new(program, Interface::Canopen, on);
-                with_program = DriveObjects::new(store, on).with_program_control(port);
-                &mut with_program
+        let (mut port, mut no_program, mut drive_objects, mut none);
+        let objects: &mut dyn ApplicationObjects = match params.as_mut() {
+            Some(store) => {
+                // The program port as `dyn` too: one instance of the drive objects' code with or without it.
+                let program_objects: &mut dyn ApplicationObjects = match program {
+                    Some(program) => {
+                        port = SharedPort::new(program, Interface::Canopen, on);
+                        &mut port
+                    }
+                    None => {
+                        no_program = NoApplicationObjects;
+                        &mut no_program
+                    }
+                };
+                drive_objects = DriveObjects::new(store, on).with_program_control(program_objects);
+                &mut drive_objects
             }
-            (Some(store), None) => {
-                store_only = DriveObjects::new(store, on);
-                &mut store_only
-            }
-            (None, _) => {
+            None => {
                 none = NoApplicationObjects;
                 &mut none
             }

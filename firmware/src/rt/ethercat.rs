@@ -137,20 +137,26 @@ pub(crate) fn poll(params: &mut Option<app::Params>, program: Option<&RefCell<Bo
         let before = s.slave.state();
         // One instance of the slave's code for every case (`dyn`): an instance per objects type would not fit
         // slot A next to the CANopen node.
-        let (mut with_program, mut store_only, mut no_objects, mut program_foe);
+        let (mut port, mut no_program, mut drive_objects, mut no_objects, mut program_foe);
         let mut no_foe = NoFoeSink;
-        let (objects, foe): (&mut dyn ApplicationObjects, &mut dyn FoeSink) = match (params.as_mut(), program) {
-            (Some(store), Some(program)) => {
-                let port = SharedPort::new(program, Interface::Ethercat, power_stage_enabled);
-                with_program = DriveObjects::new(store, power_stage_enabled).with_program_control(port);
-                program_foe = SharedPort::new(program, Interface::Ethercat, power_stage_enabled);
-                (&mut with_program, &mut program_foe)
+        let (objects, foe): (&mut dyn ApplicationObjects, &mut dyn FoeSink) = match params.as_mut() {
+            Some(store) => {
+                // The program port as `dyn` too: one instance of the drive objects' code with or without it.
+                let (program_objects, foe): (&mut dyn ApplicationObjects, &mut dyn FoeSink) = match program {
+                    Some(program) => {
+                        port = SharedPort::new(program, Interface::Ethercat, power_stage_enabled);
+                        program_foe = SharedPort::new(program, Interface::Ethercat, power_stage_enabled);
+                        (&mut port, &mut program_foe)
+                    }
+                    None => {
+                        no_program = NoApplicationObjects;
+                        (&mut no_program, &mut no_foe)
+                    }
+                };
+                drive_objects = DriveObjects::new(store, power_stage_enabled).with_program_control(program_objects);
+                (&mut drive_objects, foe)
             }
-            (Some(store), None) => {
-                store_only = DriveObjects::new(store, power_stage_enabled);
-                (&mut store_only, &mut no_foe)
-            }
-            (None, _) => {
+            None => {
                 no_objects = NoApplicationObjects;
                 (&mut no_objects, &mut no_foe)
             }
