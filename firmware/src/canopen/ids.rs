@@ -39,6 +39,12 @@ pub const DEFAULT_NODE_ID: u8 = 1;
 pub const NODE_ID_OBJECT: u16 = 0x2000;
 /// The bit-rate object (IDX L3490-L3510).
 pub const BIT_RATE_OBJECT: u16 = 0x2001;
+/// Store parameters (CiA 301 §7.5.2.13), and its sub-index "save manufacturer parameters".
+pub const STORE_PARAMETERS: u16 = 0x1010;
+/// 0x1010:04, the manufacturer-specific parameters 0x2000..0x5FFF (0x2000 and 0x2001 among them).
+pub const SAVE_MANUFACTURER: u8 = 4;
+/// The signature "save" that 0x1010 takes, as written on the wire.
+pub const SAVE_SIGNATURE: [u8; 4] = *b"save";
 /// The bit-rate display (IDX L3548).
 pub const BIT_RATE_DISPLAY: u16 = 0x200A;
 
@@ -90,6 +96,15 @@ pub fn write<const N: usize>(d: &mut Dictionary<N>, index: u16, sub: u8, value: 
 /// The node-ID 0x2000 asks for, if it is a valid one.
 pub fn configured_node_id<const N: usize>(d: &Dictionary<N>) -> Option<u8> {
     read(d, NODE_ID_OBJECT, 0).and_then(|v| u8::try_from(v).ok()).filter(|id| is_node_id(*id))
+}
+
+/// The node-ID a start or reset takes from 0x2000: a valid node-ID, or [`super::lss::UNCONFIGURED`] when 0x2000
+/// holds 0xFF (configured through LSS, CiA 305 §5); `None` for anything else.
+pub fn startup_node_id<const N: usize>(d: &Dictionary<N>) -> Option<u8> {
+    configured_node_id(d).or_else(|| {
+        let unconfigured = super::lss::UNCONFIGURED;
+        (read(d, NODE_ID_OBJECT, 0) == Some(u64::from(unconfigured))).then_some(unconfigured)
+    })
 }
 
 /// Whether reset communication restores `index`: the communication profile area 0x1000..0x1FFF (CiA 301

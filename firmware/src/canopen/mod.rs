@@ -16,6 +16,7 @@
 //! | [`sync`] | SYNC consumer and its supervision |
 //! | [`emcy`] | EMCY producer |
 //! | [`heartbeat`] | heartbeat producer and consumers |
+//! | [`lss`] | the LSS slave (CiA 305): node-ID and bit rate assigned by the master, fastscan |
 //!
 //! **Who calls what (tiers, ARCHITECTURE).**
 //! - Tier 3 (background, at least every millisecond): [`CanopenNode::poll`], or [`CanopenNode::handle_frame`] for
@@ -48,6 +49,12 @@
 //! change of the node-ID the saved COB-IDs keep the old node-ID until they are saved again (or restored with
 //! 0x1011).
 //!
+//! **Unconfigured** (CiA 305 §5): a node whose node-ID is [`lss::UNCONFIGURED`] (0x2000 = 0xFF, stored or
+//! configured through LSS) carries out its power-on reset and then waits in initialisation, silent except for LSS,
+//! until an LSS master gives it a node-ID and switches it back to the waiting state: then it resets its
+//! communication with that node-ID and boots. A configured node takes a node-ID configured through LSS at its next
+//! reset communication, as one written to 0x2000.
+//!
 //! **Frames nobody expects** are ignored without an answer, as CiA 301 has no reply for them: unknown COB-IDs,
 //! an NMT frame that is not 2 bytes, SDO frames that are not 8 bytes, anything in a state that does not allow
 //! the service (SDO in stopped, PDOs outside operational). An RPDO shorter than its mapping and a SYNC of the
@@ -58,6 +65,7 @@ pub mod frame;
 pub mod guard;
 pub mod heartbeat;
 pub mod ids;
+pub mod lss;
 pub mod nmt;
 pub mod pdo;
 pub mod sync;
@@ -67,6 +75,7 @@ use heapless::Deque;
 use self::emcy::EmcyProducer;
 use self::frame::{BitRate, BusState, BusStatus, CanBus, CanFrame};
 use self::heartbeat::{Heartbeat, HeartbeatEvent};
+use self::lss::{LssAction, LssSlave};
 use self::nmt::{Nmt, NmtCommand, NmtState, ResetKind, Service};
 use self::pdo::{FrameSink, Pdos};
 use self::sync::{SyncConsumer, SyncEvent};
@@ -153,16 +162,22 @@ pub struct CanopenNode {
     powered_on: bool,
     /// What the CAN controller reported last ([`CanopenNode::observe_bus`]).
     bus: BusStatus,
+    lss: LssSlave,
 }
 
 impl CanopenNode {
     /// A node at power-on, in initialisation, with the node-ID the runtime chose (the stored 0x2000 or switches);
-    /// `node_id` outside 1..=127 is replaced by the default node-ID 1. The power-on reset writes it to 0x2000; the
+    /// [`lss::UNCONFIGURED`] leaves it unconfigured (module documentation), any other `node_id` outside 1..=127
+    /// is replaced by the default node-ID 1. The power-on reset writes it to 0x2000; the
     /// node-ID written to 0x2000 later takes over at the next NMT reset.
     #[must_use]
     pub fn new(node_id: u8) -> Self {
         Self {
-            node_id: if ids::is_node_id(node_id) { node_id } else { ids::DEFAULT_NODE_ID },
+            node_id: if ids::is_node_id(node_id) || node_id == lss::UNCONFIGURED {
+                node_id
+            } else {
+                ids::DEFAULT_NODE_ID
+            },
             nmt: Nmt::new(),
             sdo: SdoServer::default(),
             block_download: false,
@@ -176,6 +191,7 @@ impl CanopenNode {
             ignored: 0,
             powered_on: false,
             bus: BusStatus::default(),
+            lss: LssSlave::default(),
         }
     }
 
@@ -293,6 +309,13 @@ impl CanopenNode {
     ) {
         let state = self.nmt.state();
         let id = frame.id();
+        if id == lss::MASTER_TO_SLAVE && !frame.is_remote() {
+            match <&[u8; 8]>::try_from(frame.data()) {
+                Ok(data) => self.on_lss(data, drive, app),
+                Err(_) => self.ignore(),
+            }
+            return;
+        }
         if state == NmtState::Initialisation {
             self.ignore();
             return;
@@ -360,6 +383,10 @@ impl CanopenNode {
                 self.nmt.reset_done();
                 return Some(NodeEvent::Reset { kind, node_id: self.node_id, bit_rate });
             }
+            if self.node_id == lss::UNCONFIGURED {
+                // Waits for an LSS master (module documentation).
+                return None;
+            }
             self.boot(drive, now_us);
             return Some(NodeEvent::Booted);
         }
@@ -397,6 +424,62 @@ impl CanopenNode {
 
     fn ignore(&mut self) {
         self.ignored = self.ignored.wrapping_add(1);
+    }
+
+    /// An LSS request (CiA 305): the slave's answer, and what it asks of the node carried out here.
+    fn on_lss<D: FieldbusDevice + ?Sized, A: ApplicationObjects + ?Sized>(
+        &mut self,
+        data: &[u8; 8],
+        drive: &mut D,
+        app: &mut A,
+    ) {
+        let d = drive.dictionary();
+        let identity = [1, 2, 3, 4].map(|sub| ids::read_u32(d, 0x1018, sub));
+        let (answer, action) = self.lss.handle(data, &identity, self.node_id);
+        let error = match action {
+            LssAction::None => None,
+            LssAction::EnteredWaiting => {
+                if self.node_id == lss::UNCONFIGURED && ids::configured_node_id(drive.dictionary()).is_some() {
+                    self.nmt.restart_communication();
+                }
+                None
+            }
+            LssAction::ConfigureNodeId(id) => {
+                let valid = ids::is_node_id(id) || id == lss::UNCONFIGURED;
+                Some(if valid && ids::write(drive.dictionary_mut(), ids::NODE_ID_OBJECT, 0, u64::from(id)) {
+                    0
+                } else {
+                    1
+                })
+            }
+            LssAction::ConfigureBitRate(code) => {
+                let valid = BitRate::from_code(code).is_some();
+                Some(if valid && ids::write(drive.dictionary_mut(), ids::BIT_RATE_OBJECT, 0, u64::from(code)) {
+                    0
+                } else {
+                    1
+                })
+            }
+            LssAction::Store => Some(match drive.dictionary().find(ids::STORE_PARAMETERS, ids::SAVE_MANUFACTURER) {
+                // "save" to 0x1010:04 stores the manufacturer parameters 0x2000..0x5FFF, 0x2000 and 0x2001 among them.
+                Ok(entry) => {
+                    let values = drive.dictionary_mut().values_mut().bytes_mut();
+                    if app.write(entry, 0, &ids::SAVE_SIGNATURE, true, values).is_ok() {
+                        0
+                    } else {
+                        2
+                    }
+                }
+                Err(_) => 2,
+            }),
+        };
+        let reply = match (answer, error) {
+            (Some(a), Some(e)) => Some(LssSlave::result(a[0], e)),
+            (a, _) => a,
+        };
+        if let Some(frame) = reply.and_then(|r| CanFrame::new(lss::SLAVE_TO_MASTER, &r)) {
+            let _ = self.outbox.push(frame);
+        }
     }
 
     fn send_sdo(&mut self, data: [u8; 8]) {
@@ -525,7 +608,7 @@ impl CanopenNode {
         self.sdo = SdoServer::default();
         self.block_download = false;
         if self.powered_on {
-            if let Some(id) = ids::configured_node_id(drive.dictionary()) {
+            if let Some(id) = ids::startup_node_id(drive.dictionary()) {
                 self.node_id = id;
             }
         } else {

@@ -184,6 +184,13 @@ impl Nmt {
         }
     }
 
+    /// An unconfigured node got its node-ID through LSS (CiA 305 §5): it carries out a reset communication for
+    /// it and boots, from initialisation, where it waited.
+    pub fn restart_communication(&mut self) {
+        self.state = NmtState::Initialisation;
+        self.reset = Some(ResetKind::Communication);
+    }
+
     /// Applies `command`. Commands are ignored in initialisation (the node is not on the bus yet); a reset
     /// restarts initialisation even if one is under way.
     pub fn command(&mut self, command: NmtCommand) {

@@ -43,7 +43,7 @@ pub(crate) struct Canopen {
 /// poll). `None` when the controller does not come up (no transceiver or bus).
 pub(crate) fn start(drive: &Drive) -> Option<Canopen> {
     let dictionary = drive.dictionary();
-    let node_id = ids::configured_node_id(dictionary).unwrap_or(ids::DEFAULT_NODE_ID);
+    let node_id = ids::startup_node_id(dictionary).unwrap_or(ids::DEFAULT_NODE_ID);
     let rate = ids::read(dictionary, ids::BIT_RATE_OBJECT, 0)
         .and_then(|code| u8::try_from(code).ok())
         .and_then(BitRate::from_code)

@@ -94,6 +94,9 @@ pub struct CanopenConfig {
     /// Nodes whose slot A is erased before their first boot, bit k for node-ID k: the bootloader finds no valid
     /// image and they start in its fallback (see the module documentation). 0: every node runs the factory image.
     pub empty_slot_nodes: u128,
+    /// Drives without a node-ID, bit k for the drive in slot k (`drive-sim canopen --unconfigured K`): they start
+    /// unconfigured (0x2000 = 0xFF) and wait for an LSS master (CiA 305; `firmware::canopen::lss`).
+    pub unconfigured_nodes: u128,
 }
 
 impl Default for CanopenConfig {
@@ -105,6 +108,7 @@ impl Default for CanopenConfig {
             nodes: 1,
             seed: 1,
             empty_slot_nodes: 0,
+            unconfigured_nodes: 0,
         }
     }
 }
@@ -119,6 +123,17 @@ impl CanopenConfig {
     /// Whether node-ID `id` starts with an erased slot A.
     pub fn empty_slot(&self, id: u8) -> bool {
         self.empty_slot_nodes.checked_shr(u32::from(id)).is_some_and(|b| b & 1 == 1)
+    }
+
+    /// The same settings with the drive in slot `slot` (1..=127) starting without a node-ID.
+    pub fn with_unconfigured(mut self, slot: u8) -> Self {
+        self.unconfigured_nodes |= 1u128.checked_shl(u32::from(slot)).unwrap_or(0);
+        self
+    }
+
+    /// Whether the drive in slot `slot` starts without a node-ID.
+    pub fn unconfigured(&self, slot: u8) -> bool {
+        self.unconfigured_nodes.checked_shr(u32::from(slot)).is_some_and(|b| b & 1 == 1)
     }
 }
 
@@ -184,17 +199,22 @@ pub struct CanDrive {
     /// step, as tier 3 does; while it is bus-off the drive neither receives nor sends (its frames wait in the
     /// node's queue).
     pub controller: BusStatus,
+    /// The board's serial number (0x1018:04): each simulated drive has its own, as boards do, so that an LSS
+    /// master tells them apart; the drive in slot k has the factory value + k - 1.
+    serial: u32,
+    /// The drive's slot on the bus: its node-ID while its parameter store holds none (a board's switches).
+    slot: u8,
 }
 
 impl CanDrive {
     /// A drive with node-ID `id` on bus port `port`, powered on: the bootloader runs over `program`'s regions,
     /// then the application (drive and node) or the bootloader's fallback starts.
-    fn power_on(id: u8, port: NodeIndex, mut sim: Simulation, mut program: SimProgram) -> Self {
+    fn power_on(id: u8, slot: u8, port: NodeIndex, mut sim: Simulation, mut program: SimProgram) -> Self {
         let mut store = ParamStore::new(SimFlash::params());
         // Power-on as on the target: the bootloader starts the image in slot A, which builds the dictionary from
         // the parameter store (empty here: defaults).
         let last_boot = update::reset(&mut program);
-        sim.replace_drive(update::boot_drive(&mut store, &program));
+        sim.replace_drive(update::boot_drive_with_node_id(&mut store, &program, slot));
         let mut d = Self {
             program,
             last_boot,
@@ -211,9 +231,32 @@ impl CanDrive {
             outbox: Vec::new(),
             fallback_frames: 0,
             controller: BusStatus::default(),
+            serial: firmware::od::generated::SERIAL_NUMBER.wrapping_add(u32::from(slot).saturating_sub(1)),
+            slot,
         };
+        d.apply_serial();
         d.enter_fallback_if_no_image(id);
         d
+    }
+
+    /// A drive as it leaves the factory without a node-ID: 0x2000 = 0xFF saved in its parameter store, and the
+    /// node unconfigured from power-on (it waits for an LSS master; `firmware::canopen::lss`).
+    fn leave_factory_unconfigured(&mut self) {
+        use firmware::canopen::{ids, lss};
+        use firmware::od::access::ApplicationObjects;
+        let d = self.sim.drive.dictionary_mut();
+        let _ = ids::write(d, ids::NODE_ID_OBJECT, 0, u64::from(lss::UNCONFIGURED));
+        if let Ok(entry) = d.find(ids::STORE_PARAMETERS, ids::SAVE_MANUFACTURER) {
+            let mut objects = DriveObjects::new(&mut self.store, false);
+            let saved = objects.write(entry, 0, &ids::SAVE_SIGNATURE, true, d.values_mut().bytes_mut());
+            debug_assert!(saved.is_ok(), "the factory save: {saved:?}");
+        }
+        self.node = CanopenNode::new(lss::UNCONFIGURED);
+    }
+
+    /// The board's serial number into 0x1018:04 (read-only to a master; the runtime's to set at start).
+    fn apply_serial(&mut self) {
+        let _ = firmware::canopen::ids::write(self.sim.drive.dictionary_mut(), 0x1018, 4, u64::from(self.serial));
     }
 
     /// Whether the bootloader's fallback serves this drive's bus port (slot A held no valid image at the last
@@ -250,7 +293,11 @@ impl CanDrive {
     /// fallback starts if no valid image is left. Frames not yet handled are lost, as on the target.
     fn restart(&mut self, id: u8) {
         self.last_boot = update::reset(&mut self.program);
-        self.sim.replace_drive(update::boot_drive(&mut self.store, &self.program));
+        self.sim.replace_drive(update::boot_drive_with_node_id(&mut self.store, &self.program, self.slot));
+        self.apply_serial();
+        // As `rt::canopen::start`: the node-ID the restarted drive loaded from its parameter store (a node-ID
+        // written to 0x2000 and not saved is gone with the RAM).
+        let id = firmware::canopen::ids::startup_node_id(self.sim.drive.dictionary()).unwrap_or(id);
         self.node = CanopenNode::new(id);
         self.inbox.clear();
         self.powering_up = true;
@@ -415,7 +462,11 @@ impl CanopenRunner {
                 }
                 // The factory image in slot A, or (`empty_slot_nodes`) nothing: the bootloader's fallback.
                 let program = if config.empty_slot(id) { update::blank_program() } else { update::factory_program() };
-                CanDrive::power_on(id, bus.attach(), sim, program)
+                let mut drive = CanDrive::power_on(id, id, bus.attach(), sim, program);
+                if config.unconfigured(id) {
+                    drive.leave_factory_unconfigured();
+                }
+                drive
             })
             .collect();
         Self { bus, drives, master, config, now_ns: 0, ticks: 0, stats: CanRunnerStats::default(), origin: None }

@@ -158,7 +158,13 @@ pub fn table_for(mode: Mode) -> Table {
 
 /// The drive as it starts after a reset: defaults and the stored parameters, the table for `program`'s mode.
 pub fn boot_drive(store: &mut ParamStore<SimFlash>, program: &SimProgram) -> Drive {
-    let mut drive = Drive::boot(DriveConfig::DEFAULT, store).0;
+    boot_drive_with_node_id(store, program, DriveConfig::DEFAULT.node_id)
+}
+
+/// [`boot_drive`] on a board whose node-ID, when the parameter store holds none, is `node_id` (the drive in a
+/// CAN runner's slot k: k, as a board's switches would set it).
+pub fn boot_drive_with_node_id(store: &mut ParamStore<SimFlash>, program: &SimProgram, node_id: u8) -> Drive {
+    let mut drive = Drive::boot(DriveConfig { node_id, ..DriveConfig::DEFAULT }, store).0;
     use_table(&mut drive, table_for(program.mode()));
     if let Some(header) = program.running() {
         show_software_version(drive.dictionary_mut(), header.version_str());

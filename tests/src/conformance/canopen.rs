@@ -27,6 +27,9 @@ const SDO_TX: u16 = 0x580 + NODE as u16;
 const EMCY: u16 = 0x080 + NODE as u16;
 const HEARTBEAT: u16 = 0x700 + NODE as u16;
 const SYNC: u16 = 0x080;
+/// LSS (CiA 305 §4): master to slaves, slaves to master.
+const LSS_MASTER: u16 = 0x7E5;
+const LSS_SLAVE: u16 = 0x7E4;
 /// "save" and "load" (CiA 301 §7.5.2.13/14), as the little-endian words written to 0x1010/0x1011.
 const SAVE: u32 = u32::from_le_bytes(*b"save");
 const LOAD: u32 = u32::from_le_bytes(*b"load");
@@ -67,6 +70,27 @@ impl Bus {
             "the boot-up message within 100 ms: {frames:?}"
         );
         bus
+    }
+
+    /// `n` drives (slots 1..=n) powered up without a node-ID (CiA 305: they wait for an LSS master).
+    #[must_use]
+    pub fn unconfigured(n: u8) -> Self {
+        let mut config = CanopenConfig { clock: CanClock::LockStep, nodes: n, seed: 1, ..CanopenConfig::default() };
+        for slot in 1..=n {
+            config = config.with_unconfigured(slot);
+        }
+        let mut bus = Self { runner: CanopenRunner::new(config), log: Vec::new() };
+        bus.run_ms(100);
+        bus
+    }
+
+    /// An LSS request (0x7E5); the answers on 0x7E4.
+    pub fn lss(&mut self, data: [u8; 8]) -> Vec<[u8; 8]> {
+        self.send(LSS_MASTER, &data)
+            .into_iter()
+            .filter(|f| f.id() == LSS_SLAVE)
+            .filter_map(|f| f.data().try_into().ok())
+            .collect()
     }
 
     /// Runs `ms` milliseconds; the frames the drive sent meanwhile.
@@ -892,6 +916,148 @@ fn sr_saved_values_come_back_after_reset_node_and_restore_brings_the_defaults(bu
     expect_eq("0x1017 after restore and reset node", bus.get(0x1017, 0)?, 0)
 }
 
+// --- LSS (CiA 305) ---------------------------------------------------------------------------------------------
+
+fn lss_frame(cs: u8, rest: &[u8]) -> [u8; 8] {
+    let mut f = [0u8; 8];
+    f[0] = cs;
+    f[1..=rest.len()].copy_from_slice(rest);
+    f
+}
+
+/// The identity 0x1018:01..04 the EDS gives (the drive in slot 1 has the EDS serial; slot k the serial + k - 1).
+fn eds_identity() -> Result<[u32; 4], String> {
+    let mut id = [0u32; 4];
+    for (sub, v) in (1..=4u8).zip(id.iter_mut()) {
+        *v = eds().entry(0x1018, sub).and_then(|e| e.default_for(NODE)).ok_or("0x1018 in the EDS")? as u32;
+    }
+    Ok(id)
+}
+
+fn lss_unconfigured_drive_waits_silent(_: &mut Bus) -> Outcome {
+    let mut bus = Bus::unconfigured(1);
+    let frames = bus.take_log();
+    expect_that(frames.is_empty(), || format!("an unconfigured drive sent {frames:?}"))?;
+    expect_eq("SDO to node 1", bus.sdo([0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0])?, None)?;
+    expect_eq("identify non-configured remote slave", bus.lss(lss_frame(0x4C, &[])), vec![lss_frame(0x50, &[])])
+}
+
+fn lss_selective_switch_configure_and_boot(_: &mut Bus) -> Outcome {
+    let mut bus = Bus::unconfigured(1);
+    let id = eds_identity()?;
+    let mut answers = Vec::new();
+    for (cs, part) in (0x40u8..).zip(id) {
+        answers = bus.lss(lss_frame(cs, &part.to_le_bytes()));
+    }
+    expect_eq("answer to the selective switch", answers, vec![lss_frame(0x44, &[])])?;
+    expect_eq("inquire node-ID", bus.lss(lss_frame(0x5E, &[])), vec![lss_frame(0x5E, &[0xFF])])?;
+    expect_eq("configure node-ID 128", bus.lss(lss_frame(0x11, &[128])), vec![lss_frame(0x11, &[1])])?;
+    expect_eq("configure node-ID 5", bus.lss(lss_frame(0x11, &[5])), vec![lss_frame(0x11, &[0])])?;
+    let frames = [bus.send(LSS_MASTER, &lss_frame(0x04, &[0])), bus.run_ms(5)].concat();
+    expect_that(frames.iter().any(|f| f.id() == 0x705 && f.data() == [0]), || {
+        format!("no boot-up of node 5: {frames:?}")
+    })?;
+    bus.take_log();
+    let [i0, i1] = 0x1018u16.to_le_bytes();
+    let r = bus.send(0x605, &[0x40, i0, i1, 4, 0, 0, 0, 0]);
+    let answer = r.iter().find(|f| f.id() == 0x585).ok_or("no SDO answer of node 5")?;
+    expect_eq("0x1018:04 of node 5", u32::from_le_bytes(answer.data()[4..8].try_into().map_err(|_| "4 bytes")?), id[3])
+}
+
+fn lss_inquire_identity_and_bit_timing(_: &mut Bus) -> Outcome {
+    let mut bus = Bus::unconfigured(1);
+    bus.lss(lss_frame(0x04, &[1]));
+    let id = eds_identity()?;
+    for (cs, part) in (0x5Au8..).zip(id) {
+        expect_eq(
+            &format!("inquire {cs:#04X}"),
+            bus.lss(lss_frame(cs, &[])),
+            vec![lss_frame(cs, &part.to_le_bytes())],
+        )?;
+    }
+    expect_eq(
+        "bit timing 500 kbit/s (table 0, index 2)",
+        bus.lss(lss_frame(0x13, &[0, 2])),
+        vec![lss_frame(0x13, &[0])],
+    )?;
+    expect_eq(
+        "bit timing index 5 (100 kbit/s, not supported)",
+        bus.lss(lss_frame(0x13, &[0, 5])),
+        vec![lss_frame(0x13, &[1])],
+    )?;
+    expect_eq("bit timing table 1", bus.lss(lss_frame(0x13, &[1, 0])), vec![lss_frame(0x13, &[1])])?;
+    let d = bus.drive().sim.drive.dictionary();
+    expect_eq("0x2001 after the configuration", firmware::canopen::ids::read(d, 0x2001, 0), Some(2))
+}
+
+/// One fastscan probe; whether a slave answered.
+fn probe(bus: &mut Bus, id: u32, bit: u8, part: u8, next: u8) -> bool {
+    let mut f = lss_frame(0x51, &id.to_le_bytes());
+    (f[5], f[6], f[7]) = (bit, part, next);
+    !bus.lss(f).is_empty()
+}
+
+/// The master's fastscan (CiA 305 §6.7): the identity of one unconfigured slave, left in configuration.
+fn fastscan(bus: &mut Bus) -> Option<[u32; 4]> {
+    if !probe(bus, 0, 0x80, 0, 0) {
+        return None;
+    }
+    let mut found = [0u32; 4];
+    for part in 0..4u8 {
+        for bit in (0..32u8).rev() {
+            if !probe(bus, found[usize::from(part)], bit, part, part) {
+                found[usize::from(part)] |= 1 << bit;
+            }
+        }
+        if !probe(bus, found[usize::from(part)], 0, part, (part + 1) & 3) {
+            return None;
+        }
+    }
+    Some(found)
+}
+
+fn lss_fastscan_assigns_three_drives_that_keep_their_ids(_: &mut Bus) -> Outcome {
+    let mut bus = Bus::unconfigured(3);
+    let base = eds_identity()?;
+    let mut serials = Vec::new();
+    for new_id in [5u8, 6, 7] {
+        let found = fastscan(&mut bus).ok_or_else(|| format!("fastscan found no drive for node-ID {new_id}"))?;
+        expect_eq("vendor, product, revision found", found[..3].to_vec(), base[..3].to_vec())?;
+        serials.push(found[3]);
+        expect_eq("configure node-ID", bus.lss(lss_frame(0x11, &[new_id])), vec![lss_frame(0x11, &[0])])?;
+        expect_eq("store configuration", bus.lss(lss_frame(0x17, &[])), vec![lss_frame(0x17, &[0])])?;
+        let frames = [bus.send(LSS_MASTER, &lss_frame(0x04, &[0])), bus.run_ms(5)].concat();
+        let boot = 0x700 + u16::from(new_id);
+        expect_that(frames.iter().any(|f| f.id() == boot && f.data() == [0]), || format!("no boot-up of {new_id}"))?;
+    }
+    expect_eq("fastscan after all are configured", fastscan(&mut bus), None)?;
+    serials.sort_unstable();
+    expect_eq("the three serial numbers found", serials, vec![base[3], base[3] + 1, base[3] + 2])?;
+    bus.take_log();
+    bus.nmt(0x81, 0);
+    bus.run_ms(200);
+    let mut booted: Vec<u16> = bus
+        .take_log()
+        .iter()
+        .filter(|f| f.data() == [0] && (0x701..=0x77F).contains(&f.id()))
+        .map(|f| f.id() - 0x700)
+        .collect();
+    booted.sort_unstable();
+    expect_eq("node-IDs booting after reset node", booted, vec![5, 6, 7])
+}
+
+fn lss_configured_node_takes_its_new_id_at_reset_communication(bus: &mut Bus) -> Outcome {
+    bus.lss(lss_frame(0x04, &[1]));
+    expect_eq("configure node-ID 9", bus.lss(lss_frame(0x11, &[9])), vec![lss_frame(0x11, &[0])])?;
+    bus.send(LSS_MASTER, &lss_frame(0x04, &[0]));
+    expect_that(bus.sdo([0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0])?.is_some(), || "node 1 stopped answering".into())?;
+    let frames = [bus.nmt(0x82, NODE), bus.run_ms(5)].concat();
+    expect_that(frames.iter().any(|f| f.id() == 0x709 && f.data() == [0]), || {
+        format!("no boot-up of node 9: {frames:?}")
+    })?;
+    expect_eq("node 1 after the reset", bus.sdo([0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0])?, None)
+}
+
 /// The suite's cases, in the tool's group order.
 #[must_use]
 pub fn cases() -> Vec<Case<Bus>> {
@@ -949,6 +1115,11 @@ pub fn cases() -> Vec<Case<Bus>> {
         case!("PDO-05", "CiA 301 §7.2.2.2, Table 21", "an RPDO shorter than its mapping is dropped: EMCY 0x8210", pdo_short_rpdo_is_dropped_with_emcy_8210),
         case!("PDO-06", "CiA 301 §7.5.2.37 (event timer)", "type 255, event timer 20 ms: 10 TPDOs in 200 ms", pdo_event_timer_sends_the_tpdo),
         case!("SR-01", "CiA 301 §7.5.2.13/14", "0x1010:01 bit 0 set; wrong signatures 0x08000020; \"save\" and \"load\" taken", sr_signatures),
+        case!("LSS-01", "CiA 305 §5", "an unconfigured drive sends nothing, answers no SDO; identify non-configured: 0x50", lss_unconfigured_drive_waits_silent),
+        case!("LSS-02", "CiA 305 §6.2, §6.3", "selective switch: 0x44; node-ID 0xFF; 128 refused (error 1), 5 taken; to waiting: boot-up 0x705", lss_selective_switch_configure_and_boot),
+        case!("LSS-03", "CiA 305 §6.3, §6.4", "inquire 0x5A..0x5D = 0x1018; bit timing 500k taken, 100k and table 1 refused (error 1), 0x2001 = 2", lss_inquire_identity_and_bit_timing),
+        case!("LSS-04", "CiA 305 §6.7, §6.3", "fastscan finds three drives one by one; node-IDs 5, 6, 7 stored; they boot with them after reset node", lss_fastscan_assigns_three_drives_that_keep_their_ids),
+        case!("LSS-05", "CiA 305 §6.3 (configured node)", "node-ID 9 configured on node 1: still 1 until reset communication, then boot-up 0x709", lss_configured_node_takes_its_new_id_at_reset_communication),
         case!("SR-02", "CiA 301 §7.5.2.13/14", "saved values after reset node; after \"load\" and reset node the EDS defaults", sr_saved_values_come_back_after_reset_node_and_restore_brings_the_defaults),
     ]
 }
