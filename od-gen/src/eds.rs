@@ -97,7 +97,8 @@ pub fn eds(d: &Description) -> String {
         ("GroupMessaging", "0".into()),
         ("NrOfRXPDO", rx.to_string()),
         ("NrOfTXPDO", tx.to_string()),
-        ("LSS_Supported", "0".into()),
+        // The firmware's LSS slave (CiA 305): `firmware::canopen::lss`.
+        ("LSS_Supported", "1".into()),
     ]);
     section(&mut out, "DeviceInfo", &info);
 

@@ -45,7 +45,7 @@ fn eds_is_deterministic_and_has_the_header_sections() {
     assert_eq!(get(&s, "DeviceInfo", "RevisionNumber"), Some("0x00010000"));
     assert_eq!(get(&s, "DeviceInfo", "ProductName"), Some("OSD-402-24V-10A"));
     assert_eq!(get(&s, "DeviceInfo", "BaudRate_1000"), Some("1"));
-    assert_eq!(get(&s, "DeviceInfo", "LSS_Supported"), Some("0"));
+    assert_eq!(get(&s, "DeviceInfo", "LSS_Supported"), Some("1"));
     assert_eq!(get(&s, "DeviceInfo", "NrOfRXPDO"), Some("2"));
     assert_eq!(get(&s, "DeviceInfo", "NrOfTXPDO"), Some("2"));
     for i in 1..=7 {

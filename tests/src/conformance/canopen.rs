@@ -939,7 +939,8 @@ fn lss_unconfigured_drive_waits_silent(_: &mut Bus) -> Outcome {
     let frames = bus.take_log();
     expect_that(frames.is_empty(), || format!("an unconfigured drive sent {frames:?}"))?;
     expect_eq("SDO to node 1", bus.sdo([0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0])?, None)?;
-    expect_eq("identify non-configured remote slave", bus.lss(lss_frame(0x4C, &[])), vec![lss_frame(0x50, &[])])
+    expect_eq("identify non-configured remote slave", bus.lss(lss_frame(0x4C, &[])), vec![lss_frame(0x50, &[])])?;
+    expect_eq("the EDS's LSS_Supported (CiA 306 §4.6.2)", eds().device_info_number("LSS_Supported"), Some(1))
 }
 
 fn lss_selective_switch_configure_and_boot(_: &mut Bus) -> Outcome {
@@ -1115,7 +1116,7 @@ pub fn cases() -> Vec<Case<Bus>> {
         case!("PDO-05", "CiA 301 §7.2.2.2, Table 21", "an RPDO shorter than its mapping is dropped: EMCY 0x8210", pdo_short_rpdo_is_dropped_with_emcy_8210),
         case!("PDO-06", "CiA 301 §7.5.2.37 (event timer)", "type 255, event timer 20 ms: 10 TPDOs in 200 ms", pdo_event_timer_sends_the_tpdo),
         case!("SR-01", "CiA 301 §7.5.2.13/14", "0x1010:01 bit 0 set; wrong signatures 0x08000020; \"save\" and \"load\" taken", sr_signatures),
-        case!("LSS-01", "CiA 305 §5", "an unconfigured drive sends nothing, answers no SDO; identify non-configured: 0x50", lss_unconfigured_drive_waits_silent),
+        case!("LSS-01", "CiA 305 §5", "an unconfigured drive sends nothing, answers no SDO; identify non-configured: 0x50; the EDS says LSS_Supported=1", lss_unconfigured_drive_waits_silent),
         case!("LSS-02", "CiA 305 §6.2, §6.3", "selective switch: 0x44; node-ID 0xFF; 128 refused (error 1), 5 taken; to waiting: boot-up 0x705", lss_selective_switch_configure_and_boot),
         case!("LSS-03", "CiA 305 §6.3, §6.4", "inquire 0x5A..0x5D = 0x1018; bit timing 500k taken, 100k and table 1 refused (error 1), 0x2001 = 2", lss_inquire_identity_and_bit_timing),
         case!("LSS-04", "CiA 305 §6.7, §6.3", "fastscan finds three drives one by one; node-IDs 5, 6, 7 stored; they boot with them after reset node", lss_fastscan_assigns_three_drives_that_keep_their_ids),
