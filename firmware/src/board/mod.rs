@@ -32,6 +32,8 @@ pub mod can;
 pub mod chopper;
 pub mod clock;
 pub mod counter;
+#[cfg(not(feature = "qemu"))]
+pub mod device_id;
 #[cfg(feature = "ethercat")]
 pub mod esc_spi;
 pub mod feedback;

@@ -125,6 +125,13 @@ pub fn run() -> ! {
     let program = program::start(&mut boot.drive);
     #[cfg(feature = "qemu")]
     let program: Option<core::cell::RefCell<program::BoardProgram>> = None;
+    // The board's own serial number (0x1018:04), from the chip's unique ID: what tells drives apart on one bus
+    // (LSS fastscan, tools). QEMU's machine has no unique-ID area.
+    #[cfg(not(feature = "qemu"))]
+    {
+        let serial = crate::board::device_id::serial_number();
+        let _ = crate::canopen::ids::write(boot.drive.dictionary_mut(), 0x1018, 4, u64::from(serial));
+    }
     // CAN1 with the stored node-ID and bit rate, before tier 1 runs (bringing the controller up waits for bus
     // idle, milliseconds that must not be spent with tier 1 held off).
     #[cfg(not(feature = "qemu"))]
