@@ -1,0 +1,7 @@
+//! The commands, one file per group.
+
+pub mod faults;
+pub mod motion;
+pub mod object;
+pub mod params;
+pub mod scan;

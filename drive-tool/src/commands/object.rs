@@ -1,0 +1,64 @@
+//! `get` and `set`: objects by index or name, with type-aware parsing and display.
+
+use serde_json::json;
+
+use crate::context::Context;
+use crate::value::{encode, type_name};
+
+/// `get OBJ...`: reads each entry the specs name and prints `0xIIII:SS name = value`, or a JSON list.
+pub fn get(cx: &mut Context, specs: &[String]) -> Result<(), String> {
+    let mut entries = Vec::new();
+    for spec in specs {
+        entries.extend(cx.dict.resolve(spec)?.into_iter().cloned());
+    }
+    let mut out = Vec::new();
+    let mut failures = Vec::new();
+    for entry in &entries {
+        if !entry.access.readable() {
+            failures.push(format!("{} ({}) is write-only", entry.address(), entry.full_name()));
+            continue;
+        }
+        match cx.read_entry_of(cx.node, entry) {
+            Ok(value) => {
+                if cx.json {
+                    out.push(json!({
+                        "index": entry.index, "sub": entry.sub, "address": entry.address(), "name": entry.full_name(),
+                        "type": type_name(entry.data_type), "access": entry.access.word(), "default": entry.default,
+                        "value": value.json(), "text": value.display(entry.data_type),
+                    }));
+                } else {
+                    println!("{} {} = {}", entry.address(), entry.full_name(), value.display(entry.data_type));
+                }
+            }
+            Err(e) => {
+                if cx.json {
+                    out.push(json!({ "index": entry.index, "sub": entry.sub, "address": entry.address(), "error": e }));
+                }
+                failures.push(e);
+            }
+        }
+    }
+    if cx.json {
+        cx.print_json(&serde_json::Value::Array(out));
+    }
+    match failures.as_slice() {
+        [] => Ok(()),
+        [one] => Err(one.clone()),
+        many => Err(many.join("\n")),
+    }
+}
+
+/// `set OBJ VALUE`: the value checked against the entry's type and limits, then written.
+pub fn set(cx: &mut Context, spec: &str, text: &str) -> Result<(), String> {
+    let entry = cx.dict.resolve_one(spec)?.clone();
+    // The access is not checked here: the drive has the last word (its abort code says why it refuses, e.g.
+    // 0x0601_0002 for a read-only object), and an EDS may be older than the drive.
+    let bytes = encode(&entry, text, cx.node)?;
+    cx.write_entry(&entry, &bytes)?;
+    if cx.json {
+        cx.print_json(&json!({ "address": entry.address(), "name": entry.full_name(), "written": text }));
+    } else {
+        println!("{} {} := {text}", entry.address(), entry.full_name());
+    }
+    Ok(())
+}

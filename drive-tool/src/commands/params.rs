@@ -1,0 +1,163 @@
+//! `params save FILE` and `params load FILE`: the drive's persistent parameters as a CiA 306 DCF and back, with
+//! the differences shown before anything is written and 0x1010:01 "save" on request (CiA 301 §7.5.2.13).
+
+use std::path::Path;
+
+use serde_json::json;
+
+use crate::context::Context;
+use crate::dcf::{self, Commissioning};
+use crate::eds::{parse_eds_integer, Dictionary, Entry};
+use crate::value::{encode, Value};
+
+/// The signature "save" written to 0x1010:01 (CiA 301 §7.5.2.13: "s" "a" "v" "e", 0x65766173).
+const SAVE_SIGNATURE: u32 = 0x6576_6173;
+
+/// `params save FILE`.
+pub fn save(cx: &mut Context, file: &Path) -> Result<(), String> {
+    let node = cx.node;
+    let wanted: Vec<Entry> = cx
+        .dict
+        .entries
+        .iter()
+        .filter(|e| e.access.readable() && (dcf::persistent(&cx.dict, e) || e.index == 0x1018))
+        .cloned()
+        .collect();
+    let mut values = Vec::new();
+    let mut skipped = Vec::new();
+    for entry in wanted {
+        match cx.read_entry_of(node, &entry) {
+            Ok(v) => values.push((entry, v)),
+            Err(e) => skipped.push(e),
+        }
+    }
+    if values.iter().all(|(e, _)| e.index == 0x1018) {
+        return Err(format!(
+            "node {node}: no parameter could be read{}",
+            skipped.first().map_or(String::new(), |e| format!(" ({e})"))
+        ));
+    }
+    let serial = values.iter().find(|(e, _)| (e.index, e.sub) == (0x1018, 4)).and_then(|(_, v)| match v {
+        Value::Int(s) => Some(*s as u32),
+        _ => None,
+    });
+    let bit_rate =
+        if dcf::is_project_device(&cx.dict) { cx.read_int(0x200A, 0).ok().and_then(dcf::bit_rate_kbit) } else { None };
+    let file_name = file.file_name().map_or("drive.dcf".into(), |n| n.to_string_lossy().into_owned());
+    let text =
+        dcf::write(&cx.dict, &values, &Commissioning { node_id: node, bit_rate_kbit: bit_rate, serial, file_name });
+    std::fs::write(file, text).map_err(|e| format!("{}: {e}", file.display()))?;
+    for e in &skipped {
+        eprintln!("drive-tool: warning: not saved: {e}");
+    }
+    let saved = values.iter().filter(|(e, _)| e.index != 0x1018).count();
+    if cx.json {
+        cx.print_json(&json!({ "file": file.display().to_string(), "parameters": saved, "skipped": skipped }));
+    } else {
+        println!("{saved} parameters of node {node} saved to {}", file.display());
+    }
+    Ok(())
+}
+
+/// Options of `params load`.
+pub struct LoadOptions {
+    /// Write 0x1010:01 "save" afterwards.
+    pub store: bool,
+    /// Accept a DCF of another device.
+    pub force: bool,
+    /// Show the differences only.
+    pub dry_run: bool,
+}
+
+/// One parameter that differs.
+struct Change {
+    entry: Entry,
+    old: String,
+    new: String,
+    bytes: Vec<u8>,
+}
+
+/// The identity values a DCF records for 0x1018:01/02: their ParameterValue, else [DeviceInfo].
+fn dcf_identity(dcf: &Dictionary, sub: u8) -> Option<u32> {
+    let recorded = dcf.entry(0x1018, sub).and_then(|e| e.value.as_deref()).and_then(|v| parse_eds_integer(v, 0));
+    recorded.map(|v| v as u32).or(match sub {
+        1 => dcf.identity.vendor,
+        _ => dcf.identity.product,
+    })
+}
+
+/// `params load FILE`.
+pub fn load(cx: &mut Context, file: &Path, options: LoadOptions) -> Result<(), String> {
+    let node = cx.node;
+    let text = std::fs::read_to_string(file).map_err(|e| format!("{}: {e}", file.display()))?;
+    let dcf = Dictionary::parse(&text).map_err(|e| format!("{}: {e}", file.display()))?;
+    // CiA 306: a DCF belongs to one device; its identity must be the drive's (0x1018:01 vendor, :02 product).
+    for (sub, what) in [(1u8, "vendor ID"), (2, "product code")] {
+        let Some(expected) = dcf_identity(&dcf, sub) else { continue };
+        let actual = cx.link.upload(node, 0x1018, sub).map_err(|e| format!("node {node} 0x1018:{sub:02X}: {e}"))?;
+        let actual = match crate::value::decode(0x0007, &actual) {
+            Ok(Value::Int(v)) => v as u32,
+            _ => return Err(format!("node {node} 0x1018:{sub:02X}: not an UNSIGNED32")),
+        };
+        if actual != expected && !options.force {
+            return Err(format!(
+                "{} is for another device: its {what} is 0x{expected:08X}, node {node}'s 0x{actual:08X} (--force loads it anyway)",
+                file.display()
+            ));
+        }
+    }
+    // Every value is checked against its type before anything is read or written.
+    let mut planned = Vec::new();
+    for entry in dcf.entries.iter().filter(|e| e.value.is_some() && e.access.writable()) {
+        let text = entry.value.clone().unwrap_or_default();
+        let bytes = encode(entry, &text, node).map_err(|e| format!("{}: {e}", file.display()))?;
+        planned.push((entry.clone(), bytes));
+    }
+    let mut changes = Vec::new();
+    for (entry, bytes) in planned {
+        let current =
+            cx.link.upload(node, entry.index, entry.sub).map_err(|e| crate::context::access_error(node, &entry, &e))?;
+        if current != bytes {
+            let show = |b: &[u8]| {
+                crate::value::decode(entry.data_type, b)
+                    .map_or_else(|_| crate::value::hex(b), |v| v.display(entry.data_type))
+            };
+            changes.push(Change { old: show(&current), new: show(&bytes), entry, bytes });
+        }
+    }
+    let mut failures = Vec::new();
+    if !options.dry_run {
+        for c in &changes {
+            if let Err(e) = cx.link.download(node, c.entry.index, c.entry.sub, &c.bytes) {
+                failures.push(crate::context::access_error(node, &c.entry, &e));
+            }
+        }
+    }
+    let stored = options.store && !options.dry_run && failures.is_empty();
+    if stored {
+        cx.link
+            .download(node, 0x1010, 1, &SAVE_SIGNATURE.to_le_bytes())
+            .map_err(|e| format!("node {node} 0x1010:01 (store parameters): {e}"))?;
+    }
+    if cx.json {
+        let list: Vec<_> = changes
+            .iter()
+            .map(|c| json!({ "address": c.entry.address(), "name": c.entry.full_name(), "old": c.old, "new": c.new }))
+            .collect();
+        cx.print_json(&json!({ "changes": list, "written": !options.dry_run, "stored": stored, "failures": failures }));
+    } else {
+        for c in &changes {
+            println!("{} {}: {} -> {}", c.entry.address(), c.entry.full_name(), c.old, c.new);
+        }
+        let verb = if options.dry_run { "would change" } else { "changed" };
+        println!(
+            "{} parameter(s) {verb} on node {node}{}",
+            changes.len(),
+            if stored { "; stored (0x1010:01)" } else { "" }
+        );
+    }
+    match failures.as_slice() {
+        [] => Ok(()),
+        many => Err(format!("{} write(s) refused:\n{}", many.len(), many.join("\n"))),
+    }
+}

@@ -1,0 +1,98 @@
+//! CiA 306 device configuration files: the EDS with each saved entry's ParameterValue and a
+//! [DeviceComissioning] section (node-ID, bit rate, network), as PyPI canopen's `import_od` reads them.
+
+use crate::eds::{Access, Dictionary, Entry};
+use crate::value::Value;
+
+/// Whether `entry` is a parameter the drive keeps with 0x1010 "save". For the project's own device (the
+/// dictionary's vendor and product are the project's) the firmware's dictionary table says so entry by entry
+/// (device.toml `persistent`); an EDS does not carry the flag, so for another device every read-write entry
+/// outside the store/restore commands (0x1010, 0x1011) is taken.
+pub fn persistent(dict: &Dictionary, entry: &Entry) -> bool {
+    if is_project_device(dict) {
+        return firmware::od::access::Table::GENERATED.find(entry.index, entry.sub).is_ok_and(|e| e.persistent);
+    }
+    entry.access == Access::ReadWrite && !matches!(entry.index, 0x1010 | 0x1011) && entry.data_type != 0x000F
+}
+
+/// Whether `dict` describes this project's drive (vendor and product of its [DeviceInfo]).
+pub fn is_project_device(dict: &Dictionary) -> bool {
+    let project = Dictionary::project().identity;
+    dict.identity.vendor == project.vendor && dict.identity.product == project.product
+}
+
+/// What a DCF records besides the values.
+pub struct Commissioning {
+    /// The drive's node-ID.
+    pub node_id: u8,
+    /// The bit rate in kbit/s, when known.
+    pub bit_rate_kbit: Option<u32>,
+    /// The drive's serial number 0x1018:04, when read.
+    pub serial: Option<u32>,
+    /// The DCF's own file name.
+    pub file_name: String,
+}
+
+/// The DCF text: `dict`'s EDS with ParameterValue set for `values` and the commissioning section.
+pub fn write(dict: &Dictionary, values: &[(Entry, Value)], c: &Commissioning) -> String {
+    let mut ini = dict.ini.clone();
+    let eds_name = ini.get("FileInfo", "FileName").unwrap_or("").to_owned();
+    ini.set("FileInfo", "FileName", c.file_name.clone());
+    ini.set("FileInfo", "LastEDS", eds_name);
+    ini.set("FileInfo", "ModifiedBy", "drive-tool".into());
+    for (entry, value) in values {
+        ini.set(&entry.section, "ParameterValue", value.dcf_text(entry.data_type));
+    }
+    ini.set("DeviceComissioning", "NodeID", c.node_id.to_string());
+    ini.set("DeviceComissioning", "NodeName", format!("node{}", c.node_id));
+    if let Some(kbit) = c.bit_rate_kbit {
+        ini.set("DeviceComissioning", "Baudrate", kbit.to_string());
+    }
+    ini.set("DeviceComissioning", "NetNumber", "1".into());
+    ini.set("DeviceComissioning", "NetworkName", "CANopen".into());
+    ini.set("DeviceComissioning", "CANopenManager", "0".into());
+    ini.set("DeviceComissioning", "LSS_SerialNumber", format!("0x{:08X}", c.serial.unwrap_or(0)));
+    ini.to_text()
+}
+
+/// The kbit/s of a CiA 305 bit timing index (0x2001/0x200A here: 0 = 1 Mbit/s, 1 = 800k, 2 = 500k, ...).
+pub fn bit_rate_kbit(code: i128) -> Option<u32> {
+    Some(match code {
+        0 => 1000,
+        1 => 800,
+        2 => 500,
+        3 => 250,
+        4 => 125,
+        6 => 50,
+        7 => 20,
+        8 => 10,
+        _ => return None,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_project_flags_decide_persistence() {
+        let d = Dictionary::project();
+        assert!(persistent(&d, d.entry(0x6065, 0).expect("following error window")), "device.toml: persistent");
+        assert!(!persistent(&d, d.entry(0x6040, 0).expect("controlword")), "the controlword is not a parameter");
+    }
+
+    #[test]
+    fn a_dcf_carries_the_values_and_the_commissioning() {
+        let d = Dictionary::project();
+        let e = d.entry(0x6065, 0).expect("entry").clone();
+        let text = write(
+            &d,
+            &[(e, Value::Int(1234))],
+            &Commissioning { node_id: 3, bit_rate_kbit: Some(1000), serial: Some(7), file_name: "x.dcf".into() },
+        );
+        let back = Dictionary::parse(&text).expect("a DCF is an EDS too");
+        assert_eq!(back.entry(0x6065, 0).and_then(|e| e.value.clone()).as_deref(), Some("0x000004D2"));
+        assert_eq!(back.ini.get("DeviceComissioning", "NodeID"), Some("3"));
+        assert_eq!(back.ini.get("FileInfo", "FileName"), Some("x.dcf"));
+    }
+}
