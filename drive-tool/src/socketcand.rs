@@ -39,16 +39,10 @@ impl Socketcand {
 
     /// Waits for the element `word` of the handshake.
     fn expect(&mut self, address: &str, word: &str) -> Result<(), String> {
-        let deadline = Instant::now() + HANDSHAKE_TIMEOUT;
-        loop {
-            let left = deadline.saturating_duration_since(Instant::now());
-            match self.next_element(left).map_err(|e| format!("--socketcand {address}: {e}"))? {
-                Some(e) if e == word => return Ok(()),
-                Some(e) => {
-                    return Err(format!("--socketcand {address}: expected `< {word} >`, the server sent `< {e} >`"))
-                }
-                None => return Err(format!("--socketcand {address}: no `< {word} >` within {HANDSHAKE_TIMEOUT:?}")),
-            }
+        match self.next_element(HANDSHAKE_TIMEOUT).map_err(|e| format!("--socketcand {address}: {e}"))? {
+            Some(e) if e == word => Ok(()),
+            Some(e) => Err(format!("--socketcand {address}: expected `< {word} >`, the server sent `< {e} >`")),
+            None => Err(format!("--socketcand {address}: no `< {word} >` within {HANDSHAKE_TIMEOUT:?}")),
         }
     }
 
@@ -87,7 +81,7 @@ pub fn parse_frame(element: &str) -> Option<Frame> {
     let id = u16::from_str_radix(words.next()?, 16).ok().filter(|&id| id <= 0x7FF)?;
     let _time = words.next()?;
     let hex = words.next().unwrap_or("");
-    if hex.len() % 2 != 0 || hex.len() > 16 {
+    if !hex.len().is_multiple_of(2) || hex.len() > 16 {
         return None;
     }
     let data: Option<Vec<u8>> =

@@ -160,7 +160,7 @@ pub fn encode(entry: &Entry, text: &str, node_id: u8) -> Result<Vec<u8>, String>
 /// `01A2FF`, `01 a2 ff` or `0x01A2FF` as bytes.
 pub fn parse_hex_bytes(text: &str) -> Option<Vec<u8>> {
     let t: String = text.trim().trim_start_matches("0x").chars().filter(|c| !c.is_whitespace()).collect();
-    if t.len() % 2 != 0 {
+    if !t.len().is_multiple_of(2) {
         return None;
     }
     (0..t.len()).step_by(2).map(|k| u8::from_str_radix(t.get(k..k + 2)?, 16).ok()).collect()
