@@ -65,22 +65,34 @@ pub struct CanopenLink {
     bus: Watch,
     /// SDO answer timeout.
     pub timeout: Duration,
+    /// Every transfer by SDO block transfer (CiA 301 §7.2.4.3.9..16) instead of expedited/segmented.
+    pub block: bool,
 }
 
 impl CanopenLink {
-    /// The link over `bus` with SDO timeout `timeout`.
-    pub fn new(bus: Box<dyn CanInterface>, timeout: Duration) -> Self {
-        Self { bus: Watch { inner: bus, nmt: BTreeMap::new() }, timeout }
+    /// The link over `bus` with SDO timeout `timeout`, block transfers if `block`.
+    pub fn new(bus: Box<dyn CanInterface>, timeout: Duration, block: bool) -> Self {
+        Self { bus: Watch { inner: bus, nmt: BTreeMap::new() }, timeout, block }
     }
 }
 
 impl DriveLink for CanopenLink {
     fn upload(&mut self, node: u8, index: u16, sub: u8) -> Result<Vec<u8>, SdoError> {
-        SdoClient::new(&mut self.bus, self.timeout).upload(node, index, sub)
+        let mut client = SdoClient::new(&mut self.bus, self.timeout);
+        if self.block {
+            client.block_upload(node, index, sub)
+        } else {
+            client.upload(node, index, sub)
+        }
     }
 
     fn download(&mut self, node: u8, index: u16, sub: u8, data: &[u8]) -> Result<(), SdoError> {
-        SdoClient::new(&mut self.bus, self.timeout).download(node, index, sub, data)
+        let mut client = SdoClient::new(&mut self.bus, self.timeout);
+        if self.block {
+            client.block_download(node, index, sub, data)
+        } else {
+            client.download(node, index, sub, data)
+        }
     }
 
     /// Asks every node-ID 1..=127 for 0x1018:01 at once (one request each, so no server sees two) and collects

@@ -61,6 +61,10 @@ struct LinkArgs {
     /// How long to wait for each SDO answer, ms.
     #[arg(long, global = true, value_name = "MS", default_value_t = 1000, value_parser = clap::value_parser!(u64).range(1..=60_000))]
     sdo_timeout_ms: u64,
+    /// Transfer every object by SDO block transfer (CiA 301 §7.2.4.3.9..16, with CRC) instead of expedited
+    /// and segmented transfers.
+    #[arg(long, global = true)]
+    sdo_block: bool,
     /// Print JSON for a script instead of text.
     #[arg(long, global = true)]
     json: bool,
@@ -165,25 +169,26 @@ enum FaultCommand {
 
 fn open_link(args: &LinkArgs) -> Result<Box<dyn DriveLink>, String> {
     let timeout = Duration::from_millis(args.sdo_timeout_ms);
+    let block = args.sdo_block;
     match (&args.socketcand, &args.can) {
         (Some(_), Some(_)) => Err("--socketcand and --can: give one link, not both".into()),
         (Some(address), None) => {
             let bus = socketcand::Socketcand::connect(address, &args.socketcand_bus)?;
-            Ok(Box::new(CanopenLink::new(Box::new(bus), timeout)))
+            Ok(Box::new(CanopenLink::new(Box::new(bus), timeout, block)))
         }
-        (None, Some(iface)) => open_socketcan(iface, timeout),
+        (None, Some(iface)) => open_socketcan(iface, timeout, block),
         (None, None) => Err("no link: give --socketcand HOST:PORT (the simulator) or --can IFACE (SocketCAN)".into()),
     }
 }
 
 #[cfg(target_os = "linux")]
-fn open_socketcan(iface: &str, timeout: Duration) -> Result<Box<dyn DriveLink>, String> {
+fn open_socketcan(iface: &str, timeout: Duration, block: bool) -> Result<Box<dyn DriveLink>, String> {
     let bus = socketcan_if::SocketCan::open(iface)?;
-    Ok(Box::new(CanopenLink::new(Box::new(bus), timeout)))
+    Ok(Box::new(CanopenLink::new(Box::new(bus), timeout, block)))
 }
 
 #[cfg(not(target_os = "linux"))]
-fn open_socketcan(iface: &str, _timeout: Duration) -> Result<Box<dyn DriveLink>, String> {
+fn open_socketcan(iface: &str, _timeout: Duration, _block: bool) -> Result<Box<dyn DriveLink>, String> {
     Err(format!("--can {iface}: SocketCAN exists on Linux only"))
 }
 

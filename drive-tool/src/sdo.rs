@@ -6,6 +6,8 @@ use std::fmt;
 use std::time::{Duration, Instant};
 
 use crate::abort_text::abort_text;
+use firmware::comm::sdo::crc::Crc16;
+
 use crate::bus::{CanInterface, Frame};
 
 /// Why an SDO transfer failed.
@@ -194,6 +196,141 @@ impl<'a> SdoClient<'a> {
     }
 }
 
+/// Block transfers (CiA 301 §7.2.4.3.9..16): the client's block size and its sub-commands.
+const BLOCK_SIZE: u8 = 127;
+const CCS_BLOCK_UPLOAD: u8 = 5 << 5;
+const CCS_BLOCK_DOWNLOAD: u8 = 6 << 5;
+/// Block sub-commands of the client (bits 1..0 of byte 0 for upload, bit 0 for download).
+const BLOCK_UPLOAD_START: u8 = 0x03;
+const BLOCK_ACK: u8 = 0x02;
+const BLOCK_END: u8 = 0x01;
+
+impl SdoClient<'_> {
+    /// Uploads `index:sub` of `node` by block transfer (CiA 301 §7.2.4.3.14..16), with the CRC when the server
+    /// offers it: initiate with our block size, start, sub-blocks of up to [`BLOCK_SIZE`] segments each
+    /// acknowledged with the last in-sequence number (the server repeats the rest), end with the unused bytes
+    /// of the last segment and the CRC.
+    pub fn block_upload(&mut self, node: u8, index: u16, sub: u8) -> Result<Vec<u8>, SdoError> {
+        let [i0, i1] = index.to_le_bytes();
+        // cc = 1 (we check a CRC); pst = 0 (no switch to segmented for small objects).
+        self.send(node, [CCS_BLOCK_UPLOAD | 0x04, i0, i1, sub, BLOCK_SIZE, 0, 0, 0])?;
+        let answer = self.answer(node)?;
+        if answer[0] & 0xE1 != 6 << 5 {
+            self.abort(node, index, sub, 0x0504_0001);
+            return Err(SdoError::Protocol(format!("block upload initiate answered with 0x{:02X}", answer[0])));
+        }
+        self.check_multiplexer(node, index, sub, &answer)?;
+        let server_crc = answer[0] & 0x04 != 0;
+        let size =
+            (answer[0] & 0x02 != 0).then(|| u32::from_le_bytes([answer[4], answer[5], answer[6], answer[7]]) as usize);
+        self.send(node, [CCS_BLOCK_UPLOAD | BLOCK_UPLOAD_START, 0, 0, 0, 0, 0, 0, 0])?;
+        let mut data: Vec<u8> = Vec::new();
+        loop {
+            // One sub-block: segments 1..=BLOCK_SIZE; it ends with segment BLOCK_SIZE or one with c = 1. Only
+            // segments in sequence are kept; the acknowledgement names the last of them, and the server repeats
+            // the rest in the next sub-block.
+            let mut good = 0u8;
+            let mut last = false;
+            loop {
+                let seg = self.answer(node)?;
+                let seqno = seg[0] & 0x7F;
+                let final_segment = seg[0] & 0x80 != 0;
+                if seqno == good + 1 {
+                    good = seqno;
+                    data.extend_from_slice(&seg[1..8]);
+                    last = final_segment;
+                }
+                if final_segment || seqno == BLOCK_SIZE {
+                    break;
+                }
+            }
+            self.send(node, [CCS_BLOCK_UPLOAD | BLOCK_ACK, good, BLOCK_SIZE, 0, 0, 0, 0, 0])?;
+            if last {
+                break;
+            }
+            if data.len() > 1 << 24 {
+                self.abort(node, index, sub, 0x0504_0005);
+                return Err(SdoError::Protocol("more than 16 MiB uploaded".into()));
+            }
+        }
+        let end = self.answer(node)?;
+        if end[0] & 0xE3 != (6 << 5) | BLOCK_END {
+            self.abort(node, index, sub, 0x0504_0001);
+            return Err(SdoError::Protocol(format!("block upload end answered with 0x{:02X}", end[0])));
+        }
+        let unused = usize::from((end[0] >> 2) & 0x07);
+        data.truncate(data.len().saturating_sub(unused));
+        if server_crc {
+            let crc = u16::from_le_bytes([end[1], end[2]]);
+            if crc != Crc16::of(&data) {
+                self.abort(node, index, sub, 0x0504_0004);
+                return Err(SdoError::Protocol(format!(
+                    "CRC 0x{crc:04X} does not match the data's 0x{:04X}",
+                    Crc16::of(&data)
+                )));
+            }
+        }
+        self.send(node, [CCS_BLOCK_UPLOAD | BLOCK_END, 0, 0, 0, 0, 0, 0, 0])?;
+        if let Some(size) = size {
+            if size != data.len() {
+                return Err(SdoError::Protocol(format!("{} bytes received, {size} announced", data.len())));
+            }
+        }
+        Ok(data)
+    }
+
+    /// Downloads `data` to `index:sub` of `node` by block transfer (CiA 301 §7.2.4.3.9..13), size indicated and
+    /// the CRC given: sub-blocks of the server's block size, resent from the server's acknowledged sequence
+    /// number when it missed a segment.
+    pub fn block_download(&mut self, node: u8, index: u16, sub: u8, data: &[u8]) -> Result<(), SdoError> {
+        let [i0, i1] = index.to_le_bytes();
+        let [s0, s1, s2, s3] = u32::try_from(data.len())
+            .map_err(|_| SdoError::Protocol("more than 4 GiB to download".into()))?
+            .to_le_bytes();
+        // cc = 1 (we give a CRC), s = 1 (size indicated).
+        self.send(node, [CCS_BLOCK_DOWNLOAD | 0x04 | 0x02, i0, i1, sub, s0, s1, s2, s3])?;
+        let answer = self.answer(node)?;
+        if answer[0] & 0xE3 != 5 << 5 {
+            self.abort(node, index, sub, 0x0504_0001);
+            return Err(SdoError::Protocol(format!("block download initiate answered with 0x{:02X}", answer[0])));
+        }
+        self.check_multiplexer(node, index, sub, &answer)?;
+        let mut blksize = answer[4];
+        let segments: Vec<&[u8]> = if data.is_empty() { vec![&[][..]] } else { data.chunks(7).collect() };
+        let mut next = 0usize;
+        while next < segments.len() {
+            if !(1..=127).contains(&blksize) {
+                self.abort(node, index, sub, 0x0504_0002);
+                return Err(SdoError::Protocol(format!("block size {blksize} from the server")));
+            }
+            let in_block = usize::from(blksize).min(segments.len() - next);
+            for k in 0..in_block {
+                let chunk = segments[next + k];
+                let last = next + k + 1 == segments.len();
+                let mut frame = [(k as u8 + 1) | if last { 0x80 } else { 0 }, 0, 0, 0, 0, 0, 0, 0];
+                frame[1..1 + chunk.len()].copy_from_slice(chunk);
+                self.send(node, frame)?;
+            }
+            let ack = self.answer(node)?;
+            if ack[0] & 0xE3 != (5 << 5) | BLOCK_ACK {
+                self.abort(node, index, sub, 0x0504_0001);
+                return Err(SdoError::Protocol(format!("sub-block answered with 0x{:02X}", ack[0])));
+            }
+            // ackseq: the last segment the server took in sequence; the rest of the sub-block is sent again.
+            next += usize::from(ack[1]).min(in_block);
+            blksize = ack[2];
+        }
+        let unused = segments.last().map_or(7, |s| 7 - s.len()) as u8;
+        let [c0, c1] = Crc16::of(data).to_le_bytes();
+        self.send(node, [CCS_BLOCK_DOWNLOAD | unused << 2 | BLOCK_END, c0, c1, 0, 0, 0, 0, 0])?;
+        let end = self.answer(node)?;
+        if end[0] & 0xE3 != (5 << 5) | BLOCK_END {
+            return Err(SdoError::Protocol(format!("block download end answered with 0x{:02X}", end[0])));
+        }
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -258,6 +395,51 @@ mod tests {
         assert_eq!(bus.sent[0].data, vec![0x21, 0x08, 0x10, 0, 10, 0, 0, 0]);
         assert_eq!(bus.sent[1].data, b"\x000123456".to_vec());
         assert_eq!(bus.sent[2].data, vec![0x10 | 4 << 1 | 1, b'7', b'8', b'9', 0, 0, 0, 0]);
+    }
+
+    #[test]
+    fn block_download_resends_from_the_acknowledged_segment_and_ends_with_the_crc() {
+        // CiA 301 §7.2.4.3.10: the server took segment 1 of 2 only (ackseq 1); segment 2 goes again as
+        // sequence number 1 of the next sub-block, with c = 1; the end carries n = 4 unused bytes and the CRC.
+        let mut bus = script(&[
+            [0xA4, 0x65, 0x60, 0x00, 127, 0, 0, 0],
+            [0xA2, 1, 127, 0, 0, 0, 0, 0],
+            [0xA2, 1, 127, 0, 0, 0, 0, 0],
+            [0xA1, 0, 0, 0, 0, 0, 0, 0],
+        ]);
+        let data = b"0123456789";
+        SdoClient::new(&mut bus, Duration::from_millis(1)).block_download(5, 0x6065, 0, data).expect("download");
+        let firsts: Vec<u8> = bus.sent.iter().map(|f| f.data[0]).collect();
+        assert_eq!(firsts, vec![0xC6, 0x01, 0x82, 0x81, 0xC1 | 4 << 2]);
+        assert_eq!(bus.sent[0].data[4..8], [10, 0, 0, 0], "size indicated");
+        assert_eq!(bus.sent[3].data[1..4], *b"789");
+        assert_eq!(u16::from_le_bytes([bus.sent[4].data[1], bus.sent[4].data[2]]), Crc16::of(data));
+    }
+
+    #[test]
+    fn block_upload_keeps_segments_in_sequence_and_checks_the_crc() {
+        let data = b"OSD-402-X";
+        let [c0, c1] = Crc16::of(data).to_le_bytes();
+        let mut bus = script(&[
+            [0xC6, 0x08, 0x10, 0x00, 9, 0, 0, 0],
+            [0x01, b'O', b'S', b'D', b'-', b'4', b'0', b'2'],
+            [0x82, b'-', b'X', 0, 0, 0, 0, 0],
+            [0xC1 | 5 << 2, c0, c1, 0, 0, 0, 0, 0],
+        ]);
+        let got = SdoClient::new(&mut bus, Duration::from_millis(1)).block_upload(5, 0x1008, 0);
+        assert_eq!(got.as_deref(), Ok(&data[..]));
+        let firsts: Vec<u8> = bus.sent.iter().map(|f| f.data[0]).collect();
+        assert_eq!(firsts, vec![0xA4, 0xA3, 0xA2, 0xA1]);
+        assert_eq!(bus.sent[2].data[1], 2, "acknowledged up to segment 2");
+        let mut bad = script(&[
+            [0xC6, 0x08, 0x10, 0x00, 9, 0, 0, 0],
+            [0x01, b'O', b'S', b'D', b'-', b'4', b'0', b'2'],
+            [0x82, b'-', b'X', 0, 0, 0, 0, 0],
+            [0xC1 | 5 << 2, c0 ^ 1, c1, 0, 0, 0, 0, 0],
+        ]);
+        let got = SdoClient::new(&mut bad, Duration::from_millis(1)).block_upload(5, 0x1008, 0);
+        assert!(matches!(got, Err(SdoError::Protocol(ref why)) if why.contains("CRC")), "{got:?}");
+        assert_eq!(bad.sent.last().map(|f| f.data.clone()), Some(vec![0x80, 0x08, 0x10, 0x00, 0x04, 0x00, 0x04, 0x05]));
     }
 
     #[test]
