@@ -1,5 +1,5 @@
 //! CiA 306 device configuration files: the EDS with each saved entry's ParameterValue and a
-//! [DeviceComissioning] section (node-ID, bit rate, network), as PyPI canopen's `import_od` reads them.
+//! `[DeviceComissioning]` section (node-ID, bit rate, network), as PyPI canopen's `import_od` reads them.
 
 use crate::eds::{Access, Dictionary, Entry};
 use crate::value::Value;
@@ -15,7 +15,7 @@ pub fn persistent(dict: &Dictionary, entry: &Entry) -> bool {
     entry.access == Access::ReadWrite && !matches!(entry.index, 0x1010 | 0x1011) && entry.data_type != 0x000F
 }
 
-/// Whether `dict` describes this project's drive (vendor and product of its [DeviceInfo]).
+/// Whether `dict` describes this project's drive (vendor and product of its `[DeviceInfo]`).
 pub fn is_project_device(dict: &Dictionary) -> bool {
     let project = Dictionary::project().identity;
     dict.identity.vendor == project.vendor && dict.identity.product == project.product

@@ -163,7 +163,7 @@ impl Entry {
     }
 }
 
-/// Identity of a device as its EDS/DCF [DeviceInfo] gives it (CiA 306 §4.5.2).
+/// Identity of a device as its EDS/DCF `[DeviceInfo]` gives it (CiA 306 §4.5.2).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub struct DeviceIdentity {
     /// VendorNumber (0x1018:01).
@@ -181,7 +181,7 @@ pub struct Dictionary {
     pub ini: Ini,
     /// Every entry, sorted by index and sub-index.
     pub entries: Vec<Entry>,
-    /// [DeviceInfo] identity.
+    /// `[DeviceInfo]` identity.
     pub identity: DeviceIdentity,
 }
 

@@ -77,7 +77,7 @@ struct Change {
     bytes: Vec<u8>,
 }
 
-/// The identity values a DCF records for 0x1018:01/02: their ParameterValue, else [DeviceInfo].
+/// The identity values a DCF records for 0x1018:01/02: their ParameterValue, else `[DeviceInfo]`.
 fn dcf_identity(dcf: &Dictionary, sub: u8) -> Option<u32> {
     let recorded = dcf.entry(0x1018, sub).and_then(|e| e.value.as_deref()).and_then(|v| parse_eds_integer(v, 0));
     recorded.map(|v| v as u32).or(match sub {
