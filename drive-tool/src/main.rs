@@ -80,6 +80,13 @@ enum Command {
     },
     /// Identity, versions and state of one drive (`--node`).
     Info,
+    /// List the dictionary (the EDS, no drive needed): index:sub, name, type, access, default, whether 0x1010
+    /// saves it.
+    List {
+        /// Only entries whose name or index contains this text (case-insensitive).
+        #[arg(value_name = "FILTER")]
+        filter: Option<String>,
+    },
     /// Read objects: `0x6041`, `0x1018:01`, or a name from the EDS (`statusword`); an object with
     /// sub-indices is read whole.
     Get {
@@ -204,11 +211,15 @@ fn dictionary(args: &LinkArgs) -> Result<Dictionary, String> {
 
 fn run(cli: Cli) -> Result<(), String> {
     let dict = dictionary(&cli.link)?;
+    if let Command::List { filter } = &cli.command {
+        return commands::list::list(&dict, filter.as_deref(), cli.link.json);
+    }
     let link = open_link(&cli.link)?;
     let mut cx = Context::new(link, dict, cli.link.node, cli.link.json);
     match cli.command {
         Command::Scan { wait_ms } => commands::scan::scan(&mut cx, Duration::from_millis(wait_ms)),
         Command::Info => commands::scan::info(&mut cx),
+        Command::List { .. } => Ok(()),
         Command::Get { objects } => commands::object::get(&mut cx, &objects),
         Command::Set { object, value } => commands::object::set(&mut cx, &object, &value),
         Command::Params(ParamsCommand::Save { file }) => commands::params::save(&mut cx, &file),

@@ -21,8 +21,14 @@ struct Sim {
 impl Sim {
     /// `drive-sim canopen --port 0 --lock-step --nodes <nodes>`; its port is the first line it prints.
     fn start(nodes: u8) -> Self {
+        Self::start_with(nodes, &[])
+    }
+
+    /// [`Sim::start`] with more arguments for drive-sim.
+    fn start_with(nodes: u8, more: &[&str]) -> Self {
         let mut child = Command::new(build_drive_sim())
             .args(["canopen", "--port", "0", "--lock-step", "--seconds", "600", "--nodes", &nodes.to_string()])
+            .args(more)
             .stdout(Stdio::piped())
             .stderr(Stdio::null())
             .spawn()
@@ -106,6 +112,23 @@ fn scan_finds_both_drives_with_the_identity_of_device_toml() {
     let info = sim.json(&["info", "--node", "2"]);
     assert_eq!(info["node"], 2);
     assert_eq!(info["vendor_id"], u64::from(d.vendor_id));
+}
+
+/// Proves (issue 7's bootloader fallback seen by a tool): with slot A of node 2 erased (`--no-image 2`), `scan`
+/// still lists node 2, by the fallback's identity, with the fallback's device type (0x0000012E, firmware
+/// `boot::tables::BOOTLOADER_DEVICE_TYPE`) and no CiA 402 state (the fallback has no 0x6041), next to the application on node 1.
+#[test]
+fn scan_lists_a_drive_in_its_bootloader_fallback_without_a_cia402_state() {
+    let _one = one_run_at_a_time();
+    let sim = Sim::start_with(2, &["--no-image", "2"]);
+    let found = sim.json(&["scan"]);
+    let list = found.as_array().expect("a JSON list");
+    assert_eq!(list.len(), 2, "{found}");
+    assert_eq!(list[0]["cia402"], "Switch on disabled", "{found}");
+    assert_eq!(list[1]["node"], 2, "{found}");
+    assert_eq!(list[1]["device_type"], u64::from(firmware::boot::tables::BOOTLOADER_DEVICE_TYPE), "{found}");
+    assert_eq!(list[1]["vendor_id"], u64::from(device().vendor_id), "{found}");
+    assert!(list[1]["cia402"].is_null(), "{found}");
 }
 
 /// Proves (CiA 301 §7.2.4.3: expedited download and upload; §7.2.4.3.17 abort): `set` of the following error
@@ -282,7 +305,9 @@ fn move_reaches_its_target() {
 /// Proves (the command line for people): every command has `--help`, and a bad option value is named.
 #[test]
 fn every_command_has_help_and_a_bad_value_is_named() {
-    for command in ["scan", "info", "get", "set", "params", "faults", "fault", "enable", "disable", "jog", "move"] {
+    for command in
+        ["scan", "info", "list", "get", "set", "params", "faults", "fault", "enable", "disable", "jog", "move"]
+    {
         let out = Command::new(env!("CARGO_BIN_EXE_drive-tool")).args([command, "--help"]).output().expect("run");
         assert!(out.status.success(), "{command} --help");
         assert!(String::from_utf8_lossy(&out.stdout).contains("Usage: drive-tool"), "{command} --help");

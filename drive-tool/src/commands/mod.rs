@@ -1,6 +1,7 @@
 //! The commands, one file per group.
 
 pub mod faults;
+pub mod list;
 pub mod motion;
 pub mod object;
 pub mod params;
