@@ -59,7 +59,13 @@ struct LinkArgs {
     #[arg(long, global = true, value_name = "FILE")]
     eds: Option<PathBuf>,
     /// How long to wait for each SDO answer, ms.
-    #[arg(long, global = true, value_name = "MS", default_value_t = 1000, value_parser = clap::value_parser!(u64).range(1..=60_000))]
+    #[arg(
+        long,
+        global = true,
+        value_name = "MS",
+        default_value_t = 1000,
+        value_parser = clap::value_parser!(u64).range(1..=60_000)
+    )]
     sdo_timeout_ms: u64,
     /// Transfer every object by SDO block transfer (CiA 301 §7.2.4.3.9..16, with CRC) instead of expedited
     /// and segmented transfers.

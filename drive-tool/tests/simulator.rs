@@ -116,7 +116,8 @@ fn scan_finds_both_drives_with_the_identity_of_device_toml() {
 
 /// Proves (issue 7's bootloader fallback seen by a tool): with slot A of node 2 erased (`--no-image 2`), `scan`
 /// still lists node 2, by the fallback's identity, with the fallback's device type (0x0000012E, firmware
-/// `boot::tables::BOOTLOADER_DEVICE_TYPE`) and no CiA 402 state (the fallback has no 0x6041), next to the application on node 1.
+/// `boot::tables::BOOTLOADER_DEVICE_TYPE`) and no CiA 402 state (the fallback has no 0x6041), next to the
+/// application on node 1.
 #[test]
 fn scan_lists_a_drive_in_its_bootloader_fallback_without_a_cia402_state() {
     let _one = one_run_at_a_time();

@@ -52,7 +52,10 @@ pub fn faults(cx: &mut Context) -> Result<(), String> {
         let list: Vec<_> = history
             .iter()
             .map(|(sub, code, reg, number, text)| {
-                json!({ "sub": sub, "code": code, "code_hex": format!("0x{code:04X}"), "text": text, "register": reg, "number": number })
+                json!({
+                    "sub": sub, "code": code, "code_hex": format!("0x{code:04X}"), "text": text,
+                    "register": reg, "number": number,
+                })
             })
             .collect();
         cx.print_json(&json!({
@@ -94,7 +97,8 @@ pub fn reset(cx: &mut Context) -> Result<(), String> {
     let code = cx.read_int(0x603F, 0)? as u16;
     if cx.json {
         cx.print_json(&json!({
-            "node": cx.node, "statusword": sw, "cia402": state_name(sw), "error_code": code, "error_code_text": code_text(code),
+            "node": cx.node, "statusword": sw, "cia402": state_name(sw),
+            "error_code": code, "error_code_text": code_text(code),
         }));
     } else {
         println!(

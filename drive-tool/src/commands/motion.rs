@@ -130,7 +130,10 @@ pub fn jog(cx: &mut Context, velocity: i32, seconds: f64) -> Result<(), String> 
     cx.write_int(0x60FF, 0, 0)?;
     let sw = disable(cx)?;
     if cx.json {
-        cx.print_json(&json!({ "node": cx.node, "velocity_peak": peak as i64, "velocity_after_halt": after as i64, "cia402": state_name(sw) }));
+        cx.print_json(&json!({
+            "node": cx.node, "velocity_peak": peak as i64, "velocity_after_halt": after as i64,
+            "cia402": state_name(sw),
+        }));
     } else {
         println!(
             "node {}: jogged at {velocity} for {seconds} s: velocity actual peak {peak}, after halt {after}; {}",
@@ -201,7 +204,8 @@ pub fn move_to(cx: &mut Context, args: MoveArgs) -> Result<(), String> {
     let sw = if args.stay_enabled { sw } else { disable(cx)? };
     if cx.json {
         cx.print_json(&json!({
-            "node": cx.node, "target": demand as i64, "position": position as i64, "seconds": elapsed, "cia402": state_name(sw),
+            "node": cx.node, "target": demand as i64, "position": position as i64, "seconds": elapsed,
+            "cia402": state_name(sw),
         }));
     } else {
         println!(

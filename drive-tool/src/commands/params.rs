@@ -101,7 +101,8 @@ pub fn load(cx: &mut Context, file: &Path, options: LoadOptions) -> Result<(), S
         };
         if actual != expected && !options.force {
             return Err(format!(
-                "{} is for another device: its {what} is 0x{expected:08X}, node {node}'s 0x{actual:08X} (--force loads it anyway)",
+                "{} is for another device: its {what} is 0x{expected:08X}, node {node}'s 0x{actual:08X} \
+                 (--force loads it anyway)",
                 file.display()
             ));
         }
