@@ -17,6 +17,9 @@ pub trait DriveLink {
     fn download(&mut self, node: u8, index: u16, sub: u8, data: &[u8]) -> Result<(), SdoError>;
     /// The addresses of the drives that answer, waiting at most `timeout` for them.
     fn scan(&mut self, timeout: Duration) -> Result<Vec<u8>, String>;
+    /// Commands `node` (0: every node) into another communication state; for a reset, waits up to `timeout`
+    /// for its boot-up and says whether it came.
+    fn command_state(&mut self, node: u8, command: StateCommand, timeout: Duration) -> Result<bool, String>;
     /// The communication state of `node` as last seen (CANopen: the NMT state of its heartbeat), if known.
     fn comm_state(&self, node: u8) -> Option<String>;
 }
@@ -46,6 +49,34 @@ impl CanInterface for Watch {
             self.note(f);
         }
         Ok(frame)
+    }
+}
+
+/// A change of communication state (CANopen: the NMT node control commands, CiA 301 §7.2.8.3.1).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum StateCommand {
+    /// To OPERATIONAL (NMT start remote node, 0x01).
+    Start,
+    /// To STOPPED (0x02): no SDO, no PDO; NMT and heartbeat only.
+    Stop,
+    /// To PRE-OPERATIONAL (0x80): SDO, no PDO.
+    Preop,
+    /// Reset node (0x81): the application restarts with its stored parameters.
+    Reset,
+    /// Reset communication (0x82): the communication objects take their stored values.
+    ResetComm,
+}
+
+impl StateCommand {
+    /// The NMT command specifier.
+    pub fn specifier(self) -> u8 {
+        match self {
+            Self::Start => 0x01,
+            Self::Stop => 0x02,
+            Self::Preop => 0x80,
+            Self::Reset => 0x81,
+            Self::ResetComm => 0x82,
+        }
     }
 }
 
@@ -122,6 +153,29 @@ impl DriveLink for CanopenLink {
             }
         }
         Ok(found.into_iter().collect())
+    }
+
+    fn command_state(&mut self, node: u8, command: StateCommand, timeout: Duration) -> Result<bool, String> {
+        self.bus.nmt.remove(&node);
+        self.bus.send(&Frame::new(0x000, &[command.specifier(), node])).map_err(|e| format!("NMT command: {e}"))?;
+        if !matches!(command, StateCommand::Reset | StateCommand::ResetComm) {
+            return Ok(true);
+        }
+        // CiA 301 §7.2.8.3.2.1: a node that finished its reset sends its boot-up, 0x700 + node-ID [0x00].
+        let deadline = Instant::now() + timeout;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return Ok(false);
+            }
+            if let Some(frame) = self.bus.recv(left).map_err(|e| e.to_string())? {
+                if frame.data == [0]
+                    && (frame.id == 0x700 + u16::from(node) || (node == 0 && frame.id & 0x780 == 0x700))
+                {
+                    return Ok(true);
+                }
+            }
+        }
     }
 
     fn comm_state(&self, node: u8) -> Option<String> {

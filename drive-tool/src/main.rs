@@ -110,6 +110,16 @@ enum Command {
         #[arg(value_name = "VALUE", allow_hyphen_values = true)]
         value: String,
     },
+    /// Change the NMT state: start (OPERATIONAL), stop, preop, reset (the node restarts with its stored
+    /// parameters) or reset-comm; a reset waits for the boot-up.
+    Nmt {
+        /// The command.
+        #[arg(value_enum)]
+        command: crate::link::StateCommand,
+        /// To every node (node-ID 0 in the NMT frame) rather than `--node`.
+        #[arg(long)]
+        all: bool,
+    },
     /// Save or load the drive's parameters as a CiA 306 DCF.
     #[command(subcommand)]
     Params(ParamsCommand),
@@ -232,6 +242,7 @@ fn run(cli: Cli) -> Result<(), String> {
         Command::Params(ParamsCommand::Load { file, store, force, dry_run }) => {
             commands::params::load(&mut cx, &file, commands::params::LoadOptions { store, force, dry_run })
         }
+        Command::Nmt { command, all } => commands::nmt::nmt(&mut cx, command, all),
         Command::Faults => commands::faults::faults(&mut cx),
         Command::Fault(FaultCommand::Reset) => commands::faults::reset(&mut cx),
         Command::Enable => commands::motion::enable_command(&mut cx),

@@ -209,6 +209,34 @@ fn params_load_restores_exactly_the_three_changed_parameters() {
     assert_eq!(again["changes"].as_array().map(Vec::len), Some(0), "{again}");
 }
 
+/// Proves (CiA 301 §7.5.2.13 store parameters, §7.2.8.3.1 node control): a value written with `set` alone is
+/// back at its default after `nmt reset` (the reset node restarts the application with the stored
+/// parameters, and the reset waits for the boot-up); loaded with `params load --store` (0x1010:01 "save") it
+/// survives the reset. `nmt stop` silences SDO (the upload times out) and `nmt preop` brings it back.
+#[test]
+fn params_load_store_survives_a_reset_node_and_nmt_stop_silences_sdo() {
+    let _one = one_run_at_a_time();
+    let sim = Sim::start(1);
+    let default = sim.get("0x6065");
+    sim.ok(&["set", "0x6065", "777"]);
+    sim.ok(&["nmt", "reset"]);
+    assert_eq!(sim.get("0x6065"), default, "not stored: the default after the reset");
+    let dir = WorkDir::new("drive-tool-store");
+    let dcf = dir.join("drive.dcf");
+    sim.ok(&["set", "0x6065", "777"]);
+    sim.ok(&["params", "save", dcf.to_str().expect("utf-8")]);
+    sim.ok(&["set", "0x6065", &default.to_string()]);
+    let load = sim.json(&["params", "load", dcf.to_str().expect("utf-8"), "--store"]);
+    assert_eq!(load["stored"], true, "{load}");
+    sim.ok(&["nmt", "reset"]);
+    assert_eq!(sim.get("0x6065"), 777, "stored by params load --store");
+    sim.ok(&["nmt", "stop"]);
+    let (ok, _, err) = sim.tool(&["get", "0x1000", "--sdo-timeout-ms", "500"]);
+    assert!(!ok && err.contains("no SDO answer (timeout)"), "{err}");
+    sim.ok(&["nmt", "preop"]);
+    sim.ok(&["get", "0x1000"]);
+}
+
 /// Proves (CiA 306 identity check): a DCF whose 0x1018:02 product code is not the drive's is refused with both
 /// values named, and loads with `--force`.
 #[test]

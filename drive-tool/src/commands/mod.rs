@@ -3,6 +3,7 @@
 pub mod faults;
 pub mod list;
 pub mod motion;
+pub mod nmt;
 pub mod object;
 pub mod params;
 pub mod scan;
