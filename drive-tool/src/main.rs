@@ -159,6 +159,12 @@ enum Command {
         #[arg(long)]
         stay_enabled: bool,
     },
+    /// Print the shell completion script (e.g. `drive-tool completions bash > /etc/bash_completion.d/drive-tool`).
+    Completions {
+        /// The shell.
+        #[arg(value_enum)]
+        shell: clap_complete::Shell,
+    },
 }
 
 #[derive(Subcommand, Debug)]
@@ -226,6 +232,15 @@ fn dictionary(args: &LinkArgs) -> Result<Dictionary, String> {
 }
 
 fn run(cli: Cli) -> Result<(), String> {
+    if let Command::Completions { shell } = cli.command {
+        clap_complete::generate(
+            shell,
+            &mut <Cli as clap::CommandFactory>::command(),
+            "drive-tool",
+            &mut std::io::stdout(),
+        );
+        return Ok(());
+    }
     let dict = dictionary(&cli.link)?;
     if let Command::List { filter } = &cli.command {
         return commands::list::list(&dict, filter.as_deref(), cli.link.json);
@@ -235,7 +250,7 @@ fn run(cli: Cli) -> Result<(), String> {
     match cli.command {
         Command::Scan { wait_ms } => commands::scan::scan(&mut cx, Duration::from_millis(wait_ms)),
         Command::Info => commands::scan::info(&mut cx),
-        Command::List { .. } => Ok(()),
+        Command::List { .. } | Command::Completions { .. } => Ok(()),
         Command::Get { objects } => commands::object::get(&mut cx, &objects),
         Command::Set { object, value } => commands::object::set(&mut cx, &object, &value),
         Command::Params(ParamsCommand::Save { file }) => commands::params::save(&mut cx, &file),
@@ -274,6 +289,16 @@ mod tests {
     #[test]
     fn the_command_line_is_consistent() {
         Cli::command().debug_assert();
+    }
+
+    #[test]
+    fn completions_know_the_commands_and_options() {
+        let mut script = Vec::new();
+        clap_complete::generate(clap_complete::Shell::Bash, &mut Cli::command(), "drive-tool", &mut script);
+        let script = String::from_utf8(script).expect("text");
+        for word in ["scan", "params", "--socketcand", "--sdo-block"] {
+            assert!(script.contains(word), "{word}");
+        }
     }
 
     #[test]
