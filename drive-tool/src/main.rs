@@ -6,6 +6,16 @@
 //! Links: `--socketcand HOST:PORT` (the simulator, `drive-sim canopen`) or `--can IFACE` (Linux SocketCAN).
 //! The dictionary is the project's EDS, embedded, or `--eds FILE`.
 
+/// `println!` that does not panic when stdout is gone (`drive-tool list | head`): the output is lost, the
+/// command finishes what it does on the drive (stopping half-way through a parameter load or a move would be
+/// worse).
+macro_rules! say {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stdout(), $($arg)*);
+    }};
+}
+
 mod abort_text;
 mod bus;
 mod cia402;

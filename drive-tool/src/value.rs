@@ -118,7 +118,9 @@ pub fn encode(entry: &Entry, text: &str, node_id: u8) -> Result<Vec<u8>, String>
             _ => Err(format!("{what}: `{text}` is not a boolean (true/false, 1/0, on/off)")),
         },
         Kind::Integer { bytes, signed } => {
+            // A DCF may keep `$NODEID+0x180` in a ParameterValue (CiA 306 §4.6.3).
             let value = parse_integer(text)
+                .or_else(|| parse_eds_integer(text, node_id))
                 .ok_or_else(|| format!("{what}: `{text}` is not an integer (decimal, 0x hex or 0b binary)"))?;
             let (min, max) = integer_range(bytes, signed);
             if value < min || value > max {
@@ -290,6 +292,7 @@ mod tests {
         assert!(encode(&cw, "65536", 1).unwrap_err().contains("out of the type's range 0..=65535"));
         assert!(encode(&cw, "-1", 1).unwrap_err().contains("out of the type's range"));
         assert!(encode(&cw, "fast", 1).unwrap_err().contains("is not an integer"));
+        assert_eq!(encode(&entry("0x1800:01"), "$NODEID+0x40000180", 5), Ok(0x4000_0185u32.to_le_bytes().to_vec()));
         let mode = entry("0x6060"); // INTEGER8
         assert!(encode(&mode, "200", 1).unwrap_err().contains("-128..=127"));
     }

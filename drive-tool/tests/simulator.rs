@@ -237,6 +237,41 @@ fn params_load_store_survives_a_reset_node_and_nmt_stop_silences_sdo() {
     sim.ok(&["get", "0x1000"]);
 }
 
+/// Proves (CiA 301 §7.5.2.35/.36, the PDO mapping procedure; the drive refuses a mapping entry while its PDO
+/// is valid or mapped, 0x06010000, and a new COB-ID while the PDO is valid, 0x06090030): after TPDO 1 was
+/// remapped (0x1A00:03) and moved to another COB-ID (0x1800:01) by hand in that order, and TPDO 2's COB-ID
+/// changed, `params load` of the DCF saved before lists exactly those three changes and writes them without a
+/// refusal: the three read back as saved.
+#[test]
+fn params_load_remaps_a_pdo_in_the_order_cia_301_requires() {
+    let _one = one_run_at_a_time();
+    let sim = Sim::start(1);
+    let dir = WorkDir::new("drive-tool-pdo");
+    let dcf = dir.join("drive.dcf");
+    let dcf_arg = dcf.to_str().expect("utf-8");
+    let saved: Vec<Value> = ["0x1800:01", "0x1801:01", "0x1A00:03"].iter().map(|o| sim.get(o)).collect();
+    sim.ok(&["params", "save", dcf_arg]);
+    let cob_id = saved[0].as_u64().expect("COB-ID");
+    for (object, value) in [
+        ("0x1800:01", format!("{}", cob_id | 0x8000_0000)),
+        ("0x1A00:00", "0".into()),
+        ("0x1A00:03", "0x60640020".into()),
+        ("0x1A00:00", "3".into()),
+        ("0x1800:01", format!("{}", (cob_id | 0x8000_0000) + 0x100)),
+        ("0x1800:01", format!("{}", cob_id + 0x100)),
+        ("0x1801:01", format!("{}", (saved[1].as_u64().expect("COB-ID") | 0x8000_0000) + 2)),
+    ] {
+        sim.ok(&["set", object, &value]);
+    }
+    let load = sim.json(&["params", "load", dcf_arg]);
+    let addresses: Vec<&str> =
+        load["changes"].as_array().expect("changes").iter().map(|c| c["address"].as_str().expect("address")).collect();
+    assert_eq!(addresses, ["0x1800:01", "0x1801:01", "0x1A00:03"], "{load}");
+    assert_eq!(load["failures"].as_array().map(Vec::len), Some(0), "{load}");
+    let after: Vec<Value> = ["0x1800:01", "0x1801:01", "0x1A00:03"].iter().map(|o| sim.get(o)).collect();
+    assert_eq!(after, saved);
+}
+
 /// Proves (CiA 306 identity check): a DCF whose 0x1018:02 product code is not the drive's is refused with both
 /// values named, and loads with `--force`.
 #[test]

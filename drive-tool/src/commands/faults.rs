@@ -69,14 +69,14 @@ pub fn faults(cx: &mut Context) -> Result<(), String> {
             "cia402": state_name(sw),
         }));
     } else {
-        println!("node {}: error code 0x603F = 0x{error_code:04X} {}", cx.node, code_text(error_code));
-        println!("error register 0x1001 = 0x{register:02X}; state {} (statusword 0x{sw:04X})", state_name(sw));
+        say!("node {}: error code 0x603F = 0x{error_code:04X} {}", cx.node, code_text(error_code));
+        say!("error register 0x1001 = 0x{register:02X}; state {} (statusword 0x{sw:04X})", state_name(sw));
         if history.is_empty() {
-            println!("error history 0x1003: empty");
+            say!("error history 0x1003: empty");
         } else {
-            println!("error history 0x1003 (newest first):");
+            say!("error history 0x1003 (newest first):");
             for (sub, code, reg, number, text) in &history {
-                println!("  {sub:>2}: 0x{code:04X} {text} (register 0x{reg:02X}, fault #{number})");
+                say!("  {sub:>2}: 0x{code:04X} {text} (register 0x{reg:02X}, fault #{number})");
             }
         }
     }
@@ -101,12 +101,7 @@ pub fn reset(cx: &mut Context) -> Result<(), String> {
             "error_code": code, "error_code_text": code_text(code),
         }));
     } else {
-        println!(
-            "node {}: {} (statusword 0x{sw:04X}); 0x603F = 0x{code:04X} {}",
-            cx.node,
-            state_name(sw),
-            code_text(code)
-        );
+        say!("node {}: {} (statusword 0x{sw:04X}); 0x603F = 0x{code:04X} {}", cx.node, state_name(sw), code_text(code));
     }
     if sw & SW_FAULT != 0 {
         return Err(format!("still in Fault after the reset: 0x{code:04X} {} is still present", code_text(code)));

@@ -32,10 +32,10 @@ pub fn list(dict: &Dictionary, filter: Option<&str>, as_json: bool) -> Result<()
                 })
             })
             .collect();
-        println!("{}", serde_json::to_string_pretty(&list).map_err(|e| e.to_string())?);
+        say!("{}", serde_json::to_string_pretty(&list).map_err(|e| e.to_string())?);
     } else {
         for e in entries {
-            println!(
+            say!(
                 "{} {:<5} {:<14} {}{}{}",
                 e.address(),
                 e.access.word(),

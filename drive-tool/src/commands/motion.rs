@@ -75,7 +75,7 @@ fn print_state(cx: &Context, sw: u16) {
     if cx.json {
         cx.print_json(&json!({ "node": cx.node, "statusword": sw, "cia402": state_name(sw) }));
     } else {
-        println!("node {}: {} (statusword 0x{sw:04X})", cx.node, state_name(sw));
+        say!("node {}: {} (statusword 0x{sw:04X})", cx.node, state_name(sw));
     }
 }
 
@@ -135,7 +135,7 @@ pub fn jog(cx: &mut Context, velocity: i32, seconds: f64) -> Result<(), String> 
             "cia402": state_name(sw),
         }));
     } else {
-        println!(
+        say!(
             "node {}: jogged at {velocity} for {seconds} s: velocity actual peak {peak}, after halt {after}; {}",
             cx.node,
             state_name(sw)
@@ -208,7 +208,7 @@ pub fn move_to(cx: &mut Context, args: MoveArgs) -> Result<(), String> {
             "cia402": state_name(sw),
         }));
     } else {
-        println!(
+        say!(
             "node {}: target {demand} reached in {elapsed:.2} s; position actual {position}; {}",
             cx.node,
             state_name(sw)

@@ -20,9 +20,9 @@ pub fn nmt(cx: &mut Context, command: StateCommand, all: bool) -> Result<(), Str
     if cx.json {
         cx.print_json(&json!({ "node": node, "command": format!("{command:?}"), "boot_up": reset.then_some(booted) }));
     } else if reset {
-        println!("{target}: {command:?} sent; {}", if booted { "boot-up received" } else { "no boot-up" });
+        say!("{target}: {command:?} sent; {}", if booted { "boot-up received" } else { "no boot-up" });
     } else {
-        println!("{target}: {command:?} sent");
+        say!("{target}: {command:?} sent");
     }
     if reset && !booted {
         return Err(format!("{target}: no boot-up within {BOOT_UP_TIMEOUT:?} after the reset"));

@@ -27,7 +27,7 @@ pub fn get(cx: &mut Context, specs: &[String]) -> Result<(), String> {
                         "value": value.json(), "text": value.display(entry.data_type),
                     }));
                 } else {
-                    println!("{} {} = {}", entry.address(), entry.full_name(), value.display(entry.data_type));
+                    say!("{} {} = {}", entry.address(), entry.full_name(), value.display(entry.data_type));
                 }
             }
             Err(e) => {
@@ -58,7 +58,7 @@ pub fn set(cx: &mut Context, spec: &str, text: &str) -> Result<(), String> {
     if cx.json {
         cx.print_json(&json!({ "address": entry.address(), "name": entry.full_name(), "written": text }));
     } else {
-        println!("{} {} := {text}", entry.address(), entry.full_name());
+        say!("{} {} := {text}", entry.address(), entry.full_name());
     }
     Ok(())
 }

@@ -54,7 +54,7 @@ pub fn save(cx: &mut Context, file: &Path) -> Result<(), String> {
     if cx.json {
         cx.print_json(&json!({ "file": file.display().to_string(), "parameters": saved, "skipped": skipped }));
     } else {
-        println!("{saved} parameters of node {node} saved to {}", file.display());
+        say!("{saved} parameters of node {node} saved to {}", file.display());
     }
     Ok(())
 }
@@ -86,6 +86,85 @@ fn dcf_identity(dcf: &Dictionary, sub: u8) -> Option<u32> {
     })
 }
 
+/// A PDO mapping object (CiA 301 §7.5.2.36/.38: RPDO 0x1600..0x17FF, TPDO 0x1A00..0x1BFF).
+fn is_pdo_mapping(index: u16) -> bool {
+    matches!(index, 0x1600..=0x17FF | 0x1A00..=0x1BFF)
+}
+
+/// A PDO's COB-ID entry (sub-index 1 of 0x1400..0x15FF, 0x1800..0x19FF).
+fn is_pdo_cob_id(index: u16, sub: u8) -> bool {
+    sub == 1 && matches!(index, 0x1400..=0x15FF | 0x1800..=0x19FF)
+}
+
+/// The drive's values before the load, of every entry the DCF has a value for.
+type Before = std::collections::BTreeMap<(u16, u8), (Entry, Vec<u8>)>;
+
+/// `bytes` (a COB-ID) with bit 31 set: the PDO invalid (CiA 301 §7.5.2.35).
+fn invalid(bytes: &[u8]) -> Vec<u8> {
+    let mut out = bytes.to_vec();
+    if let Some(top) = out.get_mut(3) {
+        *top |= 0x80;
+    }
+    out
+}
+
+/// The writes that make the changes, in the order CiA 301 requires for PDOs (§7.5.2.35/.36, the mapping
+/// procedure): a PDO whose mapping changes is made invalid first (COB-ID bit 31 in its communication
+/// parameter, 0x1400+n / 0x1800+n sub-index 1), its mapping disabled (sub-index 0 = 0; the drive refuses both
+/// while the PDO is valid or mapped, 0x0601_0000), the entries written, the count set (the DCF's, or the
+/// drive's again), and the COB-ID written last. A COB-ID that changes while the PDO stays valid goes through the
+/// invalid COB-ID (a valid PDO's COB-ID cannot change). Everything else in index order.
+fn write_order(changes: &[Change], before: &Before) -> Vec<(Entry, Vec<u8>)> {
+    let changed = |index: u16, sub: u8| changes.iter().find(|m| (m.entry.index, m.entry.sub) == (index, sub));
+    let remapped: std::collections::BTreeSet<u16> =
+        changes.iter().filter(|c| is_pdo_mapping(c.entry.index)).map(|c| c.entry.index).collect();
+    let communication_of = |mapping: u16| mapping - 0x200;
+    let mut writes = Vec::new();
+    let mut done = std::collections::BTreeSet::new();
+    let cob_id_write = |writes: &mut Vec<(Entry, Vec<u8>)>, entry: &Entry, bytes: &[u8]| {
+        if bytes.len() == 4 && bytes[3] & 0x80 == 0 {
+            writes.push((entry.clone(), invalid(bytes)));
+        }
+        writes.push((entry.clone(), bytes.to_vec()));
+    };
+    for c in changes {
+        let (index, sub) = (c.entry.index, c.entry.sub);
+        if is_pdo_cob_id(index, sub) && remapped.contains(&(index + 0x200)) {
+            continue; // written at the end of its PDO's remapping
+        }
+        if !is_pdo_mapping(index) {
+            if is_pdo_cob_id(index, sub) {
+                cob_id_write(&mut writes, &c.entry, &c.bytes);
+            } else {
+                writes.push((c.entry.clone(), c.bytes.clone()));
+            }
+            continue;
+        }
+        if !done.insert(index) {
+            continue;
+        }
+        let cob_id = before.get(&(communication_of(index), 1));
+        if let Some((entry, old)) = cob_id {
+            writes.push((entry.clone(), invalid(old)));
+        }
+        let count = before.get(&(index, 0));
+        if let Some((entry, _)) = count {
+            writes.push((entry.clone(), vec![0]));
+        }
+        for m in changes.iter().filter(|m| m.entry.index == index && m.entry.sub != 0) {
+            writes.push((m.entry.clone(), m.bytes.clone()));
+        }
+        if let Some((entry, old)) = count {
+            writes.push((entry.clone(), changed(index, 0).map_or(old.clone(), |m| m.bytes.clone())));
+        }
+        if let Some((entry, old)) = cob_id {
+            let last = changed(communication_of(index), 1).map_or(old.clone(), |m| m.bytes.clone());
+            cob_id_write(&mut writes, entry, &last);
+        }
+    }
+    writes
+}
+
 /// `params load FILE`.
 pub fn load(cx: &mut Context, file: &Path, options: LoadOptions) -> Result<(), String> {
     let node = cx.node;
@@ -115,9 +194,11 @@ pub fn load(cx: &mut Context, file: &Path, options: LoadOptions) -> Result<(), S
         planned.push((entry.clone(), bytes));
     }
     let mut changes = Vec::new();
+    let mut before = Before::new();
     for (entry, bytes) in planned {
         let current =
             cx.link.upload(node, entry.index, entry.sub).map_err(|e| crate::context::access_error(node, &entry, &e))?;
+        before.insert((entry.index, entry.sub), (entry.clone(), current.clone()));
         if current != bytes {
             let show = |b: &[u8]| {
                 crate::value::decode(entry.data_type, b)
@@ -128,9 +209,9 @@ pub fn load(cx: &mut Context, file: &Path, options: LoadOptions) -> Result<(), S
     }
     let mut failures = Vec::new();
     if !options.dry_run {
-        for c in &changes {
-            if let Err(e) = cx.link.download(node, c.entry.index, c.entry.sub, &c.bytes) {
-                failures.push(crate::context::access_error(node, &c.entry, &e));
+        for (entry, bytes) in write_order(&changes, &before) {
+            if let Err(e) = cx.link.download(node, entry.index, entry.sub, &bytes) {
+                failures.push(crate::context::access_error(node, &entry, &e));
             }
         }
     }
@@ -148,10 +229,10 @@ pub fn load(cx: &mut Context, file: &Path, options: LoadOptions) -> Result<(), S
         cx.print_json(&json!({ "changes": list, "written": !options.dry_run, "stored": stored, "failures": failures }));
     } else {
         for c in &changes {
-            println!("{} {}: {} -> {}", c.entry.address(), c.entry.full_name(), c.old, c.new);
+            say!("{} {}: {} -> {}", c.entry.address(), c.entry.full_name(), c.old, c.new);
         }
         let verb = if options.dry_run { "would change" } else { "changed" };
-        println!(
+        say!(
             "{} parameter(s) {verb} on node {node}{}",
             changes.len(),
             if stored { "; stored (0x1010:01)" } else { "" }

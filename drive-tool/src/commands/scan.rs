@@ -84,9 +84,9 @@ fn to_json(r: &Report) -> Json {
 }
 
 fn print_text(r: &Report) {
-    println!("node {}", r.node);
+    say!("node {}", r.node);
     for (name, _, text) in &r.fields {
-        println!("  {name:<17} {text}");
+        say!("  {name:<17} {text}");
     }
 }
 
@@ -97,7 +97,7 @@ pub fn scan(cx: &mut Context, wait: Duration) -> Result<(), String> {
     if cx.json {
         cx.print_json(&Json::Array(reports.iter().map(to_json).collect()));
     } else if reports.is_empty() {
-        println!("no drive answered (node-IDs 1..127)");
+        say!("no drive answered (node-IDs 1..127)");
     } else {
         for r in &reports {
             print_text(r);
