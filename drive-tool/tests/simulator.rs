@@ -366,6 +366,24 @@ fn move_reaches_its_target() {
     assert_eq!(back["cia402"], "Ready to switch on", "disabled after the move");
 }
 
+/// Proves (CiA 402-2 §11 profile velocity mode, halt): `jog --velocity 300` turns the axis in the commanded
+/// direction (the velocity actual value 0x606C seen above 0; how far it gets depends on the simulated time the
+/// polls run in lock-step, so no level is asserted), and after the halt the velocity is within the velocity
+/// window 0x606D, the drive's own criterion for bit 10; the drive is disabled afterwards.
+#[test]
+fn jog_turns_the_axis_the_commanded_way_and_halts_it() {
+    let _one = one_run_at_a_time();
+    let sim = Sim::start(1);
+    let window = sim.get("0x606D").as_i64().expect("velocity window");
+    for velocity in [300i64, -300] {
+        let jog = sim.json(&["jog", "--velocity", &velocity.to_string(), "--seconds", "0.5"]);
+        let peak = jog["velocity_peak"].as_i64().expect("peak");
+        assert!(peak.signum() == velocity.signum(), "{jog}");
+        assert!(jog["velocity_after_halt"].as_i64().expect("after").abs() <= window, "{jog}");
+        assert_eq!(jog["cia402"], "Ready to switch on", "{jog}");
+    }
+}
+
 /// Proves (the command line for people): every command has `--help`, and a bad option value is named.
 #[test]
 fn every_command_has_help_and_a_bad_value_is_named() {
