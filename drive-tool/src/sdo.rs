@@ -100,9 +100,8 @@ impl<'a> SdoClient<'a> {
         Ok(())
     }
 
-    /// Uploads (reads) object `index:sub` of `node`: expedited or segmented, as the server chooses
-    /// (CiA 301 §7.2.4.3.4..7).
-    pub fn upload(&mut self, node: u8, index: u16, sub: u8) -> Result<Vec<u8>, SdoError> {
+    /// The expedited or segmented upload, without the abort after a timeout.
+    fn upload_unguarded(&mut self, node: u8, index: u16, sub: u8) -> Result<Vec<u8>, SdoError> {
         let [i0, i1] = index.to_le_bytes();
         self.send(node, [CCS_INITIATE_UPLOAD, i0, i1, sub, 0, 0, 0, 0])?;
         let answer = self.answer(node)?;
@@ -150,9 +149,8 @@ impl<'a> SdoClient<'a> {
         Ok(data)
     }
 
-    /// Downloads (writes) `data` to `index:sub` of `node`: expedited up to 4 bytes, segmented above
-    /// (CiA 301 §7.2.4.3.1..3), the size always indicated.
-    pub fn download(&mut self, node: u8, index: u16, sub: u8, data: &[u8]) -> Result<(), SdoError> {
+    /// The expedited or segmented download, without the abort after a timeout.
+    fn download_unguarded(&mut self, node: u8, index: u16, sub: u8, data: &[u8]) -> Result<(), SdoError> {
         let [i0, i1] = index.to_le_bytes();
         if data.len() <= 4 && !data.is_empty() {
             let mut frame = [CCS_INITIATE_DOWNLOAD | ((4 - data.len() as u8) << 2) | 0x03, i0, i1, sub, 0, 0, 0, 0];
@@ -196,6 +194,43 @@ impl<'a> SdoClient<'a> {
     }
 }
 
+impl SdoClient<'_> {
+    /// After a timeout the client aborts the transfer with 0x0504_0000 (CiA 301 §7.2.4.3.17), so that a server
+    /// still in the middle of it frees its channel for the next request.
+    fn guarded<T>(&mut self, node: u8, index: u16, sub: u8, result: Result<T, SdoError>) -> Result<T, SdoError> {
+        if matches!(result, Err(SdoError::Timeout)) {
+            self.abort(node, index, sub, 0x0504_0000);
+        }
+        result
+    }
+
+    /// Uploads (reads) object `index:sub` of `node`: expedited or segmented, as the server chooses
+    /// (CiA 301 §7.2.4.3.4..7).
+    pub fn upload(&mut self, node: u8, index: u16, sub: u8) -> Result<Vec<u8>, SdoError> {
+        let result = self.upload_unguarded(node, index, sub);
+        self.guarded(node, index, sub, result)
+    }
+
+    /// Downloads (writes) `data` to `index:sub` of `node`: expedited up to 4 bytes, segmented above
+    /// (CiA 301 §7.2.4.3.1..3), the size always indicated.
+    pub fn download(&mut self, node: u8, index: u16, sub: u8, data: &[u8]) -> Result<(), SdoError> {
+        let result = self.download_unguarded(node, index, sub, data);
+        self.guarded(node, index, sub, result)
+    }
+
+    /// [`SdoClient::upload`] by block transfer (CiA 301 §7.2.4.3.14..16).
+    pub fn block_upload(&mut self, node: u8, index: u16, sub: u8) -> Result<Vec<u8>, SdoError> {
+        let result = self.block_upload_unguarded(node, index, sub);
+        self.guarded(node, index, sub, result)
+    }
+
+    /// [`SdoClient::download`] by block transfer (CiA 301 §7.2.4.3.9..13).
+    pub fn block_download(&mut self, node: u8, index: u16, sub: u8, data: &[u8]) -> Result<(), SdoError> {
+        let result = self.block_download_unguarded(node, index, sub, data);
+        self.guarded(node, index, sub, result)
+    }
+}
+
 /// Block transfers (CiA 301 §7.2.4.3.9..16): the client's block size and its sub-commands.
 const BLOCK_SIZE: u8 = 127;
 const CCS_BLOCK_UPLOAD: u8 = 5 << 5;
@@ -210,7 +245,7 @@ impl SdoClient<'_> {
     /// offers it: initiate with our block size, start, sub-blocks of up to [`BLOCK_SIZE`] segments each
     /// acknowledged with the last in-sequence number (the server repeats the rest), end with the unused bytes
     /// of the last segment and the CRC.
-    pub fn block_upload(&mut self, node: u8, index: u16, sub: u8) -> Result<Vec<u8>, SdoError> {
+    fn block_upload_unguarded(&mut self, node: u8, index: u16, sub: u8) -> Result<Vec<u8>, SdoError> {
         let [i0, i1] = index.to_le_bytes();
         // cc = 1 (we check a CRC); pst = 0 (no switch to segmented for small objects).
         self.send(node, [CCS_BLOCK_UPLOAD | 0x04, i0, i1, sub, BLOCK_SIZE, 0, 0, 0])?;
@@ -282,7 +317,7 @@ impl SdoClient<'_> {
     /// Downloads `data` to `index:sub` of `node` by block transfer (CiA 301 §7.2.4.3.9..13), size indicated and
     /// the CRC given: sub-blocks of the server's block size, resent from the server's acknowledged sequence
     /// number when it missed a segment.
-    pub fn block_download(&mut self, node: u8, index: u16, sub: u8, data: &[u8]) -> Result<(), SdoError> {
+    fn block_download_unguarded(&mut self, node: u8, index: u16, sub: u8, data: &[u8]) -> Result<(), SdoError> {
         let [i0, i1] = index.to_le_bytes();
         let [s0, s1, s2, s3] = u32::try_from(data.len())
             .map_err(|_| SdoError::Protocol("more than 4 GiB to download".into()))?
@@ -443,8 +478,9 @@ mod tests {
     }
 
     #[test]
-    fn no_answer_is_a_timeout() {
+    fn no_answer_is_a_timeout_and_the_client_aborts_the_transfer() {
         let mut bus = script(&[]);
         assert_eq!(SdoClient::new(&mut bus, Duration::from_millis(5)).upload(5, 0x1000, 0), Err(SdoError::Timeout));
+        assert_eq!(bus.sent.last().map(|f| f.data.clone()), Some(vec![0x80, 0x00, 0x10, 0x00, 0x00, 0x00, 0x04, 0x05]));
     }
 }
