@@ -112,6 +112,8 @@ fn scan_finds_both_drives_with_the_identity_of_device_toml() {
     let info = sim.json(&["info", "--node", "2"]);
     assert_eq!(info["node"], 2);
     assert_eq!(info["vendor_id"], u64::from(d.vendor_id));
+    assert_eq!(info["error_code"], 0, "no fault: {info}");
+    assert_eq!(info["position"], 0, "a drive that never moved: {info}");
 }
 
 /// Proves (issue 7's bootloader fallback seen by a tool): with slot A of node 2 erased (`--no-image 2`), `scan`

@@ -33,7 +33,7 @@ fn text_of(cx: &mut Context, node: u8, index: u16) -> Result<String, String> {
 
 /// Reads what `scan` and `info` show of `node`; an object the drive does not have is shown as missing
 /// (null in JSON) with the reason.
-fn report(cx: &mut Context, node: u8) -> Report {
+fn report(cx: &mut Context, node: u8, details: bool) -> Report {
     let mut fields = Vec::new();
     let hex = |name: &'static str, r: Result<u32, String>| match r {
         Ok(v) => (name, json!(v), format!("0x{v:08X}")),
@@ -71,7 +71,47 @@ fn report(cx: &mut Context, node: u8) -> Report {
             fields.push(("cia402", Json::Null, "(no CiA 402 state)".into()));
         }
     }
+    if details {
+        // `info` only: the error code with its text, the mode and the actual values (CiA 402-2 0x603F, 0x6061,
+        // 0x6064, 0x606C).
+        match cx.link.upload(node, 0x603F, 0).map_err(|e| e.to_string()).and_then(|b| decode(0x0006, &b)) {
+            Ok(Value::Int(code)) => {
+                let text = crate::commands::faults::code_text(code as u16);
+                fields.push(("error_code", json!(code), format!("0x{code:04X} {text}")));
+                fields.push(("error_code_text", json!(text), String::new()));
+            }
+            other => fields.push(("error_code", Json::Null, format!("({})", other.err().unwrap_or_default()))),
+        }
+        for (name, index, data_type) in
+            [("mode", 0x6061, 0x0002), ("position", 0x6064, 0x0004), ("velocity", 0x606C, 0x0004)]
+        {
+            match cx.link.upload(node, index, 0).map_err(|e| e.to_string()).and_then(|b| decode(data_type, &b)) {
+                Ok(Value::Int(v)) if name == "mode" => {
+                    fields.push((name, json!(v as i64), format!("{v} ({})", mode_name(v))))
+                }
+                Ok(Value::Int(v)) => fields.push((name, json!(v as i64), v.to_string())),
+                other => fields.push((name, Json::Null, format!("({})", other.err().unwrap_or_default()))),
+            }
+        }
+    }
     Report { node, fields }
+}
+
+/// The name of a mode of operation (CiA 402-2 0x6060 values; -2 is this drive's motor identification).
+fn mode_name(mode: i128) -> &'static str {
+    match mode {
+        0 => "no mode",
+        1 => "profile position",
+        3 => "profile velocity",
+        4 => "profile torque",
+        6 => "homing",
+        7 => "interpolated position",
+        8 => "cyclic synchronous position",
+        9 => "cyclic synchronous velocity",
+        10 => "cyclic synchronous torque",
+        m if m < 0 => "manufacturer-specific",
+        _ => "reserved",
+    }
 }
 
 fn to_json(r: &Report) -> Json {
@@ -85,7 +125,7 @@ fn to_json(r: &Report) -> Json {
 
 fn print_text(r: &Report) {
     say!("node {}", r.node);
-    for (name, _, text) in &r.fields {
+    for (name, _, text) in r.fields.iter().filter(|(_, _, text)| !text.is_empty()) {
         say!("  {name:<17} {text}");
     }
 }
@@ -93,7 +133,7 @@ fn print_text(r: &Report) {
 /// `scan`: every node-ID 1..=127 asked for 0x1018:01 at once; the ones that answer are described.
 pub fn scan(cx: &mut Context, wait: Duration) -> Result<(), String> {
     let nodes = cx.link.scan(wait)?;
-    let reports: Vec<Report> = nodes.iter().map(|&n| report(cx, n)).collect();
+    let reports: Vec<Report> = nodes.iter().map(|&n| report(cx, n, false)).collect();
     if cx.json {
         cx.print_json(&Json::Array(reports.iter().map(to_json).collect()));
     } else if reports.is_empty() {
@@ -111,7 +151,7 @@ pub fn info(cx: &mut Context) -> Result<(), String> {
     let node = cx.node;
     // The identity first: a drive that does not answer it is not there.
     u32_of(cx, node, 0x1018, 1).map_err(|e| format!("node {node}: {e}"))?;
-    let r = report(cx, node);
+    let r = report(cx, node, true);
     if cx.json {
         cx.print_json(&to_json(&r));
     } else {
