@@ -1,25 +1,8 @@
 //! CiA 306 device configuration files: the EDS with each saved entry's ParameterValue and a
 //! `[DeviceComissioning]` section (node-ID, bit rate, network), as PyPI canopen's `import_od` reads them.
 
-use crate::eds::{Access, Dictionary, Entry};
+use crate::eds::{Dictionary, Entry};
 use crate::value::Value;
-
-/// Whether `entry` is a parameter the drive keeps with 0x1010 "save". For the project's own device (the
-/// dictionary's vendor and product are the project's) the firmware's dictionary table says so entry by entry
-/// (device.toml `persistent`); an EDS does not carry the flag, so for another device every read-write entry
-/// outside the store/restore commands (0x1010, 0x1011) is taken.
-pub fn persistent(dict: &Dictionary, entry: &Entry) -> bool {
-    if is_project_device(dict) {
-        return firmware::od::access::Table::GENERATED.find(entry.index, entry.sub).is_ok_and(|e| e.persistent);
-    }
-    entry.access == Access::ReadWrite && !matches!(entry.index, 0x1010 | 0x1011) && entry.data_type != 0x000F
-}
-
-/// Whether `dict` describes this project's drive (vendor and product of its `[DeviceInfo]`).
-pub fn is_project_device(dict: &Dictionary) -> bool {
-    let project = Dictionary::project().identity;
-    dict.identity.vendor == project.vendor && dict.identity.product == project.product
-}
 
 /// What a DCF records besides the values.
 pub struct Commissioning {
@@ -73,13 +56,6 @@ pub fn bit_rate_kbit(code: i128) -> Option<u32> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn the_project_flags_decide_persistence() {
-        let d = Dictionary::project();
-        assert!(persistent(&d, d.entry(0x6065, 0).expect("following error window")), "device.toml: persistent");
-        assert!(!persistent(&d, d.entry(0x6040, 0).expect("controlword")), "the controlword is not a parameter");
-    }
 
     #[test]
     fn a_dcf_carries_the_values_and_the_commissioning() {

@@ -24,6 +24,7 @@ mod context;
 mod dcf;
 mod eds;
 mod link;
+mod project;
 mod sdo;
 #[cfg(target_os = "linux")]
 mod socketcan_if;
@@ -254,6 +255,10 @@ fn run(cli: Cli) -> Result<(), String> {
     let dict = dictionary(&cli.link)?;
     if let Command::List { filter } = &cli.command {
         return commands::list::list(&dict, filter.as_deref(), cli.link.json);
+    }
+    // A value to write is checked before the bus is opened: nothing is sent for a value the drive would refuse.
+    if let Command::Set { object, value } = &cli.command {
+        commands::object::checked_value(&dict, cli.link.node, object, value)?;
     }
     let link = open_link(&cli.link)?;
     let mut cx = Context::new(link, dict, cli.link.node, cli.link.json);

@@ -128,10 +128,10 @@ pub fn encode(entry: &Entry, text: &str, node_id: u8) -> Result<Vec<u8>, String>
             }
             let low = entry.low.as_deref().and_then(|l| parse_eds_integer(l, node_id));
             let high = entry.high.as_deref().and_then(|h| parse_eds_integer(h, node_id));
-            // od-gen writes LowLimit=HighLimit=0 where no limit applies to a sub-index 0 (an EDS convention of
-            // tools that read 0..0 as "no limit"): only a real interval is enforced.
+            // A limit pair with high below low describes nothing and is ignored; LowLimit = HighLimit is one value
+            // (od-gen writes 0..0 for 0x1003:00, which accepts only 0, CiA 301 §7.5.2.5).
             if let (Some(low), Some(high)) = (low, high) {
-                if low < high && (value < low || value > high) {
+                if low <= high && (value < low || value > high) {
                     return Err(format!("{what}: {value} is outside the EDS limits {low}..={high}"));
                 }
             }
@@ -295,6 +295,10 @@ mod tests {
         assert_eq!(encode(&entry("0x1800:01"), "$NODEID+0x40000180", 5), Ok(0x4000_0185u32.to_le_bytes().to_vec()));
         let mode = entry("0x6060"); // INTEGER8
         assert!(encode(&mode, "200", 1).unwrap_err().contains("-128..=127"));
+        assert!(
+            encode(&entry("0x1003:00"), "3", 1).unwrap_err().contains("EDS limits 0..=0"),
+            "only 0 clears the history"
+        );
     }
 
     #[test]

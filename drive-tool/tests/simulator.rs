@@ -136,8 +136,9 @@ fn scan_lists_a_drive_in_its_bootloader_fallback_without_a_cia402_state() {
 
 /// Proves (CiA 301 §7.2.4.3: expedited download and upload; §7.2.4.3.17 abort): `set` of the following error
 /// window 0x6065 (UNSIGNED32) by name reads back by index; a write of the read-only statusword fails with the
-/// drive's abort 0x06010002 and its CiA 301 text; a value out of UNSIGNED16's range for the controlword is
-/// refused by the tool with the range; a segmented upload (0x1009, 23 characters) reads the whole string.
+/// drive's abort 0x06010002 and its CiA 301 text; a value out of UNSIGNED16's range for the controlword, a mode
+/// of operation 0x6060 outside device.toml's list and a word for an integer are refused by the tool with the
+/// reason before it opens the bus; a segmented upload (0x1009, 23 characters) reads the whole string.
 #[test]
 fn get_and_set_round_trip_and_an_abort_shows_its_code_and_text() {
     let _one = one_run_at_a_time();
@@ -152,6 +153,20 @@ fn get_and_set_round_trip_and_an_abort_shows_its_code_and_text() {
     let (ok, _, err) = sim.tool(&["set", "controlword", "65536"]);
     assert!(!ok);
     assert!(err.contains("0..=65535"), "{err}");
+    // Refused before the bus is opened: against a port where nothing listens the answer is still the value's.
+    let refused = |args: &[&str]| {
+        let out = Command::new(env!("CARGO_BIN_EXE_drive-tool"))
+            .args(["--socketcand", "127.0.0.1:1"])
+            .args(args)
+            .output()
+            .expect("run drive-tool");
+        assert!(!out.status.success());
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    assert!(refused(&["set", "0x6040", "70000"]).contains("out of the type's range 0..=65535"));
+    assert!(refused(&["set", "0x6060", "2"]).contains("not one of the values the drive accepts"), "device.toml values");
+    assert!(refused(&["set", "0x6065", "fast"]).contains("is not an integer"));
+    assert!(refused(&["set", "0x6040", "7"]).contains("cannot connect"), "a good value goes to the link");
     assert_eq!(sim.get("0x1009"), device().hardware_version.as_str(), "segmented upload");
 }
 

@@ -2,8 +2,8 @@
 
 use serde_json::json;
 
-use crate::dcf::persistent;
 use crate::eds::Dictionary;
+use crate::project::persistent;
 use crate::value::type_name;
 
 /// Prints the entries of `dict` whose address or name contains `filter`.

@@ -3,7 +3,8 @@
 use serde_json::json;
 
 use crate::context::Context;
-use crate::value::{encode, type_name};
+use crate::eds::{Dictionary, Entry};
+use crate::value::{decode, encode, type_name, Value};
 
 /// `get OBJ...`: reads each entry the specs name and prints `0xIIII:SS name = value`, or a JSON list.
 pub fn get(cx: &mut Context, specs: &[String]) -> Result<(), String> {
@@ -48,12 +49,22 @@ pub fn get(cx: &mut Context, specs: &[String]) -> Result<(), String> {
     }
 }
 
-/// `set OBJ VALUE`: the value checked against the entry's type and limits, then written.
-pub fn set(cx: &mut Context, spec: &str, text: &str) -> Result<(), String> {
-    let entry = cx.dict.resolve_one(spec)?.clone();
+/// The entry `spec` names and the bytes of `text` for it: the type's range, the EDS limits and the drive's value
+/// list checked. Needs no link, so that a bad value is refused before the bus is opened.
+pub fn checked_value(dict: &Dictionary, node: u8, spec: &str, text: &str) -> Result<(Entry, Vec<u8>), String> {
+    let entry = dict.resolve_one(spec)?.clone();
     // The access is not checked here: the drive has the last word (its abort code says why it refuses, e.g.
     // 0x0601_0002 for a read-only object), and an EDS may be older than the drive.
-    let bytes = encode(&entry, text, cx.node)?;
+    let bytes = encode(&entry, text, node)?;
+    if let Ok(Value::Int(v)) = decode(entry.data_type, &bytes) {
+        crate::project::check_allowed(dict, &entry, v)?;
+    }
+    Ok((entry, bytes))
+}
+
+/// `set OBJ VALUE`: the value checked ([`checked_value`]), then written.
+pub fn set(cx: &mut Context, spec: &str, text: &str) -> Result<(), String> {
+    let (entry, bytes) = checked_value(&cx.dict, cx.node, spec, text)?;
     cx.write_entry(&entry, &bytes)?;
     if cx.json {
         cx.print_json(&json!({ "address": entry.address(), "name": entry.full_name(), "written": text }));

@@ -8,6 +8,7 @@ use serde_json::json;
 use crate::context::Context;
 use crate::dcf::{self, Commissioning};
 use crate::eds::{parse_eds_integer, Dictionary, Entry};
+use crate::project;
 use crate::value::{encode, Value};
 
 /// The signature "save" written to 0x1010:01 (CiA 301 §7.5.2.13: "s" "a" "v" "e", 0x65766173).
@@ -20,7 +21,7 @@ pub fn save(cx: &mut Context, file: &Path) -> Result<(), String> {
         .dict
         .entries
         .iter()
-        .filter(|e| e.access.readable() && (dcf::persistent(&cx.dict, e) || e.index == 0x1018))
+        .filter(|e| e.access.readable() && (project::persistent(&cx.dict, e) || e.index == 0x1018))
         .cloned()
         .collect();
     let mut values = Vec::new();
@@ -41,8 +42,11 @@ pub fn save(cx: &mut Context, file: &Path) -> Result<(), String> {
         Value::Int(s) => Some(*s as u32),
         _ => None,
     });
-    let bit_rate =
-        if dcf::is_project_device(&cx.dict) { cx.read_int(0x200A, 0).ok().and_then(dcf::bit_rate_kbit) } else { None };
+    let bit_rate = if project::is_project_device(&cx.dict) {
+        cx.read_int(0x200A, 0).ok().and_then(dcf::bit_rate_kbit)
+    } else {
+        None
+    };
     let file_name = file.file_name().map_or("drive.dcf".into(), |n| n.to_string_lossy().into_owned());
     let text =
         dcf::write(&cx.dict, &values, &Commissioning { node_id: node, bit_rate_kbit: bit_rate, serial, file_name });
@@ -191,6 +195,9 @@ pub fn load(cx: &mut Context, file: &Path, options: LoadOptions) -> Result<(), S
     for entry in dcf.entries.iter().filter(|e| e.value.is_some() && e.access.writable()) {
         let text = entry.value.clone().unwrap_or_default();
         let bytes = encode(entry, &text, node).map_err(|e| format!("{}: {e}", file.display()))?;
+        if let Ok(Value::Int(v)) = crate::value::decode(entry.data_type, &bytes) {
+            project::check_allowed(&dcf, entry, v).map_err(|e| format!("{}: {e}", file.display()))?;
+        }
         planned.push((entry.clone(), bytes));
     }
     let mut changes = Vec::new();
