@@ -24,7 +24,7 @@ pub fn write(dict: &Dictionary, values: &[(Entry, Value)], c: &Commissioning) ->
     ini.set("FileInfo", "LastEDS", eds_name);
     ini.set("FileInfo", "ModifiedBy", "drive-tool".into());
     for (entry, value) in values {
-        ini.set(&entry.section, "ParameterValue", value.dcf_text(entry.data_type));
+        ini.set(&entry.section, "ParameterValue", parameter_value(entry, value, c.node_id));
     }
     ini.set("DeviceComissioning", "NodeID", c.node_id.to_string());
     ini.set("DeviceComissioning", "NodeName", format!("node{}", c.node_id));
@@ -36,6 +36,17 @@ pub fn write(dict: &Dictionary, values: &[(Entry, Value)], c: &Commissioning) ->
     ini.set("DeviceComissioning", "CANopenManager", "0".into());
     ini.set("DeviceComissioning", "LSS_SerialNumber", format!("0x{:08X}", c.serial.unwrap_or(0)));
     ini.to_text()
+}
+
+/// The ParameterValue of `value`: relative to the node-ID (`$NODEID+0x180`, CiA 306 §4.6.3) where the EDS
+/// default is (the COB-IDs), so that the file loads onto a drive with another node-ID with its own
+/// identifiers; as it is otherwise.
+pub fn parameter_value(entry: &Entry, value: &Value, node_id: u8) -> String {
+    let relative = entry.default.as_deref().is_some_and(|d| d.trim().to_ascii_uppercase().starts_with("$NODEID"));
+    match value {
+        Value::Int(v) if relative && *v >= i128::from(node_id) => format!("$NODEID+0x{:X}", v - i128::from(node_id)),
+        _ => value.dcf_text(entry.data_type),
+    }
 }
 
 /// The kbit/s of a CiA 305 bit timing index (0x2001/0x200A here: 0 = 1 Mbit/s, 1 = 800k, 2 = 500k, ...).
@@ -70,5 +81,7 @@ mod tests {
         assert_eq!(back.entry(0x6065, 0).and_then(|e| e.value.clone()).as_deref(), Some("0x000004D2"));
         assert_eq!(back.ini.get("DeviceComissioning", "NodeID"), Some("3"));
         assert_eq!(back.ini.get("FileInfo", "FileName"), Some("x.dcf"));
+        let cob_id = d.entry(0x1800, 1).expect("TPDO 1 COB-ID");
+        assert_eq!(parameter_value(cob_id, &Value::Int(0x4000_0183), 3), "$NODEID+0x40000180");
     }
 }

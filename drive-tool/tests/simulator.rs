@@ -289,6 +289,29 @@ fn params_load_remaps_a_pdo_in_the_order_cia_301_requires() {
     assert_eq!(after, saved);
 }
 
+/// Proves (CiA 306 §4.6.3, `$NODEID` in values): the DCF of node 1 (its following error window changed) loads
+/// onto node 2 with exactly one change, 0x6065: the COB-IDs, saved relative to the node-ID, are node 2's own
+/// already, and node 2 keeps its node-ID 0x2000 (the load says so).
+#[test]
+fn a_dcf_of_node_1_loads_onto_node_2_with_its_own_cob_ids_and_node_id() {
+    let _one = one_run_at_a_time();
+    let sim = Sim::start(2);
+    let dir = WorkDir::new("drive-tool-other-node");
+    let dcf = dir.join("node1.dcf");
+    let dcf_arg = dcf.to_str().expect("utf-8");
+    sim.ok(&["set", "0x6065", "3333"]);
+    sim.ok(&["params", "save", dcf_arg]);
+    let cob_id_2 = sim.json(&["--node", "2", "get", "0x1800:01"])[0]["value"].clone();
+    let load = sim.json(&["--node", "2", "params", "load", dcf_arg]);
+    let addresses: Vec<&str> =
+        load["changes"].as_array().expect("changes").iter().map(|c| c["address"].as_str().expect("address")).collect();
+    assert_eq!(addresses, ["0x6065:00"], "{load}");
+    assert!(load["kept"][0].as_str().is_some_and(|k| k.starts_with("0x2000:00")), "{load}");
+    assert_eq!(sim.json(&["--node", "2", "get", "0x2000"])[0]["value"], 2);
+    assert_eq!(sim.json(&["--node", "2", "get", "0x1800:01"])[0]["value"], cob_id_2);
+    assert_eq!(sim.json(&["--node", "2", "get", "0x6065"])[0]["value"], 3333);
+}
+
 /// Proves (CiA 306 identity check): a DCF whose 0x1018:02 product code is not the drive's is refused with both
 /// values named, and loads with `--force`.
 #[test]
@@ -316,8 +339,9 @@ fn a_dcf_of_another_device_is_refused_unless_forced() {
 }
 
 /// Proves (CiA 306 read by another tool): the DCF `params save` writes imports in PyPI canopen
-/// (`import_od`) with the drive's node-ID from [DeviceComissioning] and the drive's value of 0x6065 (changed
-/// from its default first, so that a DefaultValue read would fail) as the object's value.
+/// (`import_od`) with the drive's node-ID from `[DeviceComissioning]`, the drive's value of 0x6065 (changed
+/// from its default first, so that a DefaultValue read would fail) as the object's value, and TPDO 1's COB-ID,
+/// saved as `$NODEID+...`, as node 3's.
 #[test]
 fn the_saved_dcf_imports_in_pypi_canopen() {
     if drive_tests::prerequisite::skip("the_saved_dcf_imports_in_pypi_canopen", drive_tests::can_master::cannot_run()) {
@@ -330,11 +354,12 @@ fn the_saved_dcf_imports_in_pypi_canopen() {
     sim.ok(&["--node", "3", "set", "0x6065", "4242"]);
     sim.ok(&["--node", "3", "params", "save", dcf.to_str().expect("utf-8 path")]);
     let script = "import sys, canopen\nod = canopen.import_od(sys.argv[1])\n\
-                  print(od.node_id, od[0x6065].value, od[0x1018][2].value)";
+                  print(od.node_id, od[0x6065].value, od[0x1018][2].value, od[0x1800][1].value)";
     let out = Command::new("python3").args(["-c", script]).arg(&dcf).output().expect("run python3");
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success(), "{text}{}", String::from_utf8_lossy(&out.stderr));
-    assert_eq!(text.trim(), format!("3 4242 {}", device().product_code));
+    let cob_id = sim.json(&["--node", "3", "get", "0x1800:01"])[0]["value"].clone();
+    assert_eq!(text.trim(), format!("3 4242 {} {cob_id}", device().product_code), "node-ID, values, $NODEID COB-ID");
 }
 
 /// Proves (CiA 301 §7.5.2.5 error history, CiA 402 fault reset): a following error provoked over the bus (the

@@ -190,9 +190,23 @@ pub fn load(cx: &mut Context, file: &Path, options: LoadOptions) -> Result<(), S
             ));
         }
     }
+    // The DCF's node-ID (CiA 306 [DeviceComissioning] NodeID): loaded onto another node, the drive keeps its own
+    // node-ID (0x2000 on this project's drive), and the COB-IDs saved relative to the node-ID follow the drive's.
+    let dcf_node = dcf.ini.get("DeviceComissioning", "NodeID").and_then(|n| parse_eds_integer(n, 0));
+    let keep_node_id = project::is_project_device(&dcf) && dcf_node.is_some_and(|n| n != i128::from(node));
+    let mut kept = Vec::new();
     // Every value is checked against its type before anything is read or written.
     let mut planned = Vec::new();
     for entry in dcf.entries.iter().filter(|e| e.value.is_some() && e.access.writable()) {
+        if keep_node_id && (entry.index, entry.sub) == (0x2000, 0) {
+            kept.push(format!(
+                "{} {} kept: the DCF is node {}'s",
+                entry.address(),
+                entry.full_name(),
+                dcf_node.unwrap_or(0)
+            ));
+            continue;
+        }
         let text = entry.value.clone().unwrap_or_default();
         let bytes = encode(entry, &text, node).map_err(|e| format!("{}: {e}", file.display()))?;
         if let Ok(Value::Int(v)) = crate::value::decode(entry.data_type, &bytes) {
@@ -233,10 +247,15 @@ pub fn load(cx: &mut Context, file: &Path, options: LoadOptions) -> Result<(), S
             .iter()
             .map(|c| json!({ "address": c.entry.address(), "name": c.entry.full_name(), "old": c.old, "new": c.new }))
             .collect();
-        cx.print_json(&json!({ "changes": list, "written": !options.dry_run, "stored": stored, "failures": failures }));
+        cx.print_json(&json!({
+            "changes": list, "written": !options.dry_run, "stored": stored, "failures": failures, "kept": kept,
+        }));
     } else {
         for c in &changes {
             say!("{} {}: {} -> {}", c.entry.address(), c.entry.full_name(), c.old, c.new);
+        }
+        for k in &kept {
+            say!("{k}");
         }
         let verb = if options.dry_run { "would change" } else { "changed" };
         say!(
