@@ -1,0 +1,9 @@
+//! The commands, one file per group.
+
+pub mod faults;
+pub mod list;
+pub mod motion;
+pub mod nmt;
+pub mod object;
+pub mod params;
+pub mod scan;

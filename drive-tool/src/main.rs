@@ -1,0 +1,324 @@
+//! `drive-tool`: the command-line tool a machine builder commissions a drive with over CANopen: finds the drives
+//! (`scan`, `info`), reads and writes objects by index or name with their types (`get`, `set`), saves and
+//! loads parameter sets as CiA 306 DCF files (`params`), reads the error history (`faults`, `fault reset`) and
+//! makes a first move of an axis (`enable`, `disable`, `jog`, `move`).
+//!
+//! Links: `--socketcand HOST:PORT` (the simulator, `drive-sim canopen`) or `--can IFACE` (Linux SocketCAN).
+//! The dictionary is the project's EDS, embedded, or `--eds FILE`.
+
+/// `println!` that does not panic when stdout is gone (`drive-tool list | head`): the output is lost, the
+/// command finishes what it does on the drive (stopping half-way through a parameter load or a move would be
+/// worse).
+macro_rules! say {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stdout(), $($arg)*);
+    }};
+}
+
+mod abort_text;
+mod bus;
+mod cia402;
+mod commands;
+mod context;
+mod dcf;
+mod eds;
+mod link;
+mod project;
+mod sdo;
+#[cfg(target_os = "linux")]
+mod socketcan_if;
+mod socketcand;
+mod value;
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use clap::{Args, Parser, Subcommand};
+
+use crate::context::Context;
+use crate::eds::Dictionary;
+use crate::link::{CanopenLink, DriveLink};
+
+/// Commissioning tool for the drive over CANopen.
+#[derive(Parser, Debug)]
+#[command(name = "drive-tool", version, about, long_about = None, propagate_version = true)]
+struct Cli {
+    #[command(flatten)]
+    link: LinkArgs,
+    #[command(subcommand)]
+    command: Command,
+}
+
+/// How to reach the drives and what dictionary to use.
+#[derive(Args, Debug)]
+struct LinkArgs {
+    /// The simulator (or a socketcand daemon): `drive-sim canopen --port N` serves it on 127.0.0.1:N.
+    #[arg(long, global = true, value_name = "HOST:PORT")]
+    socketcand: Option<String>,
+    /// The socketcand bus to open.
+    #[arg(long, global = true, value_name = "BUS", default_value = "can0")]
+    socketcand_bus: String,
+    /// A Linux SocketCAN interface (can0, vcan0, ...).
+    #[arg(long, global = true, value_name = "IFACE")]
+    can: Option<String>,
+    /// Node-ID of the drive.
+    #[arg(long, short, global = true, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=127))]
+    node: u8,
+    /// The drive's EDS (or a DCF) instead of the project's embedded EDS.
+    #[arg(long, global = true, value_name = "FILE")]
+    eds: Option<PathBuf>,
+    /// How long to wait for each SDO answer, ms.
+    #[arg(
+        long,
+        global = true,
+        value_name = "MS",
+        default_value_t = 1000,
+        value_parser = clap::value_parser!(u64).range(1..=60_000)
+    )]
+    sdo_timeout_ms: u64,
+    /// Transfer every object by SDO block transfer (CiA 301 §7.2.4.3.9..16, with CRC) instead of expedited
+    /// and segmented transfers.
+    #[arg(long, global = true)]
+    sdo_block: bool,
+    /// Print JSON for a script instead of text.
+    #[arg(long, global = true)]
+    json: bool,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Find the drives on the bus (node-IDs 1..127): identity, firmware version, NMT and CiA 402 state.
+    Scan {
+        /// How long to wait for answers to the scan's requests, ms.
+        #[arg(long, value_name = "MS", default_value_t = 300)]
+        wait_ms: u64,
+    },
+    /// Identity, versions and state of one drive (`--node`).
+    Info,
+    /// List the dictionary (the EDS, no drive needed): index:sub, name, type, access, default, whether 0x1010
+    /// saves it.
+    List {
+        /// Only entries whose name or index contains this text (case-insensitive).
+        #[arg(value_name = "FILTER")]
+        filter: Option<String>,
+    },
+    /// Read objects: `0x6041`, `0x1018:01`, or a name from the EDS (`statusword`); an object with
+    /// sub-indices is read whole.
+    Get {
+        /// Objects to read.
+        #[arg(required = true, value_name = "OBJ")]
+        objects: Vec<String>,
+    },
+    /// Write one object; the value is checked against its type and EDS limits before anything is sent.
+    Set {
+        /// The object: `0x6060`, `0x3001:02`, or a name.
+        #[arg(value_name = "OBJ")]
+        object: String,
+        /// The value: integers decimal, 0x hex or 0b binary; true/false; a REAL32 as 1.5; a string as it is;
+        /// OCTET_STRING/DOMAIN as hex.
+        #[arg(value_name = "VALUE", allow_hyphen_values = true)]
+        value: String,
+    },
+    /// Change the NMT state: start (OPERATIONAL), stop, preop, reset (the node restarts with its stored
+    /// parameters) or reset-comm; a reset waits for the boot-up.
+    Nmt {
+        /// The command.
+        #[arg(value_enum)]
+        command: crate::link::StateCommand,
+        /// To every node (node-ID 0 in the NMT frame) rather than `--node`.
+        #[arg(long)]
+        all: bool,
+    },
+    /// Save or load the drive's parameters as a CiA 306 DCF.
+    #[command(subcommand)]
+    Params(ParamsCommand),
+    /// The error history 0x1003 with the fault table's texts, the error code 0x603F and register 0x1001.
+    Faults,
+    /// Act on the drive's fault state.
+    #[command(subcommand)]
+    Fault(FaultCommand),
+    /// Take the drive to «Operation enabled» (CiA 402: Shutdown, Switch on, Enable operation).
+    Enable,
+    /// Take the power stage off: «Shutdown» (to «Ready to switch on»).
+    Disable,
+    /// Turn the axis in profile velocity mode (0x6060 = 3) for a while, then halt and disable.
+    Jog {
+        /// Target velocity 0x60FF, in the drive's velocity unit (rpm here).
+        #[arg(long, allow_hyphen_values = true)]
+        velocity: i32,
+        /// How long to turn, seconds.
+        #[arg(long, default_value_t = 1.0)]
+        seconds: f64,
+    },
+    /// Move the axis in profile position mode (0x6060 = 1) and wait for target reached (statusword bit 10).
+    Move {
+        /// Target position 0x607A, in the drive's position unit (increments here).
+        #[arg(value_name = "TARGET", allow_hyphen_values = true)]
+        target: i32,
+        /// The target is relative to the present target (controlword bit 6).
+        #[arg(long)]
+        relative: bool,
+        /// Profile velocity 0x6081 for this move (rpm here); the drive's setting when left out.
+        #[arg(long)]
+        velocity: Option<u32>,
+        /// Longest wait for target reached, seconds.
+        #[arg(long, default_value_t = 30.0)]
+        timeout_s: f64,
+        /// Leave the drive enabled after the move (it is disabled otherwise).
+        #[arg(long)]
+        stay_enabled: bool,
+    },
+    /// Print the shell completion script (e.g. `drive-tool completions bash > /etc/bash_completion.d/drive-tool`).
+    Completions {
+        /// The shell.
+        #[arg(value_enum)]
+        shell: clap_complete::Shell,
+    },
+}
+
+#[derive(Subcommand, Debug)]
+enum ParamsCommand {
+    /// Upload every readable, persistent parameter and write them as a DCF.
+    Save {
+        /// The DCF to write.
+        file: PathBuf,
+    },
+    /// Read a DCF, show what differs from the drive (old -> new) and write the changed values.
+    Load {
+        /// The DCF to read.
+        file: PathBuf,
+        /// Afterwards write "save" to 0x1010:01 so that the drive keeps the values over a restart.
+        #[arg(long)]
+        store: bool,
+        /// Load a DCF made for another device (0x1018 vendor/product differ).
+        #[arg(long)]
+        force: bool,
+        /// Show the differences only; write nothing.
+        #[arg(long)]
+        dry_run: bool,
+    },
+}
+
+#[derive(Subcommand, Debug)]
+enum FaultCommand {
+    /// Fault reset: controlword bit 7 rising edge, then the state it leaves.
+    Reset,
+}
+
+fn open_link(args: &LinkArgs) -> Result<Box<dyn DriveLink>, String> {
+    let timeout = Duration::from_millis(args.sdo_timeout_ms);
+    let block = args.sdo_block;
+    match (&args.socketcand, &args.can) {
+        (Some(_), Some(_)) => Err("--socketcand and --can: give one link, not both".into()),
+        (Some(address), None) => {
+            let bus = socketcand::Socketcand::connect(address, &args.socketcand_bus)?;
+            Ok(Box::new(CanopenLink::new(Box::new(bus), timeout, block)))
+        }
+        (None, Some(iface)) => open_socketcan(iface, timeout, block),
+        (None, None) => Err("no link: give --socketcand HOST:PORT (the simulator) or --can IFACE (SocketCAN)".into()),
+    }
+}
+
+#[cfg(target_os = "linux")]
+fn open_socketcan(iface: &str, timeout: Duration, block: bool) -> Result<Box<dyn DriveLink>, String> {
+    let bus = socketcan_if::SocketCan::open(iface)?;
+    Ok(Box::new(CanopenLink::new(Box::new(bus), timeout, block)))
+}
+
+#[cfg(not(target_os = "linux"))]
+fn open_socketcan(iface: &str, _timeout: Duration, _block: bool) -> Result<Box<dyn DriveLink>, String> {
+    Err(format!("--can {iface}: SocketCAN exists on Linux only"))
+}
+
+fn dictionary(args: &LinkArgs) -> Result<Dictionary, String> {
+    match &args.eds {
+        None => Ok(Dictionary::project()),
+        Some(path) => {
+            let text = std::fs::read_to_string(path).map_err(|e| format!("--eds {}: {e}", path.display()))?;
+            Dictionary::parse(&text).map_err(|e| format!("--eds {}: {e}", path.display()))
+        }
+    }
+}
+
+fn run(cli: Cli) -> Result<(), String> {
+    if let Command::Completions { shell } = cli.command {
+        clap_complete::generate(
+            shell,
+            &mut <Cli as clap::CommandFactory>::command(),
+            "drive-tool",
+            &mut std::io::stdout(),
+        );
+        return Ok(());
+    }
+    let dict = dictionary(&cli.link)?;
+    if let Command::List { filter } = &cli.command {
+        return commands::list::list(&dict, filter.as_deref(), cli.link.json);
+    }
+    // A value to write is checked before the bus is opened: nothing is sent for a value the drive would refuse.
+    if let Command::Set { object, value } = &cli.command {
+        commands::object::checked_value(&dict, cli.link.node, object, value)?;
+    }
+    let link = open_link(&cli.link)?;
+    let mut cx = Context::new(link, dict, cli.link.node, cli.link.json);
+    match cli.command {
+        Command::Scan { wait_ms } => commands::scan::scan(&mut cx, Duration::from_millis(wait_ms)),
+        Command::Info => commands::scan::info(&mut cx),
+        Command::List { .. } | Command::Completions { .. } => Ok(()),
+        Command::Get { objects } => commands::object::get(&mut cx, &objects),
+        Command::Set { object, value } => commands::object::set(&mut cx, &object, &value),
+        Command::Params(ParamsCommand::Save { file }) => commands::params::save(&mut cx, &file),
+        Command::Params(ParamsCommand::Load { file, store, force, dry_run }) => {
+            commands::params::load(&mut cx, &file, commands::params::LoadOptions { store, force, dry_run })
+        }
+        Command::Nmt { command, all } => commands::nmt::nmt(&mut cx, command, all),
+        Command::Faults => commands::faults::faults(&mut cx),
+        Command::Fault(FaultCommand::Reset) => commands::faults::reset(&mut cx),
+        Command::Enable => commands::motion::enable_command(&mut cx),
+        Command::Disable => commands::motion::disable_command(&mut cx),
+        Command::Jog { velocity, seconds } => commands::motion::jog(&mut cx, velocity, seconds),
+        Command::Move { target, relative, velocity, timeout_s, stay_enabled } => commands::motion::move_to(
+            &mut cx,
+            commands::motion::MoveArgs { target, relative, velocity, timeout_s, stay_enabled },
+        ),
+    }
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("drive-tool: error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::CommandFactory;
+
+    #[test]
+    fn the_command_line_is_consistent() {
+        Cli::command().debug_assert();
+    }
+
+    #[test]
+    fn completions_know_the_commands_and_options() {
+        let mut script = Vec::new();
+        clap_complete::generate(clap_complete::Shell::Bash, &mut Cli::command(), "drive-tool", &mut script);
+        let script = String::from_utf8(script).expect("text");
+        for word in ["scan", "params", "--socketcand", "--sdo-block"] {
+            assert!(script.contains(word), "{word}");
+        }
+    }
+
+    #[test]
+    fn a_bad_option_is_named() {
+        let err = Cli::try_parse_from(["drive-tool", "get", "0x6041", "--node", "200"]).unwrap_err().to_string();
+        assert!(err.contains("--node"), "{err}");
+    }
+}
