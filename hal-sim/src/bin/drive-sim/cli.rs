@@ -310,3 +310,211 @@ pub fn parse_ppm(text: &str) -> Result<f64, String> {
 fn parse_lowercase(text: &str) -> Result<String, String> {
     Ok(text.to_lowercase())
 }
+
+#[cfg(test)]
+mod tests {
+    use clap::error::ErrorKind;
+    use clap::Parser;
+
+    use super::{parse_gains, parse_position_gains, parse_resonance, Cli, Command};
+
+    /// A preset as the command lines give it (`hal-sim/presets/...` from the workspace root).
+    const GEARED: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/presets/geared-36v.toml");
+
+    /// `drive-sim` followed by the words of `line` (no quoting: the lines below have no spaces in their values).
+    fn parse(line: &str) -> Result<Cli, clap::Error> {
+        Cli::try_parse_from(std::iter::once("drive-sim").chain(line.split_whitespace()))
+    }
+
+    /// The command lines the test suite, the scripts and the documentation run drive-sim with today, each with
+    /// where it comes from; every one must still parse after the move to clap.
+    const EXISTING_LINES: &[(&str, &str)] = &[
+        // README.md "Checks" table, the figures of each scenario, and the servers' examples.
+        ("README.md", "current-step"),
+        ("README.md", "spinning"),
+        ("README.md", "csp"),
+        ("README.md", "csv-sweep"),
+        ("README.md", "ppm"),
+        ("README.md", "homing"),
+        ("README.md", "fault-matrix"),
+        ("README.md", "identify"),
+        ("README.md", "duty-cycle"),
+        ("README.md", "bench"),
+        ("README.md running a master by hand", "ethercat --iface ecs0 --lock-step --cycle-us 1000"),
+        ("README.md CANopen", "canopen --port 29536 --nodes 3"),
+        ("README.md bootloader fallback", "canopen --port 29536 --no-image 1"),
+        // tests/src/real_master.rs namespace_script: `ethercat --iface ecs0 {sim_args} --seconds 280
+        // --idle-exit-ms 1500`, with the sim_args of the real-master tests.
+        ("tests/tests/ecat_ethercrab.rs run", "ethercat --iface ecs0 --lock-step --cycle-us 1000 --seconds 280 --idle-exit-ms 1500"),
+        (
+            "tests/tests/ecat_ethercrab.rs cyclic (dc)",
+            "ethercat --iface ecs0 --lock-step --cycle-us 500 --clock-error-ppm 100 --seconds 280 --idle-exit-ms 1500",
+        ),
+        (
+            "tests/tests/ecat_ethercrab.rs watchdog, ecat_real_masters.rs watchdog",
+            "ethercat --iface ecs0 --lock-step --cycle-us 1000 --idle-cycle --seconds 280 --idle-exit-ms 1500",
+        ),
+        (
+            "tests/tests/ecat_real_masters.rs sm-sync, boot_real_master.rs",
+            "ethercat --iface ecs0 --lock-step --cycle-us 1000 --pcap /tmp/x/frames.pcap --seconds 280 --idle-exit-ms 1500",
+        ),
+        (
+            "tests/tests/ecat_real_masters.rs csp_move (sync 2)",
+            "ethercat --iface ecs0 --lock-step --cycle-us 1000 --clock-error-ppm 100 --seconds 280 --idle-exit-ms 1500",
+        ),
+        (
+            "tests/tests/ecat_real_masters.rs soem-sto",
+            "ethercat --iface ecs0 --lock-step --cycle-us 1000 --sto-open --seconds 280 --idle-exit-ms 1500",
+        ),
+        // tests/src/can_master.rs run: `canopen --port 0 --seconds 150 --idle-exit-ms 2000 {sim_args}`.
+        ("tests/tests/canopen_real_master.rs bad_frames", "canopen --port 0 --seconds 150 --idle-exit-ms 2000"),
+        ("tests/tests/canopen_real_master.rs nmt, sdo, update", "canopen --port 0 --seconds 150 --idle-exit-ms 2000 --lock-step"),
+        (
+            "tests/tests/canopen_real_master.rs stored",
+            "canopen --port 0 --seconds 150 --idle-exit-ms 2000 --lock-step --sync-us 10000",
+        ),
+        ("tests/tests/canopen_real_master.rs sto", "canopen --port 0 --seconds 150 --idle-exit-ms 2000 --lock-step --sto-open 1"),
+        ("tests/tests/boot_fallback.rs", "canopen --port 0 --seconds 150 --idle-exit-ms 2000 --no-image 1 --lock-step"),
+        // The tuning's documented runs (firmware/src/drive/tuning.rs, tests/tests/drive/auto_tune_geared.rs,
+        // resonance_identification.rs) and docs/fault-matrix.md.
+        ("firmware/src/drive/tuning.rs", concat!("csp --plant ", env!("CARGO_MANIFEST_DIR"), "/presets/geared-36v.toml --auto-tune --resonance 60,15")),
+        ("tests/tests/drive/auto_tune_geared.rs", concat!("csp --plant ", env!("CARGO_MANIFEST_DIR"), "/presets/geared-36v.toml --auto-tune --seed 3")),
+        ("tests/tests/drive/resonance_identification.rs", concat!("csv-sweep --plant ", env!("CARGO_MANIFEST_DIR"), "/presets/geared-36v.toml --auto-tune")),
+        ("docs/fault-matrix.md", "fault-matrix --seed 1"),
+        // The options of the former hand-written parser on the scenarios that use them.
+        ("current-step gains", "current-step --seed 2 --gains 1555000,2450000 --out /tmp/x"),
+        ("current-step default gains", "spinning --default-gains"),
+        ("csp position gains", "csp --position-gains 1,2,3,4,5"),
+        ("fault-matrix --only", "fault-matrix --only over-voltage"),
+        ("bench --seconds", "bench --seconds 5"),
+        ("identify --resonance", "identify --resonance 60,15 --seed 2"),
+        (
+            "ethercat every option",
+            "ethercat --iface ecs0 --drive-clock-error-ppm -50 --clock-error-ppm -100 --sto-open --seed 3 --seconds 1",
+        ),
+        ("canopen every option", "canopen --port 0 --nodes 3 --bit-rate 500000 --sto-open 2 --sto-open 3 --seed 4"),
+    ];
+
+    #[test]
+    fn every_command_line_in_use_still_parses() {
+        for (place, line) in EXISTING_LINES {
+            if let Err(e) = parse(line) {
+                panic!("`drive-sim {line}` ({place}) no longer parses:\n{e}");
+            }
+        }
+    }
+
+    /// The values reach the scenario's arguments as the former parser gave them: the pair options, the repeated
+    /// node-IDs, the clock errors with their sign, `--only` in lower case, `--plant` read.
+    #[test]
+    fn the_values_of_a_command_line_reach_the_scenario() {
+        let Ok(Cli { command: Command::CurrentStep(a) }) = parse("current-step --gains 10,20 --seed 7") else {
+            panic!("current-step");
+        };
+        assert_eq!((a.gains(), a.scenario.common.seed, a.scenario.out.as_deref()), (Some((10, 20)), 7, None));
+        let Ok(Cli { command: Command::Canopen(c) }) = parse("canopen --port 0 --nodes 3 --sto-open 1 --sto-open 3")
+        else {
+            panic!("canopen");
+        };
+        assert_eq!((c.port, c.nodes, c.sto_open.as_slice(), c.common.seed), (0, 3, &[1, 3][..], 1));
+        let Ok(Cli { command: Command::Ethercat(e) }) =
+            parse("ethercat --iface ecs0 --clock-error-ppm -100 --drive-clock-error-ppm 25.5")
+        else {
+            panic!("ethercat");
+        };
+        assert_eq!((e.clock_error_ppm, e.drive_clock_error_ppm, e.cycle_us, e.sto_open), (-100.0, 25.5, 1_000, false));
+        let Ok(Cli { command: Command::FaultMatrix(f) }) = parse("fault-matrix --only Over-Voltage") else {
+            panic!("fault-matrix");
+        };
+        assert_eq!(f.only.as_deref(), Some("over-voltage"));
+        let line = format!("csp --plant {GEARED} --auto-tune --resonance 60,15 --position-gains 1,2,3,4,5");
+        let Ok(Cli { command: Command::Csp(c) }) = parse(&line) else { panic!("csp") };
+        let plant = c.scenario.common.plant.expect("--plant read");
+        assert_eq!(plant.params.gear_ratio, 5.0, "the geared preset's 5:1 gear");
+        assert_eq!((c.scenario.resonance, c.position_gains), (Some((60.0, 15.0)), Some([1, 2, 3, 4, 5])));
+    }
+
+    /// An option of another scenario is refused by name (clap's UnknownArgument), `--default-gains` conflicts with
+    /// `--gains`, `--resonance` needs `--auto-tune` outside identify.
+    #[test]
+    fn options_are_accepted_only_by_the_scenarios_that_use_them() {
+        for (line, option) in [
+            ("csp --gains 1,2", "--gains"),
+            ("homing --only x", "--only"),
+            ("bench --seed 2", "--seed"),
+            ("identify --auto-tune", "--auto-tune"),
+            ("identify --out /tmp", "--out"),
+            ("canopen --port 0 --iface ecs0", "--iface"),
+            ("ethercat --iface ecs0 --port 5", "--port"),
+            ("fault-matrix --lock-step", "--lock-step"),
+        ] {
+            let e = parse(line).err().unwrap_or_else(|| panic!("`{line}` parsed"));
+            assert_eq!(e.kind(), ErrorKind::UnknownArgument, "{line}: {e}");
+            assert!(e.to_string().contains(option), "{line}: {e}");
+        }
+        let e = parse("current-step --default-gains --gains 1,2").err().expect("conflict");
+        assert_eq!(e.kind(), ErrorKind::ArgumentConflict, "{e}");
+        let e = parse("csv-sweep --resonance 60,15").err().expect("--resonance without --auto-tune");
+        assert_eq!(e.kind(), ErrorKind::MissingRequiredArgument, "{e}");
+        assert!(parse("ethercat --lock-step").is_err(), "--iface is required");
+        assert!(parse("canopen --lock-step").is_err(), "--port is required");
+    }
+
+    /// A bad value is refused with clap's ValueValidation error naming the option.
+    #[test]
+    fn a_bad_value_is_refused_naming_its_option() {
+        for (line, option) in [
+            ("current-step --gains 1", "--gains"),
+            ("current-step --gains 1,-2", "--gains"),
+            ("csp --position-gains 1,2,3,4", "--position-gains"),
+            ("ppm --seed x", "--seed"),
+            ("csp --auto-tune --resonance 0,15", "--resonance"),
+            ("identify --resonance 60,7000", "--resonance"),
+            ("bench --seconds -1", "--seconds"),
+            ("bench --seconds nan", "--seconds"),
+            ("ethercat --iface ecs0 --cycle-us 0", "--cycle-us"),
+            ("ethercat --iface ecs0 --clock-error-ppm 1001", "--clock-error-ppm"),
+            ("ethercat --iface ecs0 --drive-clock-error-ppm inf", "--drive-clock-error-ppm"),
+            ("canopen --port 70000", "--port"),
+            ("canopen --port 0 --nodes 0", "--nodes"),
+            ("canopen --port 0 --nodes 128", "--nodes"),
+            ("canopen --port 0 --bit-rate 2000000", "--bit-rate"),
+            ("canopen --port 0 --sync-us 0", "--sync-us"),
+            ("canopen --port 0 --sto-open 0", "--sto-open"),
+            ("canopen --port 0 --no-image 200", "--no-image"),
+            ("homing --plant /nonexistent/plant.toml", "--plant"),
+        ] {
+            let e = parse(line).err().unwrap_or_else(|| panic!("`{line}` parsed"));
+            assert_eq!(e.kind(), ErrorKind::ValueValidation, "{line}: {e}");
+            assert!(e.to_string().contains(option), "{line}: {e}");
+        }
+    }
+
+    /// A node-ID past the bus (`--nodes`) is named with its option, as the former parser did.
+    #[test]
+    fn a_node_id_past_the_bus_is_refused_naming_its_option() {
+        let Ok(Cli { command: Command::Canopen(c) }) = parse("canopen --port 0 --nodes 2 --sto-open 3") else {
+            panic!("canopen");
+        };
+        assert_eq!(c.config().err().as_deref(), Some("--sto-open 3: only node-IDs 1..=2 are on the bus"));
+        let Ok(Cli { command: Command::Canopen(c) }) = parse("canopen --port 0 --no-image 2") else { panic!() };
+        assert_eq!(c.config().err().as_deref(), Some("--no-image 2: only node-IDs 1..=1 are on the bus"));
+        let Ok(Cli { command: Command::Canopen(c) }) = parse("canopen --port 0 --nodes 2 --no-image 2") else {
+            panic!()
+        };
+        let config = c.config().expect("node 2 is on the bus");
+        assert!(config.empty_slot(2) && !config.empty_slot(1));
+    }
+
+    /// The pair parsers: both values, in range; anything else refused.
+    #[test]
+    fn the_pair_parsers_take_two_values_in_range() {
+        assert_eq!(parse_gains("1555000, 2450000"), Ok((1_555_000, 2_450_000)));
+        assert!(parse_gains("1555000").is_err() && parse_gains("1,2,3").is_err() && parse_gains("a,2").is_err());
+        assert_eq!(parse_resonance("60,15"), Ok((60.0, 15.0)));
+        assert_eq!(parse_resonance("6553.5,0.1"), Ok((6553.5, 0.1)), "0x3205:03/04's 16 bits of 0.1 Hz");
+        assert!(parse_resonance("6553.6,15").is_err() && parse_resonance("-1,15").is_err());
+        assert_eq!(parse_position_gains("1,2,3,4,5"), Ok([1, 2, 3, 4, 5]));
+        assert!(parse_position_gains("1,2,3,4,5,6").is_err());
+    }
+}
