@@ -111,7 +111,7 @@ pub struct Common {
     /// A TOML plant file instead of the reference plant (keys: PlantParams' fields; presets in hal-sim/presets/).
     #[arg(long, value_name = "FILE", value_parser = parse_plant, long_help = PLANT_HELP)]
     pub plant: Option<PlantFile>,
-    /// Seed of the plant's noise (a server's drive k uses seed + k).
+    /// Seed of the plant's noise (canopen: node k's plant uses seed + k).
     #[arg(long, value_name = "N", default_value_t = 1)]
     pub seed: u64,
 }
