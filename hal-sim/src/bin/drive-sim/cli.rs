@@ -452,9 +452,9 @@ mod tests {
             assert_eq!(e.kind(), ErrorKind::UnknownArgument, "{line}: {e}");
             assert!(e.to_string().contains(option), "{line}: {e}");
         }
-        let e = parse("current-step --default-gains --gains 1,2").err().expect("conflict");
+        let e = parse("current-step --default-gains --gains 1,2").expect_err("conflict");
         assert_eq!(e.kind(), ErrorKind::ArgumentConflict, "{e}");
-        let e = parse("csv-sweep --resonance 60,15").err().expect("--resonance without --auto-tune");
+        let e = parse("csv-sweep --resonance 60,15").expect_err("--resonance without --auto-tune");
         assert_eq!(e.kind(), ErrorKind::MissingRequiredArgument, "{e}");
         assert!(parse("ethercat --lock-step").is_err(), "--iface is required");
         assert!(parse("canopen --lock-step").is_err(), "--port is required");
