@@ -76,7 +76,7 @@ pub fn duty_cycle(seed: u64) -> Result<(DutyCycleFigures, Trace), SimError> {
 const PROGRESS_PERIODS: u64 = 2_500;
 
 /// [`duty_cycle`], telling `progress(done, total)` how many of the run's tier-1 periods have passed, every
-/// [`PROGRESS_PERIODS`] and at the end (for a progress bar: `drive-sim duty-cycle` on a terminal). The
+/// 2,500 periods (0.1 s) and at the end (for a progress bar: `drive-sim duty-cycle` on a terminal). The
 /// observer only reads the count; the run and its figures are the same with any observer.
 pub fn duty_cycle_with_progress(
     seed: u64,

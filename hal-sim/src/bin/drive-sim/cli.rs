@@ -43,7 +43,7 @@ const AFTER_HELP: &str = concat!("--plant FILE (every scenario and both servers)
 /// Runs the firmware's drive against the simulated reference plant (or a plant file) and reports what it measured.
 ///
 /// Each scenario prints a human-readable report, the paths of the CSV traces and SVG plots it wrote (under
-/// out/<scenario>/ of the current directory unless --out says otherwise), and as its last lines one key=value per
+/// out/SCENARIO/ of the current directory unless --out says otherwise), and as its last lines one key=value per
 /// figure (the stable measurement interface). The long runs (homing, fault-matrix, duty-cycle, identify,
 /// --auto-tune) show a progress bar on stderr when stderr is a terminal, never in a pipe or a CI log.
 #[derive(Debug, Parser)]
@@ -130,7 +130,7 @@ pub struct Scenario {
     /// writes into 0x3205:03/04 after the identification, followed by the auto-tuning 0x3205:01 = 1 again.
     #[arg(long, value_name = "F_R,F_AR", value_parser = parse_resonance, requires = "auto_tune")]
     pub resonance: Option<(f64, f64)>,
-    /// Directory of the CSV traces and SVG plots [default: out/<scenario>].
+    /// Directory of the CSV traces and SVG plots [default: out/SCENARIO, the subcommand's name].
     #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,
 }
