@@ -375,6 +375,12 @@ mod tests {
         ),
         ("tests/tests/canopen_real_master.rs sto", "canopen --port 0 --seconds 150 --idle-exit-ms 2000 --lock-step --sto-open 1"),
         ("tests/tests/boot_fallback.rs", "canopen --port 0 --seconds 150 --idle-exit-ms 2000 --no-image 1 --lock-step"),
+        // drive-tool/tests/simulator.rs (on main since drive-tool's merge) Sim::start and start_with.
+        ("drive-tool/tests/simulator.rs Sim::start", "canopen --port 0 --lock-step --seconds 600 --nodes 2"),
+        (
+            "drive-tool/tests/simulator.rs Sim::start_with",
+            "canopen --port 0 --lock-step --seconds 600 --nodes 2 --no-image 2",
+        ),
         // The tuning's documented runs (firmware/src/drive/tuning.rs, tests/tests/drive/auto_tune_geared.rs,
         // resonance_identification.rs) and docs/fault-matrix.md.
         ("firmware/src/drive/tuning.rs", concat!("csp --plant ", env!("CARGO_MANIFEST_DIR"), "/presets/geared-36v.toml --auto-tune --resonance 60,15")),
