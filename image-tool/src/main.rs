@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-use clap::{Args, Parser, Subcommand};
+use clap::{Args, CommandFactory, Parser, Subcommand};
 use firmware::boot::image::HARDWARE_ID;
 use firmware::boot::keys::DEV_PUBLIC_KEY;
 use image_tool::factory::{bootloader_blocks, check_image, factory_blocks, to_intel_hex};
@@ -24,6 +24,13 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Prints a completion script for SHELL on stdout, e.g. `drive-image completions bash >
+    /// ~/.local/share/bash-completion/completions/drive-image`.
+    Completions {
+        /// The shell the script is for.
+        #[arg(value_name = "SHELL")]
+        shell: clap_complete::Shell,
+    },
     /// Generates an Ed25519 key pair: PREFIX.secret and PREFIX.pub (64 hex digits each).
     Keygen {
         /// Prefix of the two key files.
@@ -202,6 +209,11 @@ fn trust_key(trust: &TrustArgs) -> Result<([u8; 32], u32), String> {
 
 fn run(command: Command) -> Result<String, String> {
     match command {
+        Command::Completions { shell } => {
+            let mut script = Vec::new();
+            clap_complete::generate(shell, &mut Cli::command(), "drive-image", &mut script);
+            String::from_utf8(script).map_err(|e| format!("completions: {e}"))
+        }
         Command::Keygen { out, rust } => {
             let seed: [u8; 32] = os_random()?;
             let pk = public_of(&seed);

@@ -86,3 +86,23 @@ fn pack_with_a_security_version_puts_it_into_the_signed_header() {
     let out = tool().arg("inspect").arg(&bad).output().unwrap();
     assert!(String::from_utf8_lossy(&out.stderr).contains("BadSignature"));
 }
+
+/// `drive-image completions bash` prints a bash completion script that completes the subcommands (issue 22 item
+/// 4: shell completions); an unknown shell is refused by name with clap's usage status 2.
+#[test]
+fn completions_for_bash_name_the_subcommands_and_an_unknown_shell_is_refused() {
+    let out = tool().args(["completions", "bash"]).output().unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        text.lines().any(|l| l.trim_start().starts_with("complete -F") && l.trim_end().ends_with(" drive-image")),
+        "a bash `complete` line for drive-image:\n{text}"
+    );
+    for command in ["keygen", "pack", "inspect", "factory", "completions"] {
+        assert!(text.contains(command), "`{command}` among the completions");
+    }
+    let out = tool().args(["completions", "tcsh"]).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("tcsh") && err.contains("<SHELL>"), "the error names the value and the argument: {err}");
+}

@@ -1,43 +1,33 @@
 //! `drive-sim`: runs the firmware's drive against the simulated reference plant and reports what it measured.
 //!
-//! ```text
-//! drive-sim current-step [--seed N] [--default-gains | --gains P,I] [--out DIR]   step, sweep, calibration
-//! drive-sim spinning     [--seed N] [--default-gains | --gains P,I] [--out DIR]   3,000 rpm, load step
-//! drive-sim csp          [--seed N] [--out DIR]                     CSP 10 rev jerk-limited move at 1 ms
-//! drive-sim csv-sweep    [--seed N] [--out DIR]                     CSV 100 rpm step, velocity-loop bandwidth
-//! drive-sim ppm          [--seed N] [--out DIR]                     PPM moves (target reached, up to 5,000 rpm), quick stops against the bus
-//! drive-sim homing       [--seed N] [--out DIR]                     every homing method from both sides
-//! drive-sim fault-matrix [--seed N] [--out DIR] [--only TEXT]       every fault injected, reaction checked
-//! drive-sim duty-cycle   [--seed N] [--out DIR]                     60 s duty cycle: no false trips
-//! drive-sim identify     [--seed N]                                 motor identification (0x6060 = -2) over SDO
-//! drive-sim bench        [--seconds S]                              host speed (build with --release)
-//! drive-sim ethercat --iface NAME [--lock-step] [--cycle-us N] [--clock-error-ppm X] [--seconds S]
-//!                        [--idle-exit-ms N] [--pcap FILE] [--seed N]  the drive as an EtherCAT slave on NAME;
-//!                        [--idle-cycle]                            --pcap records every frame in and out;
-//!                                                                  --idle-cycle: lock-step idle polls run a cycle
-//!                        [--drive-clock-error-ppm X]               the drive's oscillator X ppm off (DC PLL)
-//!                        [--sto-open]                              both STO inputs de-energised from power-up
-//! drive-sim canopen --port N [--nodes K] [--bit-rate BPS] [--lock-step] [--sync-us N] [--seconds S]
-//!                   [--idle-exit-ms N] [--seed N]              K drives on a simulated CAN bus, socketcand on N
-//!                   [--sto-open ID]...                         node ID with both STO inputs de-energised
-//! ```
+//! `drive-sim --help` lists the scenarios and `drive-sim SCENARIO --help` their options (drive-sim/cli.rs);
+//! `drive-sim completions SHELL` prints a completion script.
 //!
 //! Every scenario command (the `ethercat` and `canopen` servers too) takes `--plant FILE`: a plant file
 //! (`hal_sim::plant::file`, presets in `hal-sim/presets/`) instead of the reference plant. The drive is configured
 //! for it from its ratings (`Simulation::commission_motor_data`: 0x3001 motor data, 0x3010:01 encoder lines,
 //! 0x6073, 0x6080, 0x607F), and the scenario's numbers scale with the plant's ratings against the reference
-//! (`scenarios::PlantScale`; see [`PLANT_HELP`]). The gains stay the reference-tuned defaults, so on another plant a
-//! scenario may perform badly or trip until auto-tuning exists.
+//! (`scenarios::PlantScale`; `drive-sim --help` says how). The gains stay the reference-tuned defaults unless
+//! `--auto-tune`.
 //!
 //! Each scenario prints a human-readable report, the paths of the CSV traces and SVG plots it wrote (under
 //! `out/<scenario>/` of the current directory unless `--out` says otherwise), and as its last lines one
-//! `key=value` per figure (the stable measurement interface).
+//! `key=value` per figure (the stable measurement interface). The long runs show a progress bar on stderr when it
+//! is a terminal (drive-sim/progress.rs).
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 #[path = "drive-sim/canopen.rs"]
 mod canopen;
+#[path = "drive-sim/cli.rs"]
+mod cli;
+#[path = "drive-sim/progress.rs"]
+mod progress;
+
+use clap::{CommandFactory, FromArgMatches};
+use cli::{Cli, Command, CspScenario, CurrentLoopScenario, EthercatArgs, FaultMatrixScenario, IdentifyArgs, Scenario};
+use progress::Progress;
 
 use hal_sim::esc::pcap::PcapWriter;
 use hal_sim::esc::socket::Direction;
@@ -51,154 +41,8 @@ use hal_sim::sim::ethercat::{ClockMode, EthercatConfig, EthercatRunner};
 use hal_sim::sim::plot::{Plot, Series};
 use hal_sim::sim::trace::Trace;
 
-/// How `--plant FILE` scales each scenario (printed with the usage).
-const PLANT_HELP: &str = "--plant FILE: run on the plant of a TOML plant file (keys: PlantParams' fields; presets in \
-hal-sim/presets/). The drive gets the plant's motor data (0x3001, 0x3010:01, 0x6073, 0x6080, 0x607F); the gains stay \
-the reference-tuned ones unless --auto-tune, which first runs the identification with its auto-tuning (drive-sim \
-identify) on the plant and commissions every drive of the scenario with the parameters it found (the identification \
-measures the load's resonance pair into 0x3205:03/04, 0 for a rigid load, and the tuning takes the elastic design \
-from it); --resonance F_R,F_AR (Hz) is a master's own pair instead, written into 0x3205:03/04 after the \
-identification, followed by the auto-tuning 0x3205:01 = 1 again. Scaling against the reference plant, so a scenario means the same on every plant: speeds, \
-accelerations and distances in revolutions x max_speed_rpm / 5000 (a move keeps its timing); currents (steps, \
-sweep bias and amplitude, spinning base and high current) x peak_current_a / 10; load torques (at the output) x \
-kt * peak_current_a * gear_ratio * gear_efficiency / 0.335 N m. Scaled: current-step, spinning, csp, csv-sweep, ppm \
-(moves and quick stops), duty-cycle (velocity steps x max_speed_rpm / 5000, load torques x the peak torque at the \
-output / 0.335 N m, timing kept), homing (0x6099, 0x609A and the positioning move x max_speed_rpm / 5000; switch, \
-band and index placement, 0x30B1 and 0x30B3 x encoder_counts_per_rev / 4096 x max_speed_rpm / 5000, so a run keeps \
-its timing; 0x30B2 x peak_current_a / 10; the end stop's stiffness x the peak torque at the output, acting at the \
-output). Not scaled (reference numbers, on the chosen plant): fault-matrix (its injections are the power stage's, \
-which every preset shares), bench, and the servers, whose motion comes from the master.";
-
-const USAGE: &str =
-    "usage: drive-sim <current-step | spinning | csp | csv-sweep | ppm | homing | fault-matrix | duty-cycle | identify | bench | ethercat | canopen> [--plant FILE] [--auto-tune [--resonance F_R,F_AR]] [--seed N] [--default-gains | --gains P,I] \
-                     [--out DIR] [--seconds S] [--only TEXT] \
-                     [--iface NAME --lock-step --cycle-us N --clock-error-ppm X --idle-exit-ms N --pcap FILE --idle-cycle \
-                     --drive-clock-error-ppm X --sto-open]";
-
-struct Args {
-    scenario: String,
-    /// `--plant FILE`: the plant file, none for the reference plant.
-    plant: Option<PathBuf>,
-    /// `--auto-tune`: identify and tune the drive on the plant first (0x6060 = -2), then run the scenario with the
-    /// parameters found.
-    auto_tune: bool,
-    /// `--resonance F_R,F_AR`: the load's resonance and anti-resonance (Hz) a master writes into 0x3205:03/04
-    /// after the identification (in place of the pair it measured), then running the auto-tuning again.
-    resonance: Option<(f64, f64)>,
-    seed: u64,
-    default_gains: bool,
-    gains: Option<(u32, u32)>,
-    out: Option<PathBuf>,
-    seconds: f64,
-    position_gains: Option<[u32; 5]>,
-    only: Option<String>,
-    /// `ethercat`: the options of [`ethercat`].
-    ecat: EcatArgs,
-}
-
-/// The `ethercat` scenario's options.
-#[derive(Default)]
-struct EcatArgs {
-    iface: Option<String>,
-    lock_step: bool,
-    cycle_us: Option<u64>,
-    clock_error_ppm: f64,
-    /// `--seconds` as given (the scenario runs until stopped without it).
-    seconds: Option<f64>,
-    idle_exit_ms: Option<u64>,
-    /// `--pcap FILE`: a capture (classic pcap) of every frame received and sent.
-    pcap: Option<PathBuf>,
-    /// `--idle-cycle`: in lock-step, an idle poll runs one cycle (`EthercatConfig::idle_cycle`).
-    idle_cycle: bool,
-    /// `--drive-clock-error-ppm X`: the drive's oscillator against the master's time
-    /// (`EthercatConfig::drive_clock_error_ppb`).
-    drive_clock_error_ppm: f64,
-    /// `--sto-open`: both Safe Torque Off inputs de-energised from power-up, for the whole run.
-    sto_open: bool,
-}
-
-fn parse_args() -> Result<Args, String> {
-    let mut it = std::env::args().skip(1);
-    let scenario = it.next().ok_or_else(|| format!("{USAGE}\n{PLANT_HELP}"))?;
-    let mut args = Args {
-        scenario,
-        plant: None,
-        auto_tune: false,
-        resonance: None,
-        seed: 1,
-        default_gains: false,
-        gains: None,
-        out: None,
-        seconds: 2.0,
-        position_gains: None,
-        only: None,
-        ecat: EcatArgs::default(),
-    };
-    while let Some(a) = it.next() {
-        let mut value = |name: &str| it.next().ok_or_else(|| format!("{name} needs a value\n{USAGE}"));
-        match a.as_str() {
-            "--seed" => args.seed = value("--seed")?.parse().map_err(|e| format!("--seed: {e}"))?,
-            "--plant" => args.plant = Some(PathBuf::from(value("--plant")?)),
-            "--default-gains" => args.default_gains = true,
-            "--auto-tune" => args.auto_tune = true,
-            "--resonance" => {
-                let v = value("--resonance")?;
-                let parsed: Result<Vec<f64>, _> = v.split(',').map(|x| x.trim().parse::<f64>()).collect();
-                match parsed.map_err(|e| format!("--resonance F_R,F_AR (Hz): {e}"))?.as_slice() {
-                    [r, ar] if *r > 0.0 && *ar > 0.0 && *r <= 6553.5 && *ar <= 6553.5 => {
-                        args.resonance = Some((*r, *ar))
-                    }
-                    _ => return Err(format!("--resonance F_R,F_AR: two frequencies in (0, 6553.5] Hz, got {v}")),
-                }
-            }
-            "--gains" => {
-                let v = value("--gains")?;
-                let (p, i) = v.split_once(',').ok_or_else(|| format!("--gains P,I (uV/A,uV/(A ms)), got {v}"))?;
-                let p = p.trim().parse().map_err(|e| format!("--gains P: {e}"))?;
-                let i = i.trim().parse().map_err(|e| format!("--gains I: {e}"))?;
-                args.gains = Some((p, i));
-            }
-            "--position-gains" => {
-                let v = value("--position-gains")?;
-                let parsed: Result<Vec<u32>, _> = v.split(',').map(|x| x.trim().parse::<u32>()).collect();
-                let g = parsed.map_err(|e| format!("--position-gains P,I,D,FFV,FFA (0x30A1 units): {e}"))?;
-                let g: [u32; 5] = g.try_into().map_err(|_| "--position-gains needs 5 values (0x30A1:01..05)")?;
-                args.position_gains = Some(g);
-            }
-            "--out" => args.out = Some(PathBuf::from(value("--out")?)),
-            "--seconds" => {
-                args.seconds = value("--seconds")?.parse().map_err(|e| format!("--seconds: {e}"))?;
-                args.ecat.seconds = Some(args.seconds);
-            }
-            "--iface" => args.ecat.iface = Some(value("--iface")?),
-            "--lock-step" => args.ecat.lock_step = true,
-            "--idle-cycle" => args.ecat.idle_cycle = true,
-            "--sto-open" => args.ecat.sto_open = true,
-            "--cycle-us" => {
-                args.ecat.cycle_us = Some(value("--cycle-us")?.parse().map_err(|e| format!("--cycle-us: {e}"))?);
-            }
-            "--clock-error-ppm" => {
-                args.ecat.clock_error_ppm =
-                    value("--clock-error-ppm")?.parse().map_err(|e| format!("--clock-error-ppm: {e}"))?;
-            }
-            "--drive-clock-error-ppm" => {
-                args.ecat.drive_clock_error_ppm =
-                    value("--drive-clock-error-ppm")?.parse().map_err(|e| format!("--drive-clock-error-ppm: {e}"))?;
-            }
-            "--idle-exit-ms" => {
-                args.ecat.idle_exit_ms =
-                    Some(value("--idle-exit-ms")?.parse().map_err(|e| format!("--idle-exit-ms: {e}"))?);
-            }
-            "--pcap" => args.ecat.pcap = Some(PathBuf::from(value("--pcap")?)),
-            "--only" => args.only = Some(value("--only")?.to_lowercase()),
-            other => return Err(format!("unknown argument {other}\n{USAGE}")),
-        }
-    }
-    Ok(args)
-}
-
-fn setup(args: &Args) -> Setup {
-    Setup { seed: args.seed, gains: if args.default_gains { None } else { args.gains }, ..Setup::default() }
+fn setup(args: &CurrentLoopScenario) -> Setup {
+    Setup { seed: args.scenario.common.seed, gains: args.gains(), ..Setup::default() }
 }
 
 fn gains_text(s: &Setup) -> String {
@@ -226,7 +70,7 @@ fn time_plot(trace: &Trace, title: &str, signals: &[(&str, &str)], y_label: &str
     plot
 }
 
-fn current_step(args: &Args, dir: &Path) -> Result<(), String> {
+fn current_step(args: &CurrentLoopScenario, dir: &Path) -> Result<(), String> {
     let s = setup(args);
     println!("current-step: plant (seed {}), shunt offsets {:?} LSB, {}", s.seed, s.offsets_lsb, gains_text(&s));
     let step = scenarios::current_step(&s, 2.0 * PlantScale::current_plant().current).map_err(|e| e.to_string())?;
@@ -315,7 +159,7 @@ fn print_spin(name: &str, f: &SpinStepFigures) {
     println!("    |i_d| peak            {:7.3} A", f.d_peak_a);
 }
 
-fn spinning(args: &Args, dir: &Path) -> Result<(), String> {
+fn spinning(args: &CurrentLoopScenario, dir: &Path) -> Result<(), String> {
     let s = setup(args);
     let sc = PlantScale::current_plant();
     let d = SpinConfig::default();
@@ -366,11 +210,12 @@ fn seconds_plot(trace: &Trace, title: &str, signals: &[(&str, &str)], y_label: &
     plot
 }
 
-fn csp(args: &Args, dir: &Path) -> Result<(), String> {
+fn csp(args: &CspScenario, dir: &Path) -> Result<(), String> {
+    let seed = args.scenario.common.seed;
     let sc = PlantScale::current_plant();
     let d = CspConfig::default();
     let cfg = CspConfig {
-        seed: args.seed,
+        seed,
         position_gains: args.position_gains,
         revolutions: d.revolutions * sc.speed,
         max_rpm: d.max_rpm * sc.speed,
@@ -413,10 +258,9 @@ fn csp(args: &Args, dir: &Path) -> Result<(), String> {
     Ok(())
 }
 
-fn csv_sweep(args: &Args, dir: &Path) -> Result<(), String> {
-    println!("csv-sweep: plant (seed {}), CiA 402 CSV", args.seed);
-    let (step, trace) =
-        motion::csv_step(args.seed, 100.0 * PlantScale::current_plant().speed).map_err(|e| e.to_string())?;
+fn csv_sweep(seed: u64, dir: &Path) -> Result<(), String> {
+    println!("csv-sweep: plant (seed {seed}), CiA 402 CSV");
+    let (step, trace) = motion::csv_step(seed, 100.0 * PlantScale::current_plant().speed).map_err(|e| e.to_string())?;
     println!("  velocity step 0 -> {:.0} rpm (plant's true speed):", step.step_rpm);
     println!("    overshoot          {:6.2} %   (bound <= 10 %)", step.overshoot_pct);
     println!("    settling to +-2 %  {:6.1} ms", step.settle_ms);
@@ -428,7 +272,7 @@ fn csv_sweep(args: &Args, dir: &Path) -> Result<(), String> {
         "rpm",
     );
     write(&trace, &plot, dir, "csv_step")?;
-    let (points, bw) = motion::csv_sweep(args.seed).map_err(|e| e.to_string())?;
+    let (points, bw) = motion::csv_sweep(seed).map_err(|e| e.to_string())?;
     println!(
         "  velocity-loop response, {:.0} rpm +- {:.0} rpm sine (speed / velocity demand):",
         motion::CSV_SWEEP_OFFSET_RPM,
@@ -486,11 +330,11 @@ fn print_quick_stop(name: &str, f: &regeneration::QuickStopFigures) {
     );
 }
 
-fn ppm(args: &Args, dir: &Path) -> Result<(), String> {
+fn ppm(seed: u64, dir: &Path) -> Result<(), String> {
     let sc = PlantScale::current_plant();
     let stop_rpm = (5000.0 * sc.speed).round() as i32;
     let stop_rpm_per_s = (f64::from(QUICK_STOP_RPM_PER_S) * sc.speed).round() as u32;
-    println!("ppm: plant (seed {}), CiA 402 PPM, absolute moves from rest, position window 0x6067 = 10 inc", args.seed);
+    println!("ppm: plant (seed {seed}), CiA 402 PPM, absolute moves from rest, position window 0x6067 = 10 inc");
     let mut worst = i64::MIN;
     let mut bus_peak = 0.0_f64;
     for (name, profile_type, distance, p) in [
@@ -505,9 +349,8 @@ fn ppm(args: &Args, dir: &Path) -> Result<(), String> {
             acceleration_rpm_per_s: scaled(p.acceleration_rpm_per_s),
             deceleration_rpm_per_s: scaled(p.deceleration_rpm_per_s),
         };
-        let (f, trace) =
-            profile::ppm_move(args.seed, profile_type, (f64::from(distance) * sc.speed).round() as i32, &p)
-                .map_err(|e| e.to_string())?;
+        let (f, trace) = profile::ppm_move(seed, profile_type, (f64::from(distance) * sc.speed).round() as i32, &p)
+            .map_err(|e| e.to_string())?;
         println!("  {name}:");
         println!(
             "    profile {} ticks; bit 10 {} tick(s) after the profile's end (bound <= 2); final error {} inc; peak \
@@ -538,7 +381,7 @@ fn ppm(args: &Args, dir: &Path) -> Result<(), String> {
         f64::from(stop_rpm) / f64::from(stop_rpm_per_s) * 1000.0
     );
     let (limiter, trace) =
-        regeneration::quick_stop(args.seed, scenarios::scenario_plant(), None, true, stop_rpm, stop_rpm_per_s)
+        regeneration::quick_stop(seed, scenarios::scenario_plant(), None, true, stop_rpm, stop_rpm_per_s)
             .map_err(|e| format!("quick stop, limiter alone: {e}"))?;
     print_quick_stop("limiter alone (no chopper)", &limiter);
     write(
@@ -548,7 +391,7 @@ fn ppm(args: &Args, dir: &Path) -> Result<(), String> {
         "quick_stop",
     )?;
     let (chopper, trace) = regeneration::quick_stop(
-        args.seed,
+        seed,
         scenarios::scenario_plant().with_chopper(),
         Some(ChopperRating::REFERENCE),
         true,
@@ -580,14 +423,17 @@ fn ppm(args: &Args, dir: &Path) -> Result<(), String> {
     Ok(())
 }
 
-fn homing_matrix(args: &Args, dir: &Path) -> Result<(), String> {
-    let cfg = homing::HomingConfig::new(args.seed, 1, homing::Start::Below);
+fn homing_matrix(seed: u64, dir: &Path) -> Result<(), String> {
+    let cfg = homing::HomingConfig::new(seed, 1, homing::Start::Below);
     println!(
         "homing: plant (seed {}), CiA 402 HMM, every method of 0x60E3 from each side of its reference \
          (switch search {} rpm, zero search {} rpm, 0x609A {} rpm/s, distances x{:.3} of the reference's counts)",
-        args.seed, cfg.switch_search_rpm, cfg.zero_search_rpm, cfg.acceleration_rpm_s, cfg.distance_scale
+        seed, cfg.switch_search_rpm, cfg.zero_search_rpm, cfg.acceleration_rpm_s, cfg.distance_scale
     );
-    let m = homing::homing_matrix(args.seed).map_err(|e| e.to_string())?;
+    let mut bar = Progress::on_terminal("homing");
+    let m = homing::homing_matrix_with_progress(seed, &mut |done, total| bar.update(done, total));
+    bar.finish();
+    let m = m.map_err(|e| e.to_string())?;
     println!("  {:>6}  {:<10}  {:>9}  {:>9}  {:>10}", "method", "start", "outcome", "error", "homing [s]");
     let mut t = Trace::new(&["method", "home_error_inc", "position_error_inc", "homing_s"]);
     for r in &m.rows {
@@ -611,22 +457,30 @@ fn homing_matrix(args: &Args, dir: &Path) -> Result<(), String> {
     Ok(())
 }
 
-fn fault_matrix(args: &Args, dir: &Path) -> Result<(), String> {
+fn fault_matrix(args: &FaultMatrixScenario, dir: &Path) -> Result<(), String> {
+    let seed = args.scenario.common.seed;
     println!(
-        "fault-matrix: plant (seed {}), every fault of the table injected where it matters; detection, \
-         0x603F/0x1001/0x1003/EMCY, the reaction and the reset checked",
-        args.seed
+        "fault-matrix: plant (seed {seed}), every fault of the table injected where it matters; detection, \
+         0x603F/0x1001/0x1003/EMCY, the reaction and the reset checked"
     );
     // `--only TEXT`: the cases whose fault name or injection contains TEXT (one failure on its own).
-    let outcomes: Vec<_> = faults::cases()
-        .iter()
+    let cases: Vec<_> = faults::cases()
+        .into_iter()
         .filter(|c| {
             args.only.as_ref().is_none_or(|only| {
                 c.fault.info().name.to_lowercase().contains(only) || c.injection.to_lowercase().contains(only)
             })
         })
-        .map(|c| faults::run_case(c, args.seed))
         .collect();
+    let mut bar = Progress::on_terminal("fault-matrix");
+    let total = cases.len() as u64;
+    bar.update(0, total);
+    let mut outcomes = Vec::with_capacity(cases.len());
+    for (done, case) in (1..).zip(&cases) {
+        outcomes.push(faults::run_case(case, seed));
+        bar.update(done, total);
+    }
+    bar.finish();
     let table = faults::matrix_table(&outcomes);
     print!("{table}");
     let path = dir.join("fault-matrix.md");
@@ -646,14 +500,17 @@ fn fault_matrix(args: &Args, dir: &Path) -> Result<(), String> {
     Ok(())
 }
 
-fn duty_cycle(args: &Args, dir: &Path) -> Result<(), String> {
+fn duty_cycle(seed: u64, dir: &Path) -> Result<(), String> {
     println!(
         "duty-cycle: plant (seed {}), {} s of CSV velocity steps at the current limit with regeneration and load \
          steps, reference sensor noise",
-        args.seed,
+        seed,
         duty_cycle::DURATION_S
     );
-    let (figures, trace) = duty_cycle::duty_cycle(args.seed).map_err(|e| e.to_string())?;
+    let mut bar = Progress::on_terminal("duty-cycle");
+    let run = duty_cycle::duty_cycle_with_progress(seed, &mut |done, total| bar.update(done, total));
+    bar.finish();
+    let (figures, trace) = run.map_err(|e| e.to_string())?;
     println!(
         "  moves {}, peak |iq| {:.2} A, bus {:.1}..{:.1} V, peak speed {:.0} rpm",
         figures.moves, figures.peak_current_a, figures.bus_min_v, figures.bus_max_v, figures.peak_speed_rpm
@@ -671,15 +528,20 @@ fn duty_cycle(args: &Args, dir: &Path) -> Result<(), String> {
 }
 
 /// `drive-sim identify`: the motor identification run by a master over SDO, its results against the plant's truth.
-fn identify(args: &Args) -> Result<(), String> {
+fn identify(args: &IdentifyArgs) -> Result<(), String> {
+    let seed = args.common.seed;
     use hal_sim::scenarios::identification::{self, IdentifyRun, Outcome};
     let params = scenarios::scenario_plant();
     println!(
         "identify: 0x6060 = -2, enable, controlword bit 4 over SDO; the master polls 0x3204:02/:03 and 0x6041 every \
-         10 ms, then reads the results back (seed {})",
-        args.seed
+         10 ms, then reads the results back (seed {seed})"
     );
-    let run = identification::identify_then(&params, args.seed, |_| {}, resonance_override(args));
+    let mut bar = Progress::on_terminal("identify");
+    let resonance = resonance_override(args.resonance);
+    let run = identification::identify_then_with_progress(&params, seed, |_| {}, resonance, &mut |done, total| {
+        bar.update(done, total)
+    });
+    bar.finish();
     let id = &run.identified;
     let err = IdentifyRun::error_pct;
     println!(
@@ -754,11 +616,11 @@ fn identify(args: &Args) -> Result<(), String> {
     }
 }
 
-fn bench(args: &Args) -> Result<(), String> {
+fn bench(seconds: f64) -> Result<(), String> {
     if cfg!(debug_assertions) {
         println!("note: a debug build; the figure is for `cargo run --release`");
     }
-    let b = scenarios::bench(args.seconds).map_err(|e| e.to_string())?;
+    let b = scenarios::bench(seconds).map_err(|e| e.to_string())?;
     println!(
         "bench: {:.2} s of drive time ({} fast ticks with the plant, slow tick every 10th) in {:.3} s wall-clock",
         b.simulated_s,
@@ -772,24 +634,14 @@ fn bench(args: &Args) -> Result<(), String> {
 
 /// `drive-sim ethercat`: the drive as an EtherCAT slave on a network interface until `--seconds` (wall clock)
 /// pass, the master falls silent for `--idle-exit-ms` after its first frame, or the process is stopped.
-fn ethercat(args: &Args) -> Result<(), String> {
-    let e = &args.ecat;
-    let iface = e.iface.as_deref().ok_or_else(|| format!("ethercat needs --iface NAME\n{USAGE}"))?;
-    let cycle_us = e.cycle_us.unwrap_or(1_000);
-    if cycle_us == 0 {
-        return Err("--cycle-us must be above 0".to_owned());
-    }
-    if !e.clock_error_ppm.is_finite() || e.clock_error_ppm.abs() > 1_000.0 {
-        return Err(format!("--clock-error-ppm {} out of range (-1000..=1000)", e.clock_error_ppm));
-    }
-    if !e.drive_clock_error_ppm.is_finite() || e.drive_clock_error_ppm.abs() > 1_000.0 {
-        return Err(format!("--drive-clock-error-ppm {} out of range (-1000..=1000)", e.drive_clock_error_ppm));
-    }
+fn ethercat(e: &EthercatArgs) -> Result<(), String> {
+    let iface = e.iface.as_str();
+    let cycle_us = e.cycle_us;
     let config = EthercatConfig {
         clock: if e.lock_step { ClockMode::LockStep } else { ClockMode::RealTime },
         cycle_ns: cycle_us.saturating_mul(1_000),
         clock_error_ppb: (e.clock_error_ppm * 1_000.0).round() as i64,
-        seed: args.seed,
+        seed: e.common.seed,
         idle_cycle: e.idle_cycle,
         drive_clock_error_ppb: (e.drive_clock_error_ppm * 1_000.0).round() as i64,
     };
@@ -810,7 +662,7 @@ fn ethercat(args: &Args) -> Result<(), String> {
     }
     println!(
         "  plant (seed {}), ESC local clock {:+} ppm and drive clock {:+} ppm against the master, stop: {}",
-        args.seed,
+        e.common.seed,
         e.clock_error_ppm,
         e.drive_clock_error_ppm,
         match (e.seconds, e.idle_exit_ms) {
@@ -948,44 +800,46 @@ fn al_state_name(code: u16) -> &'static str {
 }
 
 fn main() -> ExitCode {
-    // `canopen` has options of its own (drive-sim/canopen.rs).
-    let raw: Vec<String> = std::env::args().skip(1).collect();
-    if raw.first().map(String::as_str) == Some("canopen") {
-        return match canopen::run(&raw[1..]) {
-            Ok(()) => ExitCode::SUCCESS,
-            Err(e) => {
-                eprintln!("drive-sim canopen: {e}");
-                ExitCode::FAILURE
-            }
-        };
-    }
-    let args = match parse_args() {
-        Ok(a) => a,
-        Err(e) => {
-            eprintln!("{e}");
-            return ExitCode::from(2);
+    let matches = Cli::command().get_matches();
+    // The subcommand's name is the default output directory's (out/<scenario>).
+    let scenario = matches.subcommand_name().unwrap_or_default().to_owned();
+    let cli = Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
+    let plant = |file: Option<&cli::PlantFile>| file.map_or_else(PlantParams::reference, |f| f.params.clone());
+    let result = match &cli.command {
+        Command::Completions { shell } => {
+            clap_complete::generate(*shell, &mut Cli::command(), "drive-sim", &mut std::io::stdout());
+            Ok(())
         }
-    };
-    let dir = args.out.clone().unwrap_or_else(|| PathBuf::from("out").join(&args.scenario));
-    let params = match &args.plant {
-        None => PlantParams::reference(),
-        Some(path) => match PlantParams::from_toml_file(path) {
-            Ok(p) => p,
-            Err(e) => {
-                eprintln!("drive-sim: {e}");
-                return ExitCode::from(2);
-            }
-        },
-    };
-    if args.scenario != "bench" {
-        print_plant(args.plant.as_deref(), &params);
-    }
-    let result = if args.auto_tune {
-        auto_tuned(&args, &params).and_then(|parameters| {
-            scenarios::with_plant(params, || scenarios::with_parameters(parameters, || run_scenario(&args, &dir)))
-        })
-    } else {
-        scenarios::with_plant(params, || run_scenario(&args, &dir))
+        Command::Canopen(args) => {
+            // A node-ID past the bus is a bad value of its option, refused as clap refuses one (status 2).
+            let config = args.config().unwrap_or_else(|e| {
+                let canopen = Cli::command().find_subcommand("canopen").cloned();
+                let mut command = canopen.unwrap_or_else(Cli::command).bin_name("drive-sim canopen");
+                command.error(clap::error::ErrorKind::ValueValidation, e).exit()
+            });
+            canopen::run(args, config).map_err(|e| format!("canopen: {e}"))
+        }
+        Command::Bench(args) => scenarios::with_plant(plant(args.plant.as_ref()), || bench(args.seconds)),
+        Command::Identify(args) => {
+            print_plant(args.common.plant.as_ref());
+            scenarios::with_plant(plant(args.common.plant.as_ref()), || identify(args))
+        }
+        Command::Ethercat(args) => {
+            print_plant(args.common.plant.as_ref());
+            scenarios::with_plant(plant(args.common.plant.as_ref()), || ethercat(args))
+        }
+        Command::CurrentStep(args) | Command::Spinning(args) => {
+            simulated(&args.scenario, &scenario, |dir| match &cli.command {
+                Command::Spinning(_) => spinning(args, dir),
+                _ => current_step(args, dir),
+            })
+        }
+        Command::Csp(args) => simulated(&args.scenario, &scenario, |dir| csp(args, dir)),
+        Command::FaultMatrix(args) => simulated(&args.scenario, &scenario, |dir| fault_matrix(args, dir)),
+        Command::CsvSweep(args) => simulated(args, &scenario, |dir| csv_sweep(args.common.seed, dir)),
+        Command::Ppm(args) => simulated(args, &scenario, |dir| ppm(args.common.seed, dir)),
+        Command::Homing(args) => simulated(args, &scenario, |dir| homing_matrix(args.common.seed, dir)),
+        Command::DutyCycle(args) => simulated(args, &scenario, |dir| duty_cycle(args.common.seed, dir)),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -996,20 +850,40 @@ fn main() -> ExitCode {
     }
 }
 
+/// Runs a simulated scenario named `name` on the plant of `args`, after the identification with its auto-tuning
+/// when `--auto-tune` asks for it; `run` gets the output directory.
+fn simulated(args: &Scenario, name: &str, run: impl FnOnce(&Path) -> Result<(), String>) -> Result<(), String> {
+    let dir = args.out.clone().unwrap_or_else(|| PathBuf::from("out").join(name));
+    let file = args.common.plant.as_ref();
+    let params = file.map_or_else(PlantParams::reference, |f| f.params.clone());
+    print_plant(file);
+    if args.auto_tune {
+        let parameters = auto_tuned(args, &params)?;
+        scenarios::with_plant(params, || scenarios::with_parameters(parameters, || run(&dir)))
+    } else {
+        scenarios::with_plant(params, || run(&dir))
+    }
+}
+
 /// What the master writes after the identification (which measured its own pair) before it runs the auto-tuning
 /// 0x3205:01 again: `--resonance`'s pair for 0x3205:03/04 (0.1 Hz).
-fn resonance_override(args: &Args) -> Option<(u16, u16)> {
-    args.resonance.map(|(r, ar)| ((r * 10.0).round() as u16, (ar * 10.0).round() as u16))
+fn resonance_override(resonance: Option<(f64, f64)>) -> Option<(u16, u16)> {
+    resonance.map(|(r, ar)| ((r * 10.0).round() as u16, (ar * 10.0).round() as u16))
 }
 
 /// `--auto-tune`: the identification with its auto-tuning (`drive-sim identify`'s run) on the plant, and the
 /// parameters it found, which every drive of the scenario then gets after its motor data.
-fn auto_tuned(args: &Args, params: &PlantParams) -> Result<hal_sim::scenarios::identification::Parameters, String> {
+fn auto_tuned(args: &Scenario, params: &PlantParams) -> Result<hal_sim::scenarios::identification::Parameters, String> {
     use hal_sim::scenarios::identification;
-    if matches!(args.scenario.as_str(), "identify" | "bench" | "ethercat" | "canopen") {
-        return Err(format!("--auto-tune applies to the simulated scenarios, not to {}", args.scenario));
-    }
-    let run = identification::identify_then(params, args.seed, |_| {}, resonance_override(args));
+    let mut bar = Progress::on_terminal("auto-tune: identify");
+    let run = identification::identify_then_with_progress(
+        params,
+        args.common.seed,
+        |_| {},
+        resonance_override(args.resonance),
+        &mut |done, total| bar.update(done, total),
+    );
+    bar.finish();
     let id = &run.identified;
     println!(
         "auto-tune: identified in {:.2} s (simulated): R {:.4} ohm, Ld {:.1} uH, Lq {:.1} uH, kt {:.4} Nm/A, \
@@ -1028,12 +902,14 @@ fn auto_tuned(args: &Args, params: &PlantParams) -> Result<hal_sim::scenarios::i
 }
 
 /// One line on the plant in use and how it scales the scenarios.
-fn print_plant(file: Option<&Path>, p: &PlantParams) {
+fn print_plant(file: Option<&cli::PlantFile>) {
+    let reference = PlantParams::reference();
+    let p = file.map_or(&reference, |f| &f.params);
     let sc = PlantScale::of(p);
     println!(
         "plant: {} ({} V, {} pole pairs, kt {:.4} Nm/A, {} / {} A, {} rpm, gear {}:1, {} counts/rev; scale: speed x{:.3}, \
          current x{:.3}, torque x{:.3}, inertia x{:.3})",
-        file.map_or("reference (PlantParams::reference())".to_owned(), |f| f.display().to_string()),
+        file.map_or("reference (PlantParams::reference())".to_owned(), |f| f.path.display().to_string()),
         p.source_voltage_v,
         p.pole_pairs,
         p.torque_constant_nm_per_a(),
@@ -1047,22 +923,4 @@ fn print_plant(file: Option<&Path>, p: &PlantParams) {
         sc.torque,
         sc.inertia
     );
-}
-
-/// Runs the scenario of `args` (on the plant [`scenarios::with_plant`] chose).
-fn run_scenario(args: &Args, dir: &Path) -> Result<(), String> {
-    match args.scenario.as_str() {
-        "current-step" => current_step(args, dir),
-        "spinning" => spinning(args, dir),
-        "csp" => csp(args, dir),
-        "csv-sweep" => csv_sweep(args, dir),
-        "ppm" => ppm(args, dir),
-        "homing" => homing_matrix(args, dir),
-        "fault-matrix" => fault_matrix(args, dir),
-        "duty-cycle" => duty_cycle(args, dir),
-        "identify" => identify(args),
-        "bench" => bench(args),
-        "ethercat" => ethercat(args),
-        other => Err(format!("unknown scenario {other}\n{USAGE}\n{PLANT_HELP}")),
-    }
 }

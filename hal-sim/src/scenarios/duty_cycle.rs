@@ -69,6 +69,19 @@ pub struct DutyCycleFigures {
 
 /// Runs the duty cycle with noise `seed` on the scenario plant, scaled to its ratings.
 pub fn duty_cycle(seed: u64) -> Result<(DutyCycleFigures, Trace), SimError> {
+    duty_cycle_with_progress(seed, &mut |_, _| {})
+}
+
+/// Tier-1 periods between two calls of [`duty_cycle_with_progress`]'s `progress` (0.1 s of simulated time).
+const PROGRESS_PERIODS: u64 = 2_500;
+
+/// [`duty_cycle`], telling `progress(done, total)` how many of the run's tier-1 periods have passed, every
+/// 2,500 periods (0.1 s) and at the end (for a progress bar: `drive-sim duty-cycle` on a terminal). The
+/// observer only reads the count; the run and its figures are the same with any observer.
+pub fn duty_cycle_with_progress(
+    seed: u64,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Result<(DutyCycleFigures, Trace), SimError> {
     let scale = PlantScale::current_plant();
     let mut sim = prepare_motion(seed, 9)?;
     let _ = std::iter::from_fn(|| sim.drive.poll_emcy()).count();
@@ -78,6 +91,9 @@ pub fn duty_cycle(seed: u64) -> Result<(DutyCycleFigures, Trace), SimError> {
     let (mut target, mut step_index, mut load_index, mut load) = (0, 0usize, 0usize, 0.0);
     let mut square_sum = 0.0;
     for k in 0..periods {
+        if k.is_multiple_of(PROGRESS_PERIODS) {
+            progress(k, periods);
+        }
         let t = k as f64 * crate::plant::PERIOD_S;
         if t >= step_index as f64 * STEP_PERIOD_S {
             let reference_rpm = VELOCITY_STEPS_RPM[step_index % VELOCITY_STEPS_RPM.len()];
@@ -121,5 +137,6 @@ pub fn duty_cycle(seed: u64) -> Result<(DutyCycleFigures, Trace), SimError> {
         }
     }
     f.rms_current_a = (square_sum / periods as f64).sqrt();
+    progress(periods, periods);
     Ok((f, trace))
 }

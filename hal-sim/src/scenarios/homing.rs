@@ -772,11 +772,27 @@ pub struct HomingMatrix {
 
 /// Every method of `methods` from each of its [`starts`].
 pub fn homing_matrix_of(seed: u64, methods: &[i8]) -> Result<HomingMatrix, RunError> {
+    homing_matrix_of_with_progress(seed, methods, &mut |_, _| {})
+}
+
+/// [`homing_matrix_of`], telling `progress(done, total)` how many of its runs (one per method and start) are
+/// finished, before the first and after each (for a progress bar: `drive-sim homing` on a terminal). The
+/// observer only reads the count; the runs and their figures are the same with any observer.
+pub fn homing_matrix_of_with_progress(
+    seed: u64,
+    methods: &[i8],
+    progress: &mut dyn FnMut(u64, u64),
+) -> Result<HomingMatrix, RunError> {
+    let total = methods.iter().map(|&method| starts(method).len() as u64).sum();
+    let mut done = 0;
+    progress(done, total);
     let mut m = HomingMatrix { methods_tested: 0, methods_passed: 0, home_error_max_inc: 0, rows: Vec::new() };
     for &method in methods {
         let mut all = !starts(method).is_empty();
         for &start in starts(method) {
             let r = homing_run(seed, method, start)?;
+            done += 1;
+            progress(done, total);
             all &= r.passed();
             m.home_error_max_inc = m.home_error_max_inc.max(match r.outcome {
                 Outcome::Attained => r.home_error_inc.abs(),
@@ -792,5 +808,10 @@ pub fn homing_matrix_of(seed: u64, methods: &[i8]) -> Result<HomingMatrix, RunEr
 
 /// Every supported method (0x60E3, `firmware::motion::homing::SUPPORTED_METHODS`) from each of its [`starts`].
 pub fn homing_matrix(seed: u64) -> Result<HomingMatrix, RunError> {
-    homing_matrix_of(seed, &firmware::motion::homing::SUPPORTED_METHODS)
+    homing_matrix_with_progress(seed, &mut |_, _| {})
+}
+
+/// [`homing_matrix`] with the progress observer of [`homing_matrix_of_with_progress`].
+pub fn homing_matrix_with_progress(seed: u64, progress: &mut dyn FnMut(u64, u64)) -> Result<HomingMatrix, RunError> {
+    homing_matrix_of_with_progress(seed, &firmware::motion::homing::SUPPORTED_METHODS, progress)
 }

@@ -234,6 +234,23 @@ pub fn identify_then(
     setup: impl FnOnce(&mut Simulation),
     resonance: Option<(u16, u16)>,
 ) -> IdentifyRun {
+    identify_then_with_progress(params, seed, setup, resonance, &mut |_, _| {})
+}
+
+/// The identification's last step, 0x3204:02 = 9 "done" (device.toml): the total of the progress it reports.
+const LAST_STEP: u8 = 9;
+
+/// [`identify_then`], telling `progress(step, 9)` the identification's step (0x3204:02: 1 standstill ... 8
+/// tuning, 9 done) each time the master's poll reads a new one (for a progress bar: `drive-sim identify` and
+/// `--auto-tune` on a terminal). The observer only reads the step; the run and its results are the same with any
+/// observer.
+pub fn identify_then_with_progress(
+    params: &PlantParams,
+    seed: u64,
+    setup: impl FnOnce(&mut Simulation),
+    resonance: Option<(u16, u16)>,
+    progress: &mut dyn FnMut(u64, u64),
+) -> IdentifyRun {
     let mut sim = Simulation::new(params.clone(), seed, DriveConfig::DEFAULT);
     sim.commission_motor_data(params);
     setup(&mut sim);
@@ -260,6 +277,9 @@ pub fn identify_then(
         sim.run(POLL_PERIODS);
         let step = master.upload(&mut sim, 0x3204, 2).unwrap_or(0) as u8;
         let _progress = master.upload(&mut sim, 0x3204, 3);
+        if (1..=LAST_STEP).contains(&step) && step != last_step {
+            progress(u64::from(step), u64::from(LAST_STEP));
+        }
         last_step = if step == 0 { last_step } else { step };
         let sw = statusword(&mut master, &mut sim);
         if sw & (1 << 3) != 0 {

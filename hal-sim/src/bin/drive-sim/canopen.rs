@@ -1,10 +1,8 @@
 //! `drive-sim canopen`: simulated drives as CANopen nodes on one simulated CAN bus, served to python-can tools
 //! (PyPI `canopen`) through the socketcand protocol on 127.0.0.1 (hal-sim `sim::canopen`, `can::socketcand`).
 //!
-//! ```text
-//! drive-sim canopen --port N [--nodes K] [--bit-rate BPS] [--lock-step] [--sync-us N] [--seconds S]
-//!                   [--idle-exit-ms N] [--seed N] [--no-image ID]... [--sto-open ID]... [--plant FILE]
-//! ```
+//! `drive-sim canopen --help` lists the options.
+//!
 //! `--plant FILE` puts every node on the plant of a plant file (`hal_sim::plant::file`) with its motor data
 //! written from the plant's ratings; without it, the reference plant.
 //! `--port 0` picks a free port; the chosen one is printed as `port=N` before anything else, so a test can read
@@ -25,116 +23,95 @@ use hal_sim::can::socketcand::SocketcandServer;
 use hal_sim::plant::PlantParams;
 use hal_sim::sim::canopen::{CanClock, CanopenConfig, CanopenRunner};
 
-const USAGE: &str = "usage: drive-sim canopen --port N [--nodes K] [--bit-rate BPS] [--lock-step] [--sync-us N] \
-                     [--seconds S] [--idle-exit-ms N] [--seed N] [--no-image ID]... [--sto-open ID]... [--plant FILE]";
+use crate::cli::{parse_seconds, Common};
 
-struct Args {
-    port: u16,
-    config: CanopenConfig,
-    seconds: Option<f64>,
-    idle_exit_ms: Option<u64>,
-    /// Node-IDs whose STO inputs are de-energised from power-up.
-    sto_open: Vec<u8>,
-    /// `--plant FILE`: every node's plant.
-    plant: PlantParams,
+/// canopen's options.
+#[derive(Debug, clap::Args)]
+pub struct CanopenArgs {
+    /// The plant and the seed (drive k uses seed + k).
+    #[command(flatten)]
+    pub common: Common,
+    /// The TCP port of the socketcand server on 127.0.0.1; 0 picks a free one (printed as `port=N` first).
+    #[arg(long, value_name = "N", required = true)]
+    pub port: u16,
+    /// Drives on the bus, node-IDs 1..=K.
+    #[arg(long, value_name = "K", default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=127))]
+    pub nodes: u8,
+    /// The bus's bit rate, bit/s (1..=1000000): frame times and the bus load.
+    #[arg(long, value_name = "BPS", default_value_t = 1_000_000,
+          value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
+    pub bit_rate: u32,
+    /// Simulated time advances by --sync-us per SYNC of the master instead of with the wall clock.
+    #[arg(long)]
+    pub lock_step: bool,
+    /// The SYNC period in lock-step, microseconds.
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    pub sync_us: Option<u64>,
+    /// Stop after S seconds of wall-clock time (without it, run until stopped).
+    #[arg(long, value_name = "S", value_parser = parse_seconds, allow_negative_numbers = true)]
+    pub seconds: Option<f64>,
+    /// Stop once a client that had connected sent no frame for N ms.
+    #[arg(long, value_name = "N")]
+    pub idle_exit_ms: Option<u64>,
+    /// Erase slot A of node ID before its first boot: its bootloader serves the CAN fallback (repeatable).
+    #[arg(long, value_name = "ID", value_parser = clap::value_parser!(u8).range(1..=127))]
+    pub no_image: Vec<u8>,
+    /// De-energise both Safe Torque Off inputs of node ID from power-up, for the whole run (repeatable).
+    #[arg(long, value_name = "ID", value_parser = clap::value_parser!(u8).range(1..=127))]
+    pub sto_open: Vec<u8>,
 }
 
-fn parse(args: &[String]) -> Result<Args, String> {
-    let mut out = Args {
-        port: 0,
-        config: CanopenConfig::default(),
-        seconds: None,
-        idle_exit_ms: None,
-        sto_open: Vec::new(),
-        plant: PlantParams::reference(),
-    };
-    let mut port = None;
-    let mut it = args.iter();
-    while let Some(a) = it.next() {
-        let mut value = |name: &str| it.next().cloned().ok_or_else(|| format!("{name} needs a value\n{USAGE}"));
-        match a.as_str() {
-            "--port" => port = Some(value("--port")?.parse().map_err(|e| format!("--port: {e}"))?),
-            "--nodes" => {
-                let n: u8 = value("--nodes")?.parse().map_err(|e| format!("--nodes: {e}"))?;
-                if !(1..=127).contains(&n) {
-                    return Err(format!("--nodes {n}: 1..=127 (node-IDs 1..=K)"));
-                }
-                out.config.nodes = n;
-            }
-            "--bit-rate" => {
-                out.config.bit_rate = value("--bit-rate")?.parse().map_err(|e| format!("--bit-rate: {e}"))?;
-                if out.config.bit_rate == 0 || out.config.bit_rate > 1_000_000 {
-                    return Err(format!("--bit-rate {}: 1..=1000000 bit/s", out.config.bit_rate));
-                }
-            }
-            "--lock-step" => out.config.clock = CanClock::LockStep,
-            "--sync-us" => {
-                let us: u64 = value("--sync-us")?.parse().map_err(|e| format!("--sync-us: {e}"))?;
-                if us == 0 {
-                    return Err("--sync-us must be above 0".into());
-                }
-                out.config.sync_period_ns = us * 1_000;
-            }
-            "--seconds" => out.seconds = Some(value("--seconds")?.parse().map_err(|e| format!("--seconds: {e}"))?),
-            "--idle-exit-ms" => {
-                out.idle_exit_ms = Some(value("--idle-exit-ms")?.parse().map_err(|e| format!("--idle-exit-ms: {e}"))?);
-            }
-            "--plant" => {
-                out.plant =
-                    PlantParams::from_toml_file(std::path::Path::new(&value("--plant")?)).map_err(|e| e.to_string())?;
-            }
-            "--seed" => out.config.seed = value("--seed")?.parse().map_err(|e| format!("--seed: {e}"))?,
-            "--no-image" => {
-                let id: u8 = value("--no-image")?.parse().map_err(|e| format!("--no-image: {e}"))?;
-                if !(1..=127).contains(&id) {
-                    return Err(format!("--no-image {id}: a node-ID 1..=127"));
-                }
-                out.config = out.config.with_empty_slot(id);
-            }
-            "--sto-open" => {
-                let id: u8 = value("--sto-open")?.parse().map_err(|e| format!("--sto-open: {e}"))?;
-                if !(1..=127).contains(&id) {
-                    return Err(format!("--sto-open {id}: a node-ID 1..=127"));
-                }
-                out.sto_open.push(id);
-            }
-            other => return Err(format!("unknown argument {other}\n{USAGE}")),
+impl CanopenArgs {
+    /// The runner's settings; an error names a node-ID option that points past the bus.
+    pub fn config(&self) -> Result<CanopenConfig, String> {
+        let mut config = CanopenConfig {
+            nodes: self.nodes,
+            bit_rate: self.bit_rate,
+            seed: self.common.seed,
+            ..CanopenConfig::default()
+        };
+        if self.lock_step {
+            config.clock = CanClock::LockStep;
         }
+        if let Some(us) = self.sync_us {
+            config.sync_period_ns = us.saturating_mul(1_000);
+        }
+        for (option, ids) in [("--no-image", &self.no_image), ("--sto-open", &self.sto_open)] {
+            if let Some(id) = ids.iter().find(|&&id| id > self.nodes) {
+                return Err(format!("{option} {id}: only node-IDs 1..={} are on the bus", self.nodes));
+            }
+        }
+        for &id in &self.no_image {
+            config = config.with_empty_slot(id);
+        }
+        Ok(config)
     }
-    out.port = port.ok_or_else(|| format!("--port is required\n{USAGE}"))?;
-    if let Some(id) = (1..=127u8).find(|&id| out.config.empty_slot(id) && id > out.config.nodes) {
-        return Err(format!("--no-image {id}: only node-IDs 1..={} are on the bus", out.config.nodes));
-    }
-    if let Some(id) = out.sto_open.iter().find(|&&id| id > out.config.nodes) {
-        return Err(format!("--sto-open {id}: only node-IDs 1..={} are on the bus", out.config.nodes));
-    }
-    Ok(out)
 }
 
-/// Runs the scenario with the arguments after `canopen`.
-pub fn run(args: &[String]) -> Result<(), String> {
-    let args = parse(args)?;
+/// Serves the drives of `config` (from [`CanopenArgs::config`]) as `args` say.
+pub fn run(args: &CanopenArgs, config: CanopenConfig) -> Result<(), String> {
+    let plant = args.common.plant.as_ref().map_or_else(PlantParams::reference, |p| p.params.clone());
     let addr = SocketAddr::from(([127, 0, 0, 1], args.port));
     let mut server = SocketcandServer::bind(addr).map_err(|e| format!("listen on {addr}: {e}"))?;
     let local = server.local_addr().map_err(|e| e.to_string())?;
     println!("port={}", local.port());
     println!(
         "drive-sim canopen: {} drive(s), node-IDs 1..={}, {} bit/s, {} clock{}; socketcand on {local}",
-        args.config.nodes,
-        args.config.nodes,
-        args.config.bit_rate,
-        match args.config.clock {
+        config.nodes,
+        config.nodes,
+        config.bit_rate,
+        match config.clock {
             CanClock::LockStep => "lock-step",
             CanClock::RealTime => "real-time",
         },
-        if args.config.clock == CanClock::LockStep {
-            format!(" ({} us per SYNC)", args.config.sync_period_ns / 1_000)
+        if config.clock == CanClock::LockStep {
+            format!(" ({} us per SYNC)", config.sync_period_ns / 1_000)
         } else {
             String::new()
         },
     );
     println!("  python: can.Bus(interface='socketcand', host='127.0.0.1', port={}, channel='can0')", local.port());
-    let mut runner = CanopenRunner::with_plant(args.config, &args.plant);
+    let mut runner = CanopenRunner::with_plant(config, &plant);
     for d in runner.drives.iter().filter(|d| d.in_fallback()) {
         println!("  node {}: slot A holds no valid image ({:?}): bootloader fallback", d.node.node_id(), d.last_boot);
     }
