@@ -587,3 +587,40 @@ fn canopen_with_sto_low_at_power_up_reaches_operational_and_enabling_is_refused(
     assert_eq!(out.master("error_code_end"), format!("0x{code:04x}"));
     assert_eq!(out.sim("node1_nmt"), "Operational");
 }
+
+/// Proves (CiA 305 §6.3, §6.7; issue 21, item 4): PyPI canopen's LSS master finds three drives that start without
+/// a node-ID (`drive-sim canopen --unconfigured 1..3`, 0x2000 = 0xFF as from a factory) one by one with its
+/// fastscan, each with the identity of device.toml and its own serial number (the factory value + slot - 1),
+/// configures node-IDs 5, 6 and 7 and stores them; each boots with its node-ID when switched back to waiting; a
+/// fourth fastscan finds nobody; after an NMT reset node to all, the three restart from their parameter stores and
+/// boot as 5, 6 and 7, and each answers SDO with its serial number.
+#[test]
+fn pypi_canopen_lss_master_assigns_node_ids_5_6_7_to_three_unconfigured_drives() {
+    skip_unless_runnable!("pypi_canopen_lss_master_assigns_node_ids_5_6_7_to_three_unconfigured_drives");
+    let dir = WorkDir::new("lss");
+    let eds = write_eds(&dir);
+    let sim_args = ["--lock-step", "--nodes", "3", "--unconfigured", "1", "--unconfigured", "2", "--unconfigured", "3"];
+    let out = run("lss.py", &sim_args, &eds, &[]);
+    pass(&out);
+    let d = Dictionary::new(1);
+    let id = |sub| drive_tests::real_master::default_u32(&d, 0x1018, sub);
+    let mut serials = Vec::new();
+    for node in [5, 6, 7] {
+        assert_eq!(out.master(&format!("configured_{node}")), "True");
+        assert_eq!(out.master(&format!("bootup_{node}")), "True");
+        let found: Vec<u32> = out
+            .master(&format!("fastscan_{node}"))
+            .split(':')
+            .map(|p| u32::from_str_radix(p, 16).expect("hex"))
+            .collect();
+        assert_eq!(found[..3], [id(1), id(2), id(3)], "vendor, product, revision found for {node}");
+        assert_eq!(out.master(&format!("serial_{node}")), format!("{:08x}", found[3]), "node {node} is the drive found");
+        serials.push(found[3]);
+    }
+    serials.sort_unstable();
+    let base = id(4);
+    assert_eq!(serials, [base, base + 1, base + 2], "the three drives' serial numbers");
+    assert_eq!(out.master("fastscan_after"), "False");
+    assert_eq!(out.master("booted_after_reset"), "5,6,7");
+    println!("LSS: fastscan assigned 5, 6, 7 (serials {serials:08x?}); all three booted with them after reset node");
+}

@@ -59,6 +59,10 @@ pub struct CanopenArgs {
     /// De-energise both Safe Torque Off inputs of node ID from power-up, for the whole run (repeatable).
     #[arg(long, value_name = "ID", value_parser = clap::value_parser!(u8).range(1..=127))]
     pub sto_open: Vec<u8>,
+    /// Start the drive in slot SLOT without a node-ID (0x2000 = 0xFF saved, as from a factory): it waits silent
+    /// until an LSS master (CiA 305) gives it one (repeatable).
+    #[arg(long, value_name = "SLOT", value_parser = clap::value_parser!(u8).range(1..=127))]
+    pub unconfigured: Vec<u8>,
 }
 
 impl CanopenArgs {
@@ -76,13 +80,17 @@ impl CanopenArgs {
         if let Some(us) = self.sync_us {
             config.sync_period_ns = us.saturating_mul(1_000);
         }
-        for (option, ids) in [("--no-image", &self.no_image), ("--sto-open", &self.sto_open)] {
+        let options = [("--no-image", &self.no_image), ("--sto-open", &self.sto_open), ("--unconfigured", &self.unconfigured)];
+        for (option, ids) in options {
             if let Some(id) = ids.iter().find(|&&id| id > self.nodes) {
                 return Err(format!("{option} {id}: only node-IDs 1..={} are on the bus", self.nodes));
             }
         }
         for &id in &self.no_image {
             config = config.with_empty_slot(id);
+        }
+        for &slot in &self.unconfigured {
+            config = config.with_unconfigured(slot);
         }
         Ok(config)
     }
