@@ -788,15 +788,25 @@ impl Axis {
     /// Step 7: limits on the demand, then the loops.
     fn run_loops(&mut self, step: ModeStep, position: i32, scale: &DemandScale) -> Amps {
         let homing = self.activity == Activity::Following(Mode::Homing);
+        // CSP and CSV: the master's torque offset 0x60B2 is a feedforward on the loops' output, and the sum is
+        // limited as CST's torque is, by 0x6072 and the current limit (IDX L977, L6345; `super::cyclic`).
+        let (mut torque, limit) =
+            if matches!(self.activity, Activity::Following(Mode::CyclicSyncPosition | Mode::CyclicSyncVelocity)) {
+                (self.cyclic.torque_feedforward(), scale.torque_to_current(i16::MAX, 0).1)
+            } else {
+                (0, scale.current_limit())
+            };
         let mut demand = step.demand;
         let mut clamped = false;
         match &mut demand {
             LoopDemand::Position(sp) if !homing => {
                 let (p, c) = self.monitor.clamp_position_from(sp.position_i32(), self.last_setpoint.position_i32());
                 if c {
+                    // Held at the software limit: no feedforward of the motion the limit refused.
                     sp.position = i64::from(p);
                     sp.velocity = Velocity::ZERO;
                     sp.acceleration = Acceleration::ZERO;
+                    torque = 0;
                 }
                 clamped = c;
             }
@@ -807,7 +817,7 @@ impl Axis {
             }
             _ => {}
         }
-        let out = self.loops.step(&demand, position, scale.current_limit(), scale);
+        let out = self.loops.step_with_torque(&demand, position, torque, limit, scale);
         if let LoopDemand::Position(sp) = demand {
             self.last_setpoint = sp;
         } else if let LoopDemand::Velocity { velocity, acceleration } = demand {

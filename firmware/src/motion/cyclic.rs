@@ -4,8 +4,12 @@
 //!
 //! - CSP follows 0x607A + 0x60B0 with the interpolator's velocity and acceleration feedforward (plus 0x60B1 as
 //!   velocity feedforward, E3/GT); CSV follows 0x60FF + 0x60B1 on the velocity loop; CST 0x6071 + 0x60B2.
-//!   The torque offset 0x60B2 as a torque feedforward in CSP/CSV is not applied (IDX ignores it in CSV,
-//!   L1016; the position PID has no torque input): a documented gap.
+//! - The torque offset 0x60B2 is a torque feedforward in CSP (IDX L977 "optional torque feed forward input",
+//!   L6345) and in CSV (Gamma L1720, EPOS3 L7730-7740; IDX L1016 leaves it out of CSV, device.toml's note):
+//!   [`Cyclic::torque_feedforward`], added by the loops to the position or velocity controller's output before
+//!   the current limit and 0x6072 ([`super::loops::Loops::step_with_torque`]). It takes effect with the
+//!   set-point it came with, is held between set-points (a step, as the master sends it) and drops to 0 when the
+//!   stream is lost and the interpolator holds.
 //! - Statusword bit 12 "drive follows the command value" while set-points arrive (or one lost period is bridged);
 //!   0 before the first set-point and while holding after missing ones. Bits 10 and 13 are reserved here (bit 13
 //!   of CSP, the following error, is the monitor's).
@@ -85,6 +89,16 @@ impl Cyclic {
     #[must_use]
     pub const fn setpoint_missing(&self) -> bool {
         self.interpolator.output().setpoint_missing()
+    }
+
+    /// The torque feedforward 0x60B2 of the last step in CSP and CSV, per mille of rated torque; 0 in CST (there
+    /// the offset is in the torque demand itself).
+    #[must_use]
+    pub fn torque_feedforward(&self) -> i32 {
+        match self.interpolator.mode() {
+            CyclicMode::Position | CyclicMode::Velocity => self.interpolator.output().torque,
+            CyclicMode::Torque => 0,
+        }
     }
 
     /// One tick.

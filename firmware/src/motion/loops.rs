@@ -226,6 +226,29 @@ impl Loops {
 
     /// One tick: the current for `demand` at the actual `position`, limited to `limit`.
     pub fn step(&mut self, demand: &LoopDemand, position: i32, limit: Amps, scale: &DemandScale) -> LoopOutput {
+        self.step_with_torque(demand, position, 0, limit, scale)
+    }
+
+    /// [`Self::step`] with a torque feedforward of `torque_permille` per mille of rated torque (the torque offset
+    /// 0x60B2 of CSP and CSV) on the position or velocity controller: converted through the demand scale as CST
+    /// converts it (clamped to +-0x6072, then to the current limit), added to the controller's output before its
+    /// limit `limit` (so the limit bounds the sum and the integrator does not wind against it). Torque demands
+    /// ignore it (CST adds 0x60B2 to 0x6071 before the interpolation).
+    pub fn step_with_torque(
+        &mut self,
+        demand: &LoopDemand,
+        position: i32,
+        torque_permille: i32,
+        limit: Amps,
+        scale: &DemandScale,
+    ) -> LoopOutput {
+        let torque = if torque_permille == 0 {
+            Amps::ZERO
+        } else {
+            let clamped =
+                i16::try_from(torque_permille).unwrap_or(if torque_permille < 0 { i16::MIN } else { i16::MAX });
+            scale.torque_to_current(clamped, 0).1
+        };
         let (current, saturated, following_error, active) = match *demand {
             LoopDemand::Position(sp) => {
                 if self.active != Active::Position {
@@ -234,7 +257,14 @@ impl Loops {
                 }
                 let w = IncPerTick::from_bits(sp.velocity.to_inc_per_tick_q16());
                 let a = IncPerTick2::from_bits(sp.acceleration.to_inc_per_tick2_q16());
-                let i = self.position.step(Increments(sp.position_i32()), Increments(position), w, a, limit);
+                let i = self.position.step_with_torque(
+                    Increments(sp.position_i32()),
+                    Increments(position),
+                    w,
+                    a,
+                    torque,
+                    limit,
+                );
                 (i, self.position.saturated(), self.position.following_error(), Active::Position)
             }
             LoopDemand::Velocity { velocity, acceleration } => {
@@ -244,7 +274,7 @@ impl Loops {
                 }
                 let w = IncPerTick::from_bits(velocity.to_inc_per_tick_q16());
                 let a = IncPerTick2::from_bits(acceleration.to_inc_per_tick2_q16());
-                let i = self.velocity.step(w, self.velocity_estimate, a, limit);
+                let i = self.velocity.step_with_torque(w, self.velocity_estimate, a, torque, limit);
                 (i, self.velocity.saturated(), 0, Active::Velocity)
             }
             LoopDemand::Torque { permille } => {

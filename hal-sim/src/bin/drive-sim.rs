@@ -3,7 +3,8 @@
 //! ```text
 //! drive-sim current-step [--seed N] [--default-gains | --gains P,I] [--out DIR]   step, sweep, calibration
 //! drive-sim spinning     [--seed N] [--default-gains | --gains P,I] [--out DIR]   3,000 rpm, load step
-//! drive-sim csp          [--seed N] [--out DIR]                     CSP 10 rev jerk-limited move at 1 ms
+//! drive-sim csp          [--seed N] [--out DIR] [--torque-feedforward]   CSP 10 rev jerk-limited move at 1 ms (the master's
+//!                                                                   torque feedforward in 0x60B2)
 //! drive-sim csv-sweep    [--seed N] [--out DIR]                     CSV 100 rpm step, velocity-loop bandwidth
 //! drive-sim ppm          [--seed N] [--out DIR]                     PPM moves (target reached, up to 5,000 rpm), quick stops against the bus
 //! drive-sim homing       [--seed N] [--out DIR]                     every homing method from both sides
@@ -71,7 +72,7 @@ which every preset shares), bench, and the servers, whose motion comes from the 
 
 const USAGE: &str =
     "usage: drive-sim <current-step | spinning | csp | csv-sweep | ppm | homing | fault-matrix | duty-cycle | identify | bench | ethercat | canopen> [--plant FILE] [--auto-tune [--resonance F_R,F_AR]] [--seed N] [--default-gains | --gains P,I] \
-                     [--out DIR] [--seconds S] [--only TEXT] \
+                     [--out DIR] [--seconds S] [--only TEXT] [--torque-feedforward] \
                      [--iface NAME --lock-step --cycle-us N --clock-error-ppm X --idle-exit-ms N --pcap FILE --idle-cycle \
                      --drive-clock-error-ppm X --sto-open]";
 
@@ -91,6 +92,8 @@ struct Args {
     out: Option<PathBuf>,
     seconds: f64,
     position_gains: Option<[u32; 5]>,
+    /// `csp --torque-feedforward`: the master sends a torque feedforward in 0x60B2.
+    torque_feedforward: bool,
     only: Option<String>,
     /// `ethercat`: the options of [`ethercat`].
     ecat: EcatArgs,
@@ -131,6 +134,7 @@ fn parse_args() -> Result<Args, String> {
         out: None,
         seconds: 2.0,
         position_gains: None,
+        torque_feedforward: false,
         only: None,
         ecat: EcatArgs::default(),
     };
@@ -140,6 +144,7 @@ fn parse_args() -> Result<Args, String> {
             "--seed" => args.seed = value("--seed")?.parse().map_err(|e| format!("--seed: {e}"))?,
             "--plant" => args.plant = Some(PathBuf::from(value("--plant")?)),
             "--default-gains" => args.default_gains = true,
+            "--torque-feedforward" => args.torque_feedforward = true,
             "--auto-tune" => args.auto_tune = true,
             "--resonance" => {
                 let v = value("--resonance")?;
@@ -372,6 +377,7 @@ fn csp(args: &Args, dir: &Path) -> Result<(), String> {
     let cfg = CspConfig {
         seed: args.seed,
         position_gains: args.position_gains,
+        torque_feedforward: args.torque_feedforward,
         revolutions: d.revolutions * sc.speed,
         max_rpm: d.max_rpm * sc.speed,
         peak_rpm_per_s: d.peak_rpm_per_s * sc.speed,
@@ -386,6 +392,9 @@ fn csp(args: &Args, dir: &Path) -> Result<(), String> {
         cfg.max_rpm,
         cfg.peak_rpm_per_s
     );
+    if cfg.torque_feedforward {
+        println!("  the master sends J alpha + friction in 0x60B2 each cycle (0x60B1 = 0), 0x30A1:05 = 0");
+    }
     let (f, trace) = motion::csp(&cfg).map_err(|e| e.to_string())?;
     println!("  move: {:.3} s, peak {:.0} rpm", f.move_s, f.peak_rpm);
     println!("  following error 0x60F4 peak {:6.1} inc   (bound <= 30)", f.following_error_peak_inc);
