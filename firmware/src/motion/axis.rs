@@ -750,7 +750,12 @@ impl Axis {
                 }
                 step.mode
             }
-            Mode::CyclicSyncPosition | Mode::CyclicSyncVelocity => self.cyclic.step(),
+            Mode::CyclicSyncPosition | Mode::CyclicSyncVelocity => {
+                let step = self.cyclic.step();
+                // The torque offset 0x60B2 as the loops' torque feedforward for this step (IDX L977, L6345).
+                self.loops.set_torque_feedforward(self.cyclic.torque_feedforward());
+                step
+            }
             Mode::CyclicSyncTorque => ModeStep {
                 demand: LoopDemand::Torque { permille: 0 },
                 status: ModeStatus { target_reached: false, bit12: true, bit13: false },
@@ -788,14 +793,6 @@ impl Axis {
     /// Step 7: limits on the demand, then the loops.
     fn run_loops(&mut self, step: ModeStep, position: i32, scale: &DemandScale) -> Amps {
         let homing = self.activity == Activity::Following(Mode::Homing);
-        // CSP and CSV: the master's torque offset 0x60B2 is a feedforward on the loops' output, and the sum is
-        // limited as CST's torque is, by 0x6072 and the current limit (IDX L977, L6345; `super::cyclic`).
-        let (mut torque, limit) =
-            if matches!(self.activity, Activity::Following(Mode::CyclicSyncPosition | Mode::CyclicSyncVelocity)) {
-                (self.cyclic.torque_feedforward(), scale.torque_to_current(i16::MAX, 0).1)
-            } else {
-                (0, scale.current_limit())
-            };
         let mut demand = step.demand;
         let mut clamped = false;
         match &mut demand {
@@ -806,7 +803,7 @@ impl Axis {
                     sp.position = i64::from(p);
                     sp.velocity = Velocity::ZERO;
                     sp.acceleration = Acceleration::ZERO;
-                    torque = 0;
+                    self.loops.set_torque_feedforward(0);
                 }
                 clamped = c;
             }
@@ -817,7 +814,7 @@ impl Axis {
             }
             _ => {}
         }
-        let out = self.loops.step_with_torque(&demand, position, torque, limit, scale);
+        let out = self.loops.step(&demand, position, scale.current_limit(), scale);
         if let LoopDemand::Position(sp) = demand {
             self.last_setpoint = sp;
         } else if let LoopDemand::Velocity { velocity, acceleration } = demand {

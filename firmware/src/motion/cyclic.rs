@@ -6,10 +6,10 @@
 //!   velocity feedforward, E3/GT); CSV follows 0x60FF + 0x60B1 on the velocity loop; CST 0x6071 + 0x60B2.
 //! - The torque offset 0x60B2 is a torque feedforward in CSP (IDX L977 "optional torque feed forward input",
 //!   L6345) and in CSV (Gamma L1720, EPOS3 L7730-7740; IDX L1016 leaves it out of CSV, device.toml's note):
-//!   [`Cyclic::torque_feedforward`], added by the loops to the position or velocity controller's output before
-//!   the current limit and 0x6072 ([`super::loops::Loops::step_with_torque`]). It takes effect with the
-//!   set-point it came with, is held between set-points (a step, as the master sends it) and drops to 0 when the
-//!   stream is lost and the interpolator holds.
+//!   [`Cyclic::torque_feedforward`], converted as CST converts it (clamped to +-0x6072, then to the current
+//!   limit) and added by the loops to the position or velocity controller's output before the current limit
+//!   ([`super::loops::Loops::step`]). It takes effect with the set-point it came with, is held between set-points
+//!   (a step, as the master sends it) and drops to 0 when the stream is lost and the interpolator holds.
 //! - Statusword bit 12 "drive follows the command value" while set-points arrive (or one lost period is bridged);
 //!   0 before the first set-point and while holding after missing ones. Bits 10 and 13 are reserved here (bit 13
 //!   of CSP, the following error, is the monitor's).

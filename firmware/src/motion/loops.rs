@@ -120,6 +120,8 @@ pub struct Loops {
     active: Active,
     last_current: Amps,
     velocity_estimate: IncPerTick,
+    /// The torque feedforward of the next step, per mille of rated torque ([`Self::set_torque_feedforward`]).
+    torque_permille: i32,
     /// The position sensor or its resolution changed: the estimators restart at the next position.
     restart_estimate: bool,
 }
@@ -138,6 +140,7 @@ impl Loops {
             active: Active::None,
             last_current: Amps::ZERO,
             velocity_estimate: IncPerTick::ZERO,
+            torque_permille: 0,
             restart_estimate: true,
         };
         loops.refresh(d);
@@ -224,29 +227,24 @@ impl Loops {
         self.reset_estimate(position);
     }
 
-    /// One tick: the current for `demand` at the actual `position`, limited to `limit`.
-    pub fn step(&mut self, demand: &LoopDemand, position: i32, limit: Amps, scale: &DemandScale) -> LoopOutput {
-        self.step_with_torque(demand, position, 0, limit, scale)
+    /// The torque feedforward for the next [`Self::step`] only, per mille of rated torque: the torque offset 0x60B2
+    /// of CSP and CSV (IDX L977, L6345), set by the cyclic modes before each step. Taken by the step, so every
+    /// other activity runs without it and needs no bookkeeping to end it.
+    pub fn set_torque_feedforward(&mut self, permille: i32) {
+        self.torque_permille = permille;
     }
 
-    /// [`Self::step`] with a torque feedforward of `torque_permille` per mille of rated torque (the torque offset
-    /// 0x60B2 of CSP and CSV) on the position or velocity controller: converted through the demand scale as CST
-    /// converts it (clamped to +-0x6072, then to the current limit), added to the controller's output before its
-    /// limit `limit` (so the limit bounds the sum and the integrator does not wind against it). Torque demands
-    /// ignore it (CST adds 0x60B2 to 0x6071 before the interpolation).
-    pub fn step_with_torque(
-        &mut self,
-        demand: &LoopDemand,
-        position: i32,
-        torque_permille: i32,
-        limit: Amps,
-        scale: &DemandScale,
-    ) -> LoopOutput {
-        let torque = if torque_permille == 0 {
+    /// One tick: the current for `demand` at the actual `position`, limited to `limit`. The torque feedforward
+    /// ([`Self::set_torque_feedforward`]) is converted through the demand scale as CST converts 0x60B2 (clamped
+    /// to +-0x6072, then to the current limit) and added to the position or velocity controller's output before
+    /// `limit`, so that the limit bounds the sum and the back-calculation keeps the integrator from winding
+    /// against it; torque demands ignore it (CST adds 0x60B2 to 0x6071 before the interpolation).
+    pub fn step(&mut self, demand: &LoopDemand, position: i32, limit: Amps, scale: &DemandScale) -> LoopOutput {
+        let permille = core::mem::take(&mut self.torque_permille);
+        let torque = if permille == 0 {
             Amps::ZERO
         } else {
-            let clamped =
-                i16::try_from(torque_permille).unwrap_or(if torque_permille < 0 { i16::MIN } else { i16::MAX });
+            let clamped = i16::try_from(permille).unwrap_or(if permille < 0 { i16::MIN } else { i16::MAX });
             scale.torque_to_current(clamped, 0).1
         };
         let (current, saturated, following_error, active) = match *demand {
