@@ -145,6 +145,30 @@ mod tests {
         assert_eq!(s.demand, LoopDemand::Torque { permille: 250 });
     }
 
+    /// IDX L977: 0x60B2 is CSP's torque feedforward (CSV's too, Gamma L1720): held from its set-point on, and 0 once
+    /// the set-points stop beyond the bridged period and the interpolator holds (a lost master must not leave a
+    /// torque pushing the axis); in CST it is part of the torque demand, not a feedforward.
+    #[test]
+    fn torque_offset_is_the_feedforward_until_the_stream_is_lost() {
+        for mode in [CyclicMode::Position, CyclicMode::Velocity] {
+            let mut c = Cyclic::new();
+            c.enter(mode, period_of(2, -3), 0, Velocity::ZERO);
+            c.push(CyclicSetpoint { torque_offset: 120, ..CyclicSetpoint::default() });
+            let _ = c.step();
+            assert_eq!(c.torque_feedforward(), 120, "{mode:?}");
+            // 2 ms = 5 slow ticks per period: one missing period is bridged, the next one holds.
+            let held: Vec<i32> = (0..15).map(|_| (c.step(), c.torque_feedforward()).1).collect();
+            assert_eq!(held.first(), Some(&120), "{mode:?}: {held:?}");
+            assert_eq!(held.last(), Some(&0), "{mode:?}: {held:?}");
+            assert!(c.setpoint_missing(), "{mode:?}");
+        }
+        let mut c = Cyclic::new();
+        c.enter(CyclicMode::Torque, period_of(0, -3), 0, Velocity::ZERO);
+        c.push(CyclicSetpoint { torque_offset: 120, ..CyclicSetpoint::default() });
+        assert_eq!(c.step().demand, LoopDemand::Torque { permille: 120 });
+        assert_eq!(c.torque_feedforward(), 0);
+    }
+
     #[test]
     fn invalid_period_means_no_interpolation() {
         assert_eq!(period_of(1, -4), InterpolationPeriod::DISABLED);

@@ -338,6 +338,70 @@ mod tests {
         assert_eq!(after, before);
     }
 
+    /// IDX L977/L6345, EPOS3 L7733: 0x60B2 is a torque feedforward in CSP and CSV. With no velocity error and an
+    /// empty integrator the velocity controller's output is exactly the offset's conversion (200 per mille of the
+    /// 3.2 A rated current = 640 mA, the demand scale's rounding), for the one step it was set for: the next step
+    /// without it is back at 0 A (the loops take it, so no other activity inherits it).
+    #[test]
+    fn torque_feedforward_adds_its_conversion_for_one_step() {
+        let d = dict();
+        let mut loops = Loops::new(&d);
+        let scale = DemandScale::reference();
+        let limit = Amps::from_milliamps(10_000);
+        let hold = LoopDemand::Velocity { velocity: Velocity::ZERO, acceleration: Acceleration::ZERO };
+        assert_eq!(loops.step(&hold, 0, limit, &scale).current, Amps::ZERO);
+        loops.set_torque_feedforward(200);
+        let out = loops.step(&hold, 0, limit, &scale);
+        assert_eq!(out.current, scale.torque_to_current(200, 0).1);
+        assert_eq!(out.current.to_milliamps(), 640);
+        assert!(!out.saturated);
+        assert_eq!(loops.step(&hold, 0, limit, &scale).current, Amps::ZERO, "taken by the step it was set for");
+        // On the position controller likewise (zero error, empty integrator), negative.
+        let sp = Setpoint { position: 0, ..Setpoint::default() };
+        loops.reset();
+        loops.set_torque_feedforward(-200);
+        assert_eq!(loops.step(&LoopDemand::Position(sp), 0, limit, &scale).current.to_milliamps(), -640);
+        // A torque demand (CST) ignores it: 0x60B2 is already in 0x6071 + 0x60B2.
+        loops.set_torque_feedforward(200);
+        assert_eq!(loops.step(&LoopDemand::Torque { permille: 0 }, 0, limit, &scale).current, Amps::ZERO);
+    }
+
+    /// The offset is limited as CST's torque is (0x6072 = 100 per mille: 320 mA however large the offset), and
+    /// the sum with the controller's output by the current limit, inside the controller: in a lasting saturation
+    /// (1 inc/tick of velocity error against a 2 A limit, 640 mA of feedforward) the back-calculation leaves the
+    /// integrator what the limit leaves the controller, `limit - feedforward - Kp e - FFv v` (+ Ki Ts e), so once
+    /// the error and the offset are gone the output is that integral, far below the limit. A feedforward added
+    /// after the limit instead would leave 640 mA more in the integrator. Tolerance: two integral steps of
+    /// Ki Ts e (7.7 mA each at 0x30A2:02 = 5 A/rad, 4096 inc/rev) and 1 mA of rounding.
+    #[test]
+    fn torque_feedforward_is_limited_and_does_not_wind_the_integrator() {
+        let d = dict();
+        let limit = Amps::from_milliamps(10_000);
+        let hold = LoopDemand::Velocity { velocity: Velocity::ZERO, acceleration: Acceleration::ZERO };
+        let capped = DemandScale::from_od(3200, 10_000, 3125, 100);
+        let mut loops = Loops::new(&d);
+        loops.set_torque_feedforward(500);
+        assert_eq!(loops.step(&hold, 0, limit, &capped).current, capped.torque_to_current(100, 0).1);
+        assert_eq!(loops.step(&hold, 0, limit, &capped).current, Amps::ZERO);
+
+        let scale = DemandScale::reference();
+        let limit = Amps::from_milliamps(2_000);
+        let moving = LoopDemand::Velocity { velocity: Velocity::from_bits(1 << 32), acceleration: Acceleration::ZERO };
+        // One step from rest without feedforward: Kp e + FFv v + Ki Ts e.
+        let first = Loops::new(&d).step(&moving, 0, limit, &scale).current.to_milliamps();
+        let mut loops = Loops::new(&d);
+        for _ in 0..2_000 {
+            loops.set_torque_feedforward(200);
+            let _ = loops.step(&moving, 0, limit, &scale);
+        }
+        loops.set_torque_feedforward(200);
+        let out = loops.step(&moving, 0, limit, &scale);
+        assert!(out.saturated && out.current == limit, "the sum is held at the limit: {out:?}");
+        let released = loops.step(&hold, 0, limit, &scale).current.to_milliamps();
+        let expected = 2_000 - 640 - first;
+        assert!((released - expected).abs() <= 2 * 8 + 1, "released at {released} mA, expected {expected} mA");
+    }
+
     #[test]
     fn torque_demand_is_limited() {
         let d = dict();
