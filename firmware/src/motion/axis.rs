@@ -750,12 +750,7 @@ impl Axis {
                 }
                 step.mode
             }
-            Mode::CyclicSyncPosition | Mode::CyclicSyncVelocity => {
-                let step = self.cyclic.step();
-                // The torque offset 0x60B2 as the loops' torque feedforward for this step (IDX L977, L6345).
-                self.loops.set_torque_feedforward(self.cyclic.torque_feedforward());
-                step
-            }
+            Mode::CyclicSyncPosition | Mode::CyclicSyncVelocity => self.cyclic.step(),
             Mode::CyclicSyncTorque => ModeStep {
                 demand: LoopDemand::Torque { permille: 0 },
                 status: ModeStatus { target_reached: false, bit12: true, bit13: false },
@@ -766,6 +761,9 @@ impl Axis {
                 status: ModeStatus { target_reached: self.auto_setup_done, bit12: self.auto_setup_done, bit13: false },
             },
         };
+        // CSP and CSV: the torque offset 0x60B2 as the loops' torque feedforward for this step (IDX L977, L6345);
+        // taken from the cyclic step of this call, so 0 for every other mode.
+        self.loops.set_torque_feedforward(self.cyclic.take_torque_feedforward());
         (Some(step), fb.position)
     }
 

@@ -6,7 +6,7 @@
 //!   velocity feedforward, E3/GT); CSV follows 0x60FF + 0x60B1 on the velocity loop; CST 0x6071 + 0x60B2.
 //! - The torque offset 0x60B2 is a torque feedforward in CSP (IDX L977 "optional torque feed forward input",
 //!   L6345) and in CSV (Gamma L1720, EPOS3 L7730-7740; IDX L1016 leaves it out of CSV, device.toml's note):
-//!   [`Cyclic::torque_feedforward`], converted as CST converts it (clamped to +-0x6072, then to the current
+//!   [`Cyclic::take_torque_feedforward`], converted as CST converts it (clamped to +-0x6072, then to the current
 //!   limit) and added by the loops to the position or velocity controller's output before the current limit
 //!   ([`super::loops::Loops::step`]). It takes effect with the set-point it came with, is held between set-points
 //!   (a step, as the master sends it) and drops to 0 when the stream is lost and the interpolator holds.
@@ -45,6 +45,8 @@ pub const fn cyclic_mode(mode: Mode) -> Option<CyclicMode> {
 #[derive(Clone, Debug)]
 pub struct Cyclic {
     interpolator: CyclicInterpolator,
+    /// The torque feedforward of the last step (CSP, CSV), per mille of rated torque.
+    torque_feedforward: i32,
 }
 
 impl Default for Cyclic {
@@ -57,7 +59,10 @@ impl Cyclic {
     /// CSP without interpolation, at rest at 0.
     #[must_use]
     pub fn new() -> Self {
-        Self { interpolator: CyclicInterpolator::new(CyclicMode::Position, InterpolationPeriod::DISABLED) }
+        Self {
+            interpolator: CyclicInterpolator::new(CyclicMode::Position, InterpolationPeriod::DISABLED),
+            torque_feedforward: 0,
+        }
     }
 
     /// Starts following in `mode` with `period`, from `position` moving at `velocity`.
@@ -91,19 +96,17 @@ impl Cyclic {
         self.interpolator.output().setpoint_missing()
     }
 
-    /// The torque feedforward 0x60B2 of the last step in CSP and CSV, per mille of rated torque; 0 in CST (there
-    /// the offset is in the torque demand itself).
+    /// The torque feedforward 0x60B2 of the last step in CSP and CSV, per mille of rated torque, taken (0 until
+    /// the next step); 0 in CST (there the offset is in the torque demand itself).
     #[must_use]
-    pub fn torque_feedforward(&self) -> i32 {
-        match self.interpolator.mode() {
-            CyclicMode::Position | CyclicMode::Velocity => self.interpolator.output().torque,
-            CyclicMode::Torque => 0,
-        }
+    pub fn take_torque_feedforward(&mut self) -> i32 {
+        core::mem::take(&mut self.torque_feedforward)
     }
 
     /// One tick.
     pub fn step(&mut self) -> ModeStep {
         let out = self.interpolator.step();
+        self.torque_feedforward = out.torque;
         let demand = match self.interpolator.mode() {
             CyclicMode::Position => LoopDemand::Position(Setpoint {
                 position: out.position,
@@ -112,7 +115,10 @@ impl Cyclic {
                 acceleration: out.acceleration,
             }),
             CyclicMode::Velocity => LoopDemand::Velocity { velocity: out.velocity, acceleration: out.acceleration },
-            CyclicMode::Torque => LoopDemand::Torque { permille: out.torque },
+            CyclicMode::Torque => {
+                self.torque_feedforward = 0;
+                LoopDemand::Torque { permille: out.torque }
+            }
         };
         let follows = matches!(out.status, SetpointStatus::Following | SetpointStatus::Extrapolating { .. });
         ModeStep { demand, status: ModeStatus { target_reached: false, bit12: follows, bit13: false } }
@@ -155,9 +161,10 @@ mod tests {
             c.enter(mode, period_of(2, -3), 0, Velocity::ZERO);
             c.push(CyclicSetpoint { torque_offset: 120, ..CyclicSetpoint::default() });
             let _ = c.step();
-            assert_eq!(c.torque_feedforward(), 120, "{mode:?}");
+            assert_eq!(c.take_torque_feedforward(), 120, "{mode:?}");
+            assert_eq!(c.take_torque_feedforward(), 0, "{mode:?}: taken");
             // 2 ms = 5 slow ticks per period: one missing period is bridged, the next one holds.
-            let held: Vec<i32> = (0..15).map(|_| (c.step(), c.torque_feedforward()).1).collect();
+            let held: Vec<i32> = (0..15).map(|_| (c.step(), c.take_torque_feedforward()).1).collect();
             assert_eq!(held.first(), Some(&120), "{mode:?}: {held:?}");
             assert_eq!(held.last(), Some(&0), "{mode:?}: {held:?}");
             assert!(c.setpoint_missing(), "{mode:?}");
@@ -166,7 +173,7 @@ mod tests {
         c.enter(CyclicMode::Torque, period_of(0, -3), 0, Velocity::ZERO);
         c.push(CyclicSetpoint { torque_offset: 120, ..CyclicSetpoint::default() });
         assert_eq!(c.step().demand, LoopDemand::Torque { permille: 120 });
-        assert_eq!(c.torque_feedforward(), 0);
+        assert_eq!(c.take_torque_feedforward(), 0);
     }
 
     #[test]

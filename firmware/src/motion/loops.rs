@@ -240,7 +240,9 @@ impl Loops {
     /// `limit`, so that the limit bounds the sum and the back-calculation keeps the integrator from winding
     /// against it; torque demands ignore it (CST adds 0x60B2 to 0x6071 before the interpolation).
     pub fn step(&mut self, demand: &LoopDemand, position: i32, limit: Amps, scale: &DemandScale) -> LoopOutput {
-        let permille = core::mem::take(&mut self.torque_permille);
+        let feedforward = core::mem::take(&mut self.torque_permille);
+        // One conversion serves the torque demand and the feedforward (flash: the demand scale is inlined).
+        let permille = if let LoopDemand::Torque { permille } = *demand { permille } else { feedforward };
         let torque = if permille == 0 {
             Amps::ZERO
         } else {
@@ -275,9 +277,8 @@ impl Loops {
                 let i = self.velocity.step_with_torque(w, self.velocity_estimate, a, torque, limit);
                 (i, self.velocity.saturated(), 0, Active::Velocity)
             }
-            LoopDemand::Torque { permille } => {
-                let clamped = i16::try_from(permille).unwrap_or(if permille < 0 { i16::MIN } else { i16::MAX });
-                let (_, i) = scale.torque_to_current(clamped, 0);
+            LoopDemand::Torque { .. } => {
+                let i = torque;
                 let l = limit.to_bits().max(0);
                 // max/min as `Drive::clamp_internal_demand` (no formatted panic for the bounds' order).
                 let bits = i.to_bits().max(l.wrapping_neg()).min(l);
