@@ -69,8 +69,9 @@
 //! - 0x60B0 position offset (increments): added to 0x607A before interpolation (CSP).
 //! - 0x60B1 velocity offset: CSP velocity feedforward (E3/GT; IDX ignores it in CSP: pass zero for that
 //!   behaviour); CSV added to 0x60FF before interpolation.
-//! - 0x60B2 torque offset (per mille of rated torque): CSP/CSV torque feedforward (output `torque`); CST added to
-//!   0x6071 before interpolation.
+//! - 0x60B2 torque offset (per mille of rated torque): CSP/CSV torque feedforward (output `torque`, held from one
+//!   set-point to the next, 0 once the stream is lost and the interpolator holds); CST added to 0x6071 before
+//!   interpolation.
 //!
 //! # Missing set-points
 //! At each period boundary the interpolator consumes the set-point pushed since the previous boundary. If there
@@ -566,6 +567,7 @@ impl CyclicInterpolator {
                         self.m_a = 0;
                         self.m_b = 0;
                         self.velocity_offset = 0;
+                        self.torque_offset = 0;
                     }
                 }
                 self.x_prev = x_prev;
@@ -582,7 +584,10 @@ impl CyclicInterpolator {
                         self.torque_offset = i32::from(sp.torque_offset);
                     }
                     Source::Extrapolate => {}
-                    Source::Hold => self.y_b = 0,
+                    Source::Hold => {
+                        self.y_b = 0;
+                        self.torque_offset = 0;
+                    }
                 }
             }
             CyclicMode::Torque => {

@@ -241,6 +241,21 @@ impl PositionController {
         a_ref: IncPerTick2,
         limit: Amps,
     ) -> Amps {
+        self.step_with_torque(theta_ref, theta, w_ref, a_ref, Amps::ZERO, limit)
+    }
+
+    /// [`Self::step`] with a torque feedforward `torque` (the master's torque offset 0x60B2 as a current, IDX L977:
+    /// "optional torque feed forward input" of CSP) added to the PID's output before the limit, so that the limit
+    /// bounds the sum and the back-calculation keeps the integrator from winding against it.
+    pub fn step_with_torque(
+        &mut self,
+        theta_ref: Increments,
+        theta: Increments,
+        w_ref: IncPerTick,
+        a_ref: IncPerTick2,
+        torque: Amps,
+        limit: Amps,
+    ) -> Amps {
         let raw = theta_ref.wrapping_sub(theta);
         self.following_error = raw;
         // Difference of two wrapping errors: exact while |change per tick| < 2^31.
@@ -258,7 +273,8 @@ impl PositionController {
             .wrapping_add(xi_e)
             .wrapping_add(clamp_term(g.kd.apply(d)))
             .wrapping_add(clamp_term(g.ff_velocity.apply(w_ref.to_bits())))
-            .wrapping_add(clamp_term(g.ff_acceleration.apply(a_ref.to_bits())));
+            .wrapping_add(clamp_term(g.ff_acceleration.apply(a_ref.to_bits())))
+            .wrapping_add(i64::from(torque.to_bits()) << 16);
         let l = limit_q32(limit);
         let u_sat = u.max(l.wrapping_neg()).min(l);
         self.saturated = u_sat != u;

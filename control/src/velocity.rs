@@ -337,12 +337,29 @@ impl VelocityController {
     /// only; pass [`IncPerTick2::ZERO`] where S1 L762-768 says acceleration feedforward is off, CSP and CSV),
     /// limited to `+-limit` (a negative limit counts as 0).
     pub fn step(&mut self, v_ref: IncPerTick, v_meas: IncPerTick, a_ref: IncPerTick2, limit: Amps) -> Amps {
+        self.step_with_torque(v_ref, v_meas, a_ref, Amps::ZERO, limit)
+    }
+
+    /// [`Self::step`] with a torque feedforward `torque` (the master's torque offset 0x60B2 as a current, IDX L977)
+    /// added to the controller's output before the limit, so that the limit bounds the sum and the
+    /// back-calculation keeps the integrator from winding against it: in saturation it holds
+    /// `u_sat - Kp e - FF - torque` (+ Ki Ts e), what the limit leaves the controller.
+    pub fn step_with_torque(
+        &mut self,
+        v_ref: IncPerTick,
+        v_meas: IncPerTick,
+        a_ref: IncPerTick2,
+        torque: Amps,
+        limit: Amps,
+    ) -> Amps {
         let g = &self.gains;
         let e = v_ref.to_bits().saturating_sub(v_meas.to_bits());
         // Each term within +-2^47, the integrator too: the sum stays within +-2^50 (no wrap).
         let xi_e = self.integral.wrapping_add(clamp_term(g.ki_ts.apply(e)));
+        // The torque feedforward is an I16F16 current: within +-2^47 in 2^-32 A.
         let ff = clamp_term(g.ff_velocity.apply(v_ref.to_bits()))
-            .wrapping_add(clamp_term(g.ff_acceleration.apply(a_ref.to_bits())));
+            .wrapping_add(clamp_term(g.ff_acceleration.apply(a_ref.to_bits())))
+            .wrapping_add(i64::from(torque.to_bits()) << 16);
         let u = clamp_term(g.kp.apply(e)).wrapping_add(xi_e).wrapping_add(ff);
         let l = limit_q32(limit);
         let u_sat = u.max(l.wrapping_neg()).min(l);

@@ -761,6 +761,9 @@ impl Axis {
                 status: ModeStatus { target_reached: self.auto_setup_done, bit12: self.auto_setup_done, bit13: false },
             },
         };
+        // CSP and CSV: the torque offset 0x60B2 as the loops' torque feedforward for this step (IDX L977, L6345);
+        // taken from the cyclic step of this call, so 0 for every other mode.
+        self.loops.set_torque_feedforward(self.cyclic.take_torque_feedforward());
         (Some(step), fb.position)
     }
 
@@ -794,9 +797,11 @@ impl Axis {
             LoopDemand::Position(sp) if !homing => {
                 let (p, c) = self.monitor.clamp_position_from(sp.position_i32(), self.last_setpoint.position_i32());
                 if c {
+                    // Held at the software limit: no feedforward of the motion the limit refused.
                     sp.position = i64::from(p);
                     sp.velocity = Velocity::ZERO;
                     sp.acceleration = Acceleration::ZERO;
+                    self.loops.set_torque_feedforward(0);
                 }
                 clamped = c;
             }

@@ -4,8 +4,12 @@
 //!
 //! - CSP follows 0x607A + 0x60B0 with the interpolator's velocity and acceleration feedforward (plus 0x60B1 as
 //!   velocity feedforward, E3/GT); CSV follows 0x60FF + 0x60B1 on the velocity loop; CST 0x6071 + 0x60B2.
-//!   The torque offset 0x60B2 as a torque feedforward in CSP/CSV is not applied (IDX ignores it in CSV,
-//!   L1016; the position PID has no torque input): a documented gap.
+//! - The torque offset 0x60B2 is a torque feedforward in CSP (IDX L977 "optional torque feed forward input",
+//!   L6345) and in CSV (Gamma L1720, EPOS3 L7730-7740; IDX L1016 leaves it out of CSV, device.toml's note):
+//!   [`Cyclic::take_torque_feedforward`], converted as CST converts it (clamped to +-0x6072, then to the current
+//!   limit) and added by the loops to the position or velocity controller's output before the current limit
+//!   ([`super::loops::Loops::step`]). It takes effect with the set-point it came with, is held between set-points
+//!   (a step, as the master sends it) and drops to 0 when the stream is lost and the interpolator holds.
 //! - Statusword bit 12 "drive follows the command value" while set-points arrive (or one lost period is bridged);
 //!   0 before the first set-point and while holding after missing ones. Bits 10 and 13 are reserved here (bit 13
 //!   of CSP, the following error, is the monitor's).
@@ -41,6 +45,8 @@ pub const fn cyclic_mode(mode: Mode) -> Option<CyclicMode> {
 #[derive(Clone, Debug)]
 pub struct Cyclic {
     interpolator: CyclicInterpolator,
+    /// The torque feedforward of the last step (CSP, CSV), per mille of rated torque.
+    torque_feedforward: i32,
 }
 
 impl Default for Cyclic {
@@ -53,7 +59,10 @@ impl Cyclic {
     /// CSP without interpolation, at rest at 0.
     #[must_use]
     pub fn new() -> Self {
-        Self { interpolator: CyclicInterpolator::new(CyclicMode::Position, InterpolationPeriod::DISABLED) }
+        Self {
+            interpolator: CyclicInterpolator::new(CyclicMode::Position, InterpolationPeriod::DISABLED),
+            torque_feedforward: 0,
+        }
     }
 
     /// Starts following in `mode` with `period`, from `position` moving at `velocity`.
@@ -87,9 +96,17 @@ impl Cyclic {
         self.interpolator.output().setpoint_missing()
     }
 
+    /// The torque feedforward 0x60B2 of the last step in CSP and CSV, per mille of rated torque, taken (0 until
+    /// the next step); 0 in CST (there the offset is in the torque demand itself).
+    #[must_use]
+    pub fn take_torque_feedforward(&mut self) -> i32 {
+        core::mem::take(&mut self.torque_feedforward)
+    }
+
     /// One tick.
     pub fn step(&mut self) -> ModeStep {
         let out = self.interpolator.step();
+        self.torque_feedforward = out.torque;
         let demand = match self.interpolator.mode() {
             CyclicMode::Position => LoopDemand::Position(Setpoint {
                 position: out.position,
@@ -98,7 +115,10 @@ impl Cyclic {
                 acceleration: out.acceleration,
             }),
             CyclicMode::Velocity => LoopDemand::Velocity { velocity: out.velocity, acceleration: out.acceleration },
-            CyclicMode::Torque => LoopDemand::Torque { permille: out.torque },
+            CyclicMode::Torque => {
+                self.torque_feedforward = 0;
+                LoopDemand::Torque { permille: out.torque }
+            }
         };
         let follows = matches!(out.status, SetpointStatus::Following | SetpointStatus::Extrapolating { .. });
         ModeStep { demand, status: ModeStatus { target_reached: false, bit12: follows, bit13: false } }
@@ -129,6 +149,31 @@ mod tests {
         c.push(CyclicSetpoint { target_torque: 300, torque_offset: -50, ..CyclicSetpoint::default() });
         let s = c.step();
         assert_eq!(s.demand, LoopDemand::Torque { permille: 250 });
+    }
+
+    /// IDX L977: 0x60B2 is CSP's torque feedforward (CSV's too, Gamma L1720): held from its set-point on, and 0 once
+    /// the set-points stop beyond the bridged period and the interpolator holds (a lost master must not leave a
+    /// torque pushing the axis); in CST it is part of the torque demand, not a feedforward.
+    #[test]
+    fn torque_offset_is_the_feedforward_until_the_stream_is_lost() {
+        for mode in [CyclicMode::Position, CyclicMode::Velocity] {
+            let mut c = Cyclic::new();
+            c.enter(mode, period_of(2, -3), 0, Velocity::ZERO);
+            c.push(CyclicSetpoint { torque_offset: 120, ..CyclicSetpoint::default() });
+            let _ = c.step();
+            assert_eq!(c.take_torque_feedforward(), 120, "{mode:?}");
+            assert_eq!(c.take_torque_feedforward(), 0, "{mode:?}: taken");
+            // 2 ms = 5 slow ticks per period: one missing period is bridged, the next one holds.
+            let held: Vec<i32> = (0..15).map(|_| (c.step(), c.take_torque_feedforward()).1).collect();
+            assert_eq!(held.first(), Some(&120), "{mode:?}: {held:?}");
+            assert_eq!(held.last(), Some(&0), "{mode:?}: {held:?}");
+            assert!(c.setpoint_missing(), "{mode:?}");
+        }
+        let mut c = Cyclic::new();
+        c.enter(CyclicMode::Torque, period_of(0, -3), 0, Velocity::ZERO);
+        c.push(CyclicSetpoint { torque_offset: 120, ..CyclicSetpoint::default() });
+        assert_eq!(c.step().demand, LoopDemand::Torque { permille: 120 });
+        assert_eq!(c.take_torque_feedforward(), 0);
     }
 
     #[test]

@@ -120,6 +120,8 @@ pub struct Loops {
     active: Active,
     last_current: Amps,
     velocity_estimate: IncPerTick,
+    /// The torque feedforward of the next step, per mille of rated torque ([`Self::set_torque_feedforward`]).
+    torque_permille: i32,
     /// The position sensor or its resolution changed: the estimators restart at the next position.
     restart_estimate: bool,
 }
@@ -138,6 +140,7 @@ impl Loops {
             active: Active::None,
             last_current: Amps::ZERO,
             velocity_estimate: IncPerTick::ZERO,
+            torque_permille: 0,
             restart_estimate: true,
         };
         loops.refresh(d);
@@ -224,8 +227,28 @@ impl Loops {
         self.reset_estimate(position);
     }
 
-    /// One tick: the current for `demand` at the actual `position`, limited to `limit`.
+    /// The torque feedforward for the next [`Self::step`] only, per mille of rated torque: the torque offset 0x60B2
+    /// of CSP and CSV (IDX L977, L6345), set by the cyclic modes before each step. Taken by the step, so every
+    /// other activity runs without it and needs no bookkeeping to end it.
+    pub fn set_torque_feedforward(&mut self, permille: i32) {
+        self.torque_permille = permille;
+    }
+
+    /// One tick: the current for `demand` at the actual `position`, limited to `limit`. The torque feedforward
+    /// ([`Self::set_torque_feedforward`]) is converted through the demand scale as CST converts 0x60B2 (clamped
+    /// to +-0x6072, then to the current limit) and added to the position or velocity controller's output before
+    /// `limit`, so that the limit bounds the sum and the back-calculation keeps the integrator from winding
+    /// against it; torque demands ignore it (CST adds 0x60B2 to 0x6071 before the interpolation).
     pub fn step(&mut self, demand: &LoopDemand, position: i32, limit: Amps, scale: &DemandScale) -> LoopOutput {
+        let feedforward = core::mem::take(&mut self.torque_permille);
+        // One conversion serves the torque demand and the feedforward (flash: the demand scale is inlined).
+        let permille = if let LoopDemand::Torque { permille } = *demand { permille } else { feedforward };
+        let torque = if permille == 0 {
+            Amps::ZERO
+        } else {
+            let clamped = i16::try_from(permille).unwrap_or(if permille < 0 { i16::MIN } else { i16::MAX });
+            scale.torque_to_current(clamped, 0).1
+        };
         let (current, saturated, following_error, active) = match *demand {
             LoopDemand::Position(sp) => {
                 if self.active != Active::Position {
@@ -234,7 +257,14 @@ impl Loops {
                 }
                 let w = IncPerTick::from_bits(sp.velocity.to_inc_per_tick_q16());
                 let a = IncPerTick2::from_bits(sp.acceleration.to_inc_per_tick2_q16());
-                let i = self.position.step(Increments(sp.position_i32()), Increments(position), w, a, limit);
+                let i = self.position.step_with_torque(
+                    Increments(sp.position_i32()),
+                    Increments(position),
+                    w,
+                    a,
+                    torque,
+                    limit,
+                );
                 (i, self.position.saturated(), self.position.following_error(), Active::Position)
             }
             LoopDemand::Velocity { velocity, acceleration } => {
@@ -244,12 +274,11 @@ impl Loops {
                 }
                 let w = IncPerTick::from_bits(velocity.to_inc_per_tick_q16());
                 let a = IncPerTick2::from_bits(acceleration.to_inc_per_tick2_q16());
-                let i = self.velocity.step(w, self.velocity_estimate, a, limit);
+                let i = self.velocity.step_with_torque(w, self.velocity_estimate, a, torque, limit);
                 (i, self.velocity.saturated(), 0, Active::Velocity)
             }
-            LoopDemand::Torque { permille } => {
-                let clamped = i16::try_from(permille).unwrap_or(if permille < 0 { i16::MIN } else { i16::MAX });
-                let (_, i) = scale.torque_to_current(clamped, 0);
+            LoopDemand::Torque { .. } => {
+                let i = torque;
                 let l = limit.to_bits().max(0);
                 // max/min as `Drive::clamp_internal_demand` (no formatted panic for the bounds' order).
                 let bits = i.to_bits().max(l.wrapping_neg()).min(l);
@@ -308,6 +337,70 @@ mod tests {
         let after = loops.step(&v, 0, limit, &scale).current;
         // Zero velocity error: the velocity PI outputs its preset integral (plus one I step of zero).
         assert_eq!(after, before);
+    }
+
+    /// IDX L977/L6345, EPOS3 L7733: 0x60B2 is a torque feedforward in CSP and CSV. With no velocity error and an
+    /// empty integrator the velocity controller's output is exactly the offset's conversion (200 per mille of the
+    /// 3.2 A rated current = 640 mA, the demand scale's rounding), for the one step it was set for: the next step
+    /// without it is back at 0 A (the loops take it, so no other activity inherits it).
+    #[test]
+    fn torque_feedforward_adds_its_conversion_for_one_step() {
+        let d = dict();
+        let mut loops = Loops::new(&d);
+        let scale = DemandScale::reference();
+        let limit = Amps::from_milliamps(10_000);
+        let hold = LoopDemand::Velocity { velocity: Velocity::ZERO, acceleration: Acceleration::ZERO };
+        assert_eq!(loops.step(&hold, 0, limit, &scale).current, Amps::ZERO);
+        loops.set_torque_feedforward(200);
+        let out = loops.step(&hold, 0, limit, &scale);
+        assert_eq!(out.current, scale.torque_to_current(200, 0).1);
+        assert_eq!(out.current.to_milliamps(), 640);
+        assert!(!out.saturated);
+        assert_eq!(loops.step(&hold, 0, limit, &scale).current, Amps::ZERO, "taken by the step it was set for");
+        // On the position controller likewise (zero error, empty integrator), negative.
+        let sp = Setpoint { position: 0, ..Setpoint::default() };
+        loops.reset();
+        loops.set_torque_feedforward(-200);
+        assert_eq!(loops.step(&LoopDemand::Position(sp), 0, limit, &scale).current.to_milliamps(), -640);
+        // A torque demand (CST) ignores it: 0x60B2 is already in 0x6071 + 0x60B2.
+        loops.set_torque_feedforward(200);
+        assert_eq!(loops.step(&LoopDemand::Torque { permille: 0 }, 0, limit, &scale).current, Amps::ZERO);
+    }
+
+    /// The offset is limited as CST's torque is (0x6072 = 100 per mille: 320 mA however large the offset), and
+    /// the sum with the controller's output by the current limit, inside the controller: in a lasting saturation
+    /// (1 inc/tick of velocity error against a 2 A limit, 640 mA of feedforward) the back-calculation leaves the
+    /// integrator what the limit leaves the controller, `limit - feedforward - Kp e - FFv v` (+ Ki Ts e), so once
+    /// the error and the offset are gone the output is that integral, far below the limit. A feedforward added
+    /// after the limit instead would leave 640 mA more in the integrator. Tolerance: two integral steps of
+    /// Ki Ts e (7.7 mA each at 0x30A2:02 = 5 A/rad, 4096 inc/rev) and 1 mA of rounding.
+    #[test]
+    fn torque_feedforward_is_limited_and_does_not_wind_the_integrator() {
+        let d = dict();
+        let limit = Amps::from_milliamps(10_000);
+        let hold = LoopDemand::Velocity { velocity: Velocity::ZERO, acceleration: Acceleration::ZERO };
+        let capped = DemandScale::from_od(3200, 10_000, 3125, 100);
+        let mut loops = Loops::new(&d);
+        loops.set_torque_feedforward(500);
+        assert_eq!(loops.step(&hold, 0, limit, &capped).current, capped.torque_to_current(100, 0).1);
+        assert_eq!(loops.step(&hold, 0, limit, &capped).current, Amps::ZERO);
+
+        let scale = DemandScale::reference();
+        let limit = Amps::from_milliamps(2_000);
+        let moving = LoopDemand::Velocity { velocity: Velocity::from_bits(1 << 32), acceleration: Acceleration::ZERO };
+        // One step from rest without feedforward: Kp e + FFv v + Ki Ts e.
+        let first = Loops::new(&d).step(&moving, 0, limit, &scale).current.to_milliamps();
+        let mut loops = Loops::new(&d);
+        for _ in 0..2_000 {
+            loops.set_torque_feedforward(200);
+            let _ = loops.step(&moving, 0, limit, &scale);
+        }
+        loops.set_torque_feedforward(200);
+        let out = loops.step(&moving, 0, limit, &scale);
+        assert!(out.saturated && out.current == limit, "the sum is held at the limit: {out:?}");
+        let released = loops.step(&hold, 0, limit, &scale).current.to_milliamps();
+        let expected = 2_000 - 640 - first;
+        assert!((released - expected).abs() <= 2 * 8 + 1, "released at {released} mA, expected {expected} mA");
     }
 
     #[test]

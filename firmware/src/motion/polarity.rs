@@ -17,7 +17,9 @@
 //!   feed-forward: Gamma "the position polarity bit is used for ... cyclic synchronous position mode"), bit 6 in
 //!   CSV.
 //!
-//! Not inverted: torques (0x6071, 0x60B2, 0x6077, 0x6074: neither seed gives a torque bit), the internal values
+//! Not inverted: torques (0x6071, 0x60B2 also where it is CSP's and CSV's torque feedforward, 0x6077, 0x6074:
+//! neither seed gives a torque bit, so a master inverting positions sends the feedforward in the motor's
+//! direction), the internal values
 //! 0x6063 and 0x60FC (motor increments; CiA 402 places the polarity beside the position factor, before the
 //! internal units **[std, not in seeds]**), windows and speeds that are magnitudes (0x6065, 0x6067, 0x6081, 0x6099).
 //!

@@ -217,6 +217,7 @@ fn csp(args: &CspScenario, dir: &Path) -> Result<(), String> {
     let cfg = CspConfig {
         seed,
         position_gains: args.position_gains,
+        torque_feedforward: args.torque_feedforward,
         revolutions: d.revolutions * sc.speed,
         max_rpm: d.max_rpm * sc.speed,
         peak_rpm_per_s: d.peak_rpm_per_s * sc.speed,
@@ -231,6 +232,9 @@ fn csp(args: &CspScenario, dir: &Path) -> Result<(), String> {
         cfg.max_rpm,
         cfg.peak_rpm_per_s
     );
+    if cfg.torque_feedforward {
+        println!("  the master sends J alpha + friction in 0x60B2 each cycle (0x60B1 = 0), 0x30A1:05 = 0");
+    }
     let (f, trace) = motion::csp(&cfg).map_err(|e| e.to_string())?;
     println!("  move: {:.3} s, peak {:.0} rpm", f.move_s, f.peak_rpm);
     println!("  following error 0x60F4 peak {:6.1} inc   (bound <= 30)", f.following_error_peak_inc);

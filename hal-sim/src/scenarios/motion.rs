@@ -97,6 +97,80 @@ impl JerkLimitedMove {
         };
         self.start + sign * s
     }
+
+    /// Velocity at time `t` (s), inc/s.
+    pub fn velocity(&self, t: f64) -> f64 {
+        let (tr, a) = (self.ramp_s, self.peak_acceleration);
+        // The derivative of the ramp's distance: a/2 (tau - sin(w tau) / w).
+        let ramp = |tau: f64| {
+            let w = 2.0 * PI / tr;
+            a / 2.0 * (tau - (w * tau).sin() / w)
+        };
+        let v = if t <= 0.0 || t >= self.duration_s() {
+            0.0
+        } else if t <= tr {
+            ramp(t)
+        } else if t <= tr + self.cruise_s {
+            self.peak_velocity
+        } else {
+            ramp(self.duration_s() - t)
+        };
+        self.distance.signum() * v
+    }
+
+    /// Acceleration at time `t` (s), inc/s²: `A sin²(pi tau / T)` on the ramps, 0 in the cruise and at rest.
+    pub fn acceleration(&self, t: f64) -> f64 {
+        let (tr, a) = (self.ramp_s, self.peak_acceleration);
+        let ramp = |tau: f64| a * (PI * tau / tr).sin().powi(2);
+        let acc = if t <= 0.0 || t >= self.duration_s() {
+            0.0
+        } else if t <= tr {
+            ramp(t)
+        } else if t <= tr + self.cruise_s {
+            0.0
+        } else {
+            -ramp(self.duration_s() - t)
+        };
+        self.distance.signum() * acc
+    }
+}
+
+/// The torque feedforward a master computes for a move from the machine's mechanical data (the plant's inertia
+/// and friction as the machine builder knows them): `J alpha + B omega + T_c sign(omega)` at the motor shaft
+/// (inertia and load friction reflected through the gear), in per mille of the drive's rated torque 0x6076, as it
+/// sends it in the torque offset 0x60B2 (IDX L977, L6345).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TorqueFeedforward {
+    /// Inertia at the motor shaft times the increment angle: N m per inc/s².
+    nm_per_inc_s2: f64,
+    /// Viscous friction, N m per inc/s.
+    nm_per_inc_s: f64,
+    /// Coulomb friction at the motor shaft, N m.
+    coulomb_nm: f64,
+    /// 0x6076 rated torque, N m.
+    rated_nm: f64,
+}
+
+impl TorqueFeedforward {
+    /// From the plant's mechanics, its encoder resolution and the drive's rated torque 0x6076 (uNm).
+    pub fn new(params: &PlantParams, rated_torque_micro_nm: u32) -> Self {
+        let rad_per_inc = 2.0 * PI / f64::from(params.encoder_counts_per_rev);
+        let n = params.gear_ratio;
+        Self {
+            nm_per_inc_s2: params.total_inertia_kg_m2() * rad_per_inc,
+            nm_per_inc_s: params.viscous_friction_nm_s_rad * rad_per_inc,
+            coulomb_nm: params.coulomb_friction_nm + params.load_coulomb_friction_nm / (n * params.gear_efficiency),
+            rated_nm: f64::from(rated_torque_micro_nm) * 1e-6,
+        }
+    }
+
+    /// The feedforward for velocity `v` (inc/s) and acceleration `a` (inc/s²), per mille of rated torque, rounded
+    /// and saturated to 0x60B2's INTEGER16.
+    pub fn permille(&self, v: f64, a: f64) -> i16 {
+        let friction = if v == 0.0 { 0.0 } else { self.coulomb_nm * v.signum() };
+        let torque = self.nm_per_inc_s2 * a + self.nm_per_inc_s * v + friction;
+        (torque / self.rated_nm * 1000.0).round().clamp(f64::from(i16::MIN), f64::from(i16::MAX)) as i16
+    }
 }
 
 /// Configuration of the CSP scenario.
@@ -116,6 +190,10 @@ pub struct CspConfig {
     pub hold_s: f64,
     /// 0x30A1:01..05 written before the move (`None`: the dictionary defaults).
     pub position_gains: Option<[u32; 5]>,
+    /// The master sends a torque feedforward in 0x60B2 with each set-point ([`TorqueFeedforward`]; 0x60B1 stays
+    /// 0: the drive derives the velocity feedforward from the set-points) and turns the drive's own acceleration
+    /// feedforward 0x30A1:05 off, which the master's replaces.
+    pub torque_feedforward: bool,
 }
 
 impl Default for CspConfig {
@@ -129,6 +207,7 @@ impl Default for CspConfig {
             peak_rpm_per_s: 20_000.0,
             hold_s: 0.1,
             position_gains: None,
+            torque_feedforward: false,
         }
     }
 }
@@ -164,6 +243,11 @@ pub fn csp(config: &CspConfig) -> Result<(CspFigures, Trace), SimError> {
         dict.set(h::POSITION_CONTROLLER_FF_VELOCITY_GAIN, fv);
         dict.set(h::POSITION_CONTROLLER_FF_ACCELERATION_GAIN, fa);
     }
+    if config.torque_feedforward {
+        // The master's feedforward replaces the drive's acceleration feedforward (both J alpha: kept, it would
+        // count twice; measured: peak 4 inc instead of 2).
+        sim.drive.dictionary_mut().set(h::POSITION_CONTROLLER_FF_ACCELERATION_GAIN, 0u32);
+    }
     let cycle_us = (config.cycle_periods as f64 * PERIOD_S * 1e6).round() as u32;
     // 0x60C2 = the master cycle in ms or 100 us units.
     let (value, index) = if cycle_us.is_multiple_of(1000) { (cycle_us / 1000, -3) } else { (cycle_us / 100, -4) };
@@ -183,6 +267,9 @@ pub fn csp(config: &CspConfig) -> Result<(CspFigures, Trace), SimError> {
     );
     let target = (start + mv.distance).round();
     let cycle_s = config.cycle_periods as f64 * PERIOD_S;
+    let feedforward = config
+        .torque_feedforward
+        .then(|| TorqueFeedforward::new(sim.plant.params(), sim.drive.dictionary().get(h::MOTOR_RATED_TORQUE)));
     let move_cycles = (mv.duration_s() / cycle_s).ceil() as u64;
     let hold_cycles = (config.hold_s / cycle_s).ceil() as u64;
     let mut trace = Trace::new(&[
@@ -206,6 +293,10 @@ pub fn csp(config: &CspConfig) -> Result<(CspFigures, Trace), SimError> {
         let t = cycle as f64 * cycle_s;
         let master = mv.position(t).round();
         sim.drive.dictionary_mut().set(h::TARGET_POSITION, master as i32);
+        if let Some(ff) = &feedforward {
+            // The torque of the instant whose position goes with it (the drive holds it over the next segment).
+            sim.drive.dictionary_mut().set(h::TORQUE_OFFSET, ff.permille(mv.velocity(t), mv.acceleration(t)));
+        }
         sim.setpoint_received();
         for _ in 0..config.cycle_periods {
             sim.step();

@@ -204,3 +204,32 @@ fn polarity_is_written_with_the_power_stage_off_and_saved() {
     let rebooted = Drive::boot(DriveConfig::DEFAULT, &mut store).0;
     assert_eq!(rebooted.dictionary().get(h::POLARITY), 0xC0, "restored at boot");
 }
+
+/// `firmware::motion::polarity`: torques are not inverted, the torque offset 0x60B2 neither where it is CSP's
+/// torque feedforward (issue 20 item 4; neither seed gives a torque bit). On the locked rotor holding its position
+/// in CSP (0x607A = 0x6064 every 1 ms, so the position error and the integral stay put), 0x60B2 = 200 per mille
+/// moves the q reference by +640 mA (200 per mille of 3.2 A, exact in I16F16 bits) in the motor's positive
+/// direction with 0x607E = 0 and with bit 7 set alike.
+#[test]
+fn torque_offset_in_csp_keeps_the_motor_direction() {
+    use firmware::control::demand::DemandScale;
+    let expected = DemandScale::reference().torque_to_current(200, 0).1.to_bits();
+    for polarity in [0x00u8, 0x80] {
+        let mut sim = enabled_with(polarity, 8);
+        sim.plant.lock_rotor(true);
+        let cycles = |sim: &mut Simulation, n: usize| {
+            for _ in 0..n {
+                let held = sim.drive.dictionary().get(h::POSITION_ACTUAL_VALUE);
+                sim.drive.dictionary_mut().set(h::TARGET_POSITION, held);
+                sim.setpoint_received();
+                sim.run(25);
+            }
+        };
+        cycles(&mut sim, 20);
+        let before = sim.tier1().signals().i_ref.q.to_bits();
+        sim.drive.dictionary_mut().set(h::TORQUE_OFFSET, 200i16);
+        cycles(&mut sim, 5);
+        let after = sim.tier1().signals().i_ref.q.to_bits();
+        assert_eq!(after - before, expected, "0x607E = {polarity:#04x}: +640 mA in the motor's direction");
+    }
+}

@@ -80,7 +80,8 @@ impl CanopenArgs {
         if let Some(us) = self.sync_us {
             config.sync_period_ns = us.saturating_mul(1_000);
         }
-        let options = [("--no-image", &self.no_image), ("--sto-open", &self.sto_open), ("--unconfigured", &self.unconfigured)];
+        let options =
+            [("--no-image", &self.no_image), ("--sto-open", &self.sto_open), ("--unconfigured", &self.unconfigured)];
         for (option, ids) in options {
             if let Some(id) = ids.iter().find(|&&id| id > self.nodes) {
                 return Err(format!("{option} {id}: only node-IDs 1..={} are on the bus", self.nodes));

@@ -170,6 +170,10 @@ pub struct CspScenario {
     /// 0x30A1's units).
     #[arg(long, value_name = "P,I,D,FFV,FFA", value_parser = parse_position_gains)]
     pub position_gains: Option<[u32; 5]>,
+    /// The master sends the move's torque feedforward (J alpha + friction, per mille of 0x6076) in 0x60B2 each
+    /// cycle, with 0x30A1:05 (the drive's own acceleration feedforward) = 0.
+    #[arg(long)]
+    pub torque_feedforward: bool,
 }
 
 /// fault-matrix: a scenario and the choice of cases.
@@ -333,6 +337,8 @@ mod tests {
         ("README.md", "current-step"),
         ("README.md", "spinning"),
         ("README.md", "csp"),
+        ("README.md", "csp --torque-feedforward"),
+        ("tests/tests/canopen_real_master.rs LSS", "canopen --port 0 --lock-step --nodes 3 --unconfigured 1 --unconfigured 2 --unconfigured 3"),
         ("README.md", "csv-sweep"),
         ("README.md", "ppm"),
         ("README.md", "homing"),
