@@ -614,7 +614,11 @@ fn pypi_canopen_lss_master_assigns_node_ids_5_6_7_to_three_unconfigured_drives()
             .map(|p| u32::from_str_radix(p, 16).expect("hex"))
             .collect();
         assert_eq!(found[..3], [id(1), id(2), id(3)], "vendor, product, revision found for {node}");
-        assert_eq!(out.master(&format!("serial_{node}")), format!("{:08x}", found[3]), "node {node} is the drive found");
+        assert_eq!(
+            out.master(&format!("serial_{node}")),
+            format!("{:08x}", found[3]),
+            "node {node} is the drive found"
+        );
         serials.push(found[3]);
     }
     serials.sort_unstable();
