@@ -15,6 +15,20 @@ pub trait DriveLink {
     fn upload(&mut self, node: u8, index: u16, sub: u8) -> Result<Vec<u8>, SdoError>;
     /// Writes `data` to object `index:sub` of drive `node`.
     fn download(&mut self, node: u8, index: u16, sub: u8, data: &[u8]) -> Result<(), SdoError>;
+    /// Writes a large `data` to `index:sub` of `node` by the link's bulk transfer (CANopen: SDO block download),
+    /// telling `progress` the bytes acknowledged so far.
+    fn download_bulk(
+        &mut self,
+        node: u8,
+        index: u16,
+        sub: u8,
+        data: &[u8],
+        progress: &mut dyn FnMut(usize),
+    ) -> Result<(), SdoError>;
+    /// From now on, remembers `node`'s next boot-up, even while another exchange takes the frames.
+    fn expect_boot_up(&mut self, node: u8);
+    /// Waits up to `timeout` for `node`'s boot-up since [`DriveLink::expect_boot_up`]; whether it came.
+    fn wait_boot_up(&mut self, node: u8, timeout: Duration) -> Result<bool, String>;
     /// The addresses of the drives that answer, waiting at most `timeout` for them.
     fn scan(&mut self, timeout: Duration) -> Result<Vec<u8>, String>;
     /// Commands `node` (0: every node) into another communication state; for a reset, waits up to `timeout`
@@ -28,12 +42,17 @@ pub trait DriveLink {
 struct Watch {
     inner: Box<dyn CanInterface>,
     nmt: BTreeMap<u8, u8>,
+    /// Nodes whose boot-up (0x700 + node-ID [0x00]) passed since [`DriveLink::expect_boot_up`].
+    booted: std::collections::BTreeSet<u8>,
 }
 
 impl Watch {
     fn note(&mut self, frame: &Frame) {
         if let (0x700, node @ 1..=127, [state]) = (frame.id & 0x780, frame.id & 0x7F, frame.data.as_slice()) {
             self.nmt.insert(node as u8, *state & 0x7F);
+            if *state == 0 {
+                self.booted.insert(node as u8);
+            }
         }
     }
 }
@@ -103,7 +122,11 @@ pub struct CanopenLink {
 impl CanopenLink {
     /// The link over `bus` with SDO timeout `timeout`, block transfers if `block`.
     pub fn new(bus: Box<dyn CanInterface>, timeout: Duration, block: bool) -> Self {
-        Self { bus: Watch { inner: bus, nmt: BTreeMap::new() }, timeout, block }
+        Self {
+            bus: Watch { inner: bus, nmt: BTreeMap::new(), booted: std::collections::BTreeSet::new() },
+            timeout,
+            block,
+        }
     }
 }
 
@@ -124,6 +147,34 @@ impl DriveLink for CanopenLink {
         } else {
             client.download(node, index, sub, data)
         }
+    }
+
+    fn download_bulk(
+        &mut self,
+        node: u8,
+        index: u16,
+        sub: u8,
+        data: &[u8],
+        progress: &mut dyn FnMut(usize),
+    ) -> Result<(), SdoError> {
+        SdoClient::new(&mut self.bus, self.timeout).block_download_with_progress(node, index, sub, data, progress)
+    }
+
+    fn expect_boot_up(&mut self, node: u8) {
+        self.bus.booted.remove(&node);
+    }
+
+    fn wait_boot_up(&mut self, node: u8, timeout: Duration) -> Result<bool, String> {
+        // CiA 301 §7.2.8.3.2.1: 0x700 + node-ID [0x00], noted by `Watch` whoever read it.
+        let deadline = Instant::now() + timeout;
+        while !self.bus.booted.contains(&node) {
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return Ok(false);
+            }
+            self.bus.recv(left).map_err(|e| e.to_string())?;
+        }
+        Ok(true)
     }
 
     /// Asks every node-ID 1..=127 for 0x1018:01 at once (one request each, so no server sees two) and collects

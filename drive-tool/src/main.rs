@@ -170,6 +170,17 @@ enum Command {
         #[arg(long)]
         stay_enabled: bool,
     },
+    /// Install a signed firmware image by program control (0x1F51 stop/clear, 0x1F50 block download with its CRC,
+    /// start), wait for the restart and read the new version back; a refused image is shown with the drive's SDO
+    /// abort and flash status 0x1F57, and the old firmware keeps running.
+    Update {
+        /// The signed image (`drive-image pack`).
+        #[arg(value_name = "IMAGE")]
+        image: PathBuf,
+        /// Download and verify only; do not start it (0x1F51:01 = 1 later starts it).
+        #[arg(long)]
+        no_start: bool,
+    },
     /// Print the shell completion script (e.g. `drive-tool completions bash > /etc/bash_completion.d/drive-tool`).
     Completions {
         /// The shell.
@@ -278,6 +289,7 @@ fn run(cli: Cli) -> Result<(), String> {
         Command::Enable => commands::motion::enable_command(&mut cx),
         Command::Disable => commands::motion::disable_command(&mut cx),
         Command::Jog { velocity, seconds } => commands::motion::jog(&mut cx, velocity, seconds),
+        Command::Update { image, no_start } => commands::update::update(&mut cx, &image, !no_start),
         Command::Move { target, relative, velocity, timeout_s, stay_enabled } => commands::motion::move_to(
             &mut cx,
             commands::motion::MoveArgs { target, relative, velocity, timeout_s, stay_enabled },

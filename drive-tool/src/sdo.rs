@@ -226,7 +226,20 @@ impl SdoClient<'_> {
 
     /// [`SdoClient::download`] by block transfer (CiA 301 §7.2.4.3.9..13).
     pub fn block_download(&mut self, node: u8, index: u16, sub: u8, data: &[u8]) -> Result<(), SdoError> {
-        let result = self.block_download_unguarded(node, index, sub, data);
+        self.block_download_with_progress(node, index, sub, data, &mut |_| {})
+    }
+
+    /// [`SdoClient::block_download`], telling `progress` the bytes the server has acknowledged after every
+    /// sub-block.
+    pub fn block_download_with_progress(
+        &mut self,
+        node: u8,
+        index: u16,
+        sub: u8,
+        data: &[u8],
+        progress: &mut dyn FnMut(usize),
+    ) -> Result<(), SdoError> {
+        let result = self.block_download_unguarded(node, index, sub, data, progress);
         self.guarded(node, index, sub, result)
     }
 }
@@ -317,7 +330,14 @@ impl SdoClient<'_> {
     /// Downloads `data` to `index:sub` of `node` by block transfer (CiA 301 §7.2.4.3.9..13), size indicated and
     /// the CRC given: sub-blocks of the server's block size, resent from the server's acknowledged sequence
     /// number when it missed a segment.
-    fn block_download_unguarded(&mut self, node: u8, index: u16, sub: u8, data: &[u8]) -> Result<(), SdoError> {
+    fn block_download_unguarded(
+        &mut self,
+        node: u8,
+        index: u16,
+        sub: u8,
+        data: &[u8],
+        progress: &mut dyn FnMut(usize),
+    ) -> Result<(), SdoError> {
         let [i0, i1] = index.to_le_bytes();
         let [s0, s1, s2, s3] = u32::try_from(data.len())
             .map_err(|_| SdoError::Protocol("more than 4 GiB to download".into()))?
@@ -354,6 +374,7 @@ impl SdoClient<'_> {
             // ackseq: the last segment the server took in sequence; the rest of the sub-block is sent again.
             next += usize::from(ack[1]).min(in_block);
             blksize = ack[2];
+            progress((next * 7).min(data.len()));
         }
         let unused = segments.last().map_or(7, |s| 7 - s.len()) as u8;
         let [c0, c1] = Crc16::of(data).to_le_bytes();

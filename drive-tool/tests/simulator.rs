@@ -442,3 +442,60 @@ fn every_command_has_help_and_a_bad_value_is_named() {
     let out = Command::new(env!("CARGO_BIN_EXE_drive-tool")).args(["scan"]).output().expect("run");
     assert!(String::from_utf8_lossy(&out.stderr).contains("--socketcand HOST:PORT"), "no link given");
 }
+
+/// A signed image of `len` payload bytes, version `version` ("0.2.0" style text `text`), signed with `seed`
+/// (the simulated drives trust the development key, `hal_sim::sim::update::dev_seed`).
+fn image_file(dir: &WorkDir, name: &str, version: u32, text: &str, seed: &[u8; 32]) -> String {
+    use hal_sim::sim::update::{payload, signed_image};
+    let image = signed_image(&payload(48 * 1024, version), version, text, firmware::boot::image::HARDWARE_ID, seed);
+    let file = dir.join(name);
+    std::fs::write(&file, image).expect("write the image");
+    file.display().to_string()
+}
+
+/// Proves (issue 22 "update installs a new signed image and the version reads back"; IDX program control
+/// 0x1F50..0x1F57): `update IMAGE --json` stops and clears the program, block-downloads a 48 KiB image signed with
+/// the development key, starts it and waits for the boot-up; the drive then runs the image's version "0.2.0" in
+/// 0x100A (it ran the factory image before), 0x1F56:01 holds the new application id (version's high word) with the
+/// bootloader's, the program runs (0x1F51:01 = 1) and the flash status is 0.
+#[test]
+fn update_installs_a_signed_image_and_the_new_version_reads_back() {
+    use hal_sim::sim::update::{dev_seed, FACTORY_VERSION};
+    let _one = one_run_at_a_time();
+    let sim = Sim::start(1);
+    let dir = WorkDir::new("drive-tool-update");
+    let version = 0x0002_0000;
+    let file = image_file(&dir, "new.img", version, "0.2.0", &dev_seed());
+    let report = sim.json(&["update", &file]);
+    let bootloader = u64::from(firmware::boot::program::BOOTLOADER_ID);
+    assert_eq!(report["version_after"], "0.2.0", "{report}");
+    assert_eq!(report["image_version"], "0.2.0", "{report}");
+    assert_eq!(report["software_id_before"], u64::from(FACTORY_VERSION & 0xFFFF_0000) | bootloader, "{report}");
+    assert_eq!(report["software_id_after"], u64::from(version & 0xFFFF_0000) | bootloader, "{report}");
+    assert_eq!(report["program_state"], 1, "{report}");
+    assert_eq!(report["flash_status"], "flash status 0 (no error)", "{report}");
+    assert_ne!(report["version_before"], report["version_after"], "{report}");
+    assert_eq!(sim.get("0x100A"), "0.2.0", "the drive answers with its new firmware");
+}
+
+/// Proves (IDX L3413-3473 flash status; `firmware::boot::program` refusals): an image signed with another key is
+/// refused at the end of its download with SDO abort 0x08000020 and flash status 93 "signature invalid", both in
+/// the tool's message, and the drive keeps running its firmware; a file that is no image is refused before the bus
+/// is touched, naming the file.
+#[test]
+fn a_forged_image_is_refused_with_the_abort_and_the_flash_status_and_the_drive_runs_on() {
+    let _one = one_run_at_a_time();
+    let sim = Sim::start(1);
+    let dir = WorkDir::new("drive-tool-forged");
+    let before = sim.get("0x100A");
+    let file = image_file(&dir, "forged.img", 0x0003_0000, "0.3.0", &[7u8; 32]);
+    let (ok, out, err) = sim.tool(&["update", &file]);
+    assert!(!ok, "a forged image is refused:\n{out}{err}");
+    assert!(err.contains("0x08000020"), "the SDO abort: {err}");
+    assert!(err.contains("flash status 93 (signature invalid)"), "the flash status: {err}");
+    assert_eq!(sim.get("0x100A"), before, "the old firmware runs on");
+    let junk = dir.join("junk.bin");
+    std::fs::write(&junk, b"not an image").expect("write");
+    let (ok, _, err) = sim.tool(&["update", &junk.display().to_string()]);
+    assert!(!ok && err.contains("not a signed drive image") && err.contains("junk.bin"), "{err}");
+}

@@ -7,3 +7,4 @@ pub mod nmt;
 pub mod object;
 pub mod params;
 pub mod scan;
+pub mod update;
