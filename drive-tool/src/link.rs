@@ -25,6 +25,9 @@ pub trait DriveLink {
         data: &[u8],
         progress: &mut dyn FnMut(usize),
     ) -> Result<(), SdoError>;
+    /// One LSS request (CiA 305: 0x7E5 to the slaves) and the first answer (0x7E4) within `wait`, if any; an
+    /// error on a link without LSS.
+    fn lss(&mut self, request: [u8; 8], wait: Duration) -> Result<Vec<[u8; 8]>, String>;
     /// From now on, remembers `node`'s next boot-up, even while another exchange takes the frames.
     fn expect_boot_up(&mut self, node: u8);
     /// Waits up to `timeout` for `node`'s boot-up since [`DriveLink::expect_boot_up`]; whether it came.
@@ -158,6 +161,33 @@ impl DriveLink for CanopenLink {
         progress: &mut dyn FnMut(usize),
     ) -> Result<(), SdoError> {
         SdoClient::new(&mut self.bus, self.timeout).block_download_with_progress(node, index, sub, data, progress)
+    }
+
+    fn lss(&mut self, request: [u8; 8], wait: Duration) -> Result<Vec<[u8; 8]>, String> {
+        // Several slaves answer one probe alike: the answers of the last request still queued are not this one's.
+        // (A quarter of the answer window, at least 2 ms: on a socketcand link they may still be on their way.)
+        let settle = (wait / 4).max(Duration::from_millis(2));
+        while self.bus.recv(settle).map_err(|e| e.to_string())?.is_some() {}
+        send_patiently(&mut self.bus, &Frame::new(0x7E5, &request)).map_err(|e| format!("LSS request: {e}"))?;
+        let mut answers = Vec::new();
+        let deadline = Instant::now() + wait;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return Ok(answers);
+            }
+            match self.bus.recv(left).map_err(|e| e.to_string())? {
+                Some(frame) if frame.id == 0x7E4 => {
+                    if let Ok(data) = <[u8; 8]>::try_from(frame.data.as_slice()) {
+                        // Every service here needs one answer (a fastscan probe: whether any slave matched).
+                        answers.push(data);
+                        return Ok(answers);
+                    }
+                }
+                Some(_) => {}
+                None => return Ok(answers),
+            }
+        }
     }
 
     fn expect_boot_up(&mut self, node: u8) {

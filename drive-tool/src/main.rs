@@ -170,6 +170,9 @@ enum Command {
         #[arg(long)]
         stay_enabled: bool,
     },
+    /// Layer setting services (CiA 305) for drives without a node-ID.
+    #[command(subcommand)]
+    Lss(LssCommand),
     /// Install a signed firmware image by program control (0x1F51 stop/clear, 0x1F50 block download with its CRC,
     /// start), wait for the restart and read the new version back; a refused image is shown with the drive's SDO
     /// abort and flash status 0x1F57, and the old firmware keeps running.
@@ -209,6 +212,26 @@ enum ParamsCommand {
         /// Show the differences only; write nothing.
         #[arg(long)]
         dry_run: bool,
+    },
+}
+
+#[derive(Subcommand, Debug)]
+enum LssCommand {
+    /// Find the drives without a node-ID one by one (LSS fastscan) and give them FIRST, FIRST+1, ...; each is
+    /// stored and boots with its node-ID.
+    Assign {
+        /// The first node-ID to give.
+        #[arg(long, value_name = "FIRST", value_parser = clap::value_parser!(u8).range(1..=127))]
+        from: u8,
+        /// At most this many drives (all that answer when left out).
+        #[arg(long, value_name = "N")]
+        count: Option<u8>,
+        /// Do not store the node-IDs: they are lost at the drives' next restart.
+        #[arg(long)]
+        no_store: bool,
+        /// How long to wait for an LSS answer, ms (a fastscan probe nobody answers costs this much).
+        #[arg(long, value_name = "MS", default_value_t = 20, value_parser = clap::value_parser!(u64).range(1..=1000))]
+        wait_ms: u64,
     },
 }
 
@@ -289,6 +312,9 @@ fn run(cli: Cli) -> Result<(), String> {
         Command::Enable => commands::motion::enable_command(&mut cx),
         Command::Disable => commands::motion::disable_command(&mut cx),
         Command::Jog { velocity, seconds } => commands::motion::jog(&mut cx, velocity, seconds),
+        Command::Lss(LssCommand::Assign { from, count, no_store, wait_ms }) => {
+            commands::lss::assign(&mut cx, from, count, !no_store, Duration::from_millis(wait_ms))
+        }
         Command::Update { image, no_start } => commands::update::update(&mut cx, &image, !no_start),
         Command::Move { target, relative, velocity, timeout_s, stay_enabled } => commands::motion::move_to(
             &mut cx,

@@ -499,3 +499,32 @@ fn a_forged_image_is_refused_with_the_abort_and_the_flash_status_and_the_drive_r
     let (ok, _, err) = sim.tool(&["update", &junk.display().to_string()]);
     assert!(!ok && err.contains("not a signed drive image") && err.contains("junk.bin"), "{err}");
 }
+
+/// Proves (CiA 305 §6.3, §6.7; issue 21 item 4 with the project's own tool): `lss assign --from 10 --json`
+/// against three drives started without a node-ID finds each by fastscan (the identity of device.toml, three
+/// different serial numbers), gives them 10, 11, 12, stores them and sees each boot; no unconfigured drive is left;
+/// after an NMT reset node to all, `scan` finds exactly 10, 11 and 12.
+#[test]
+fn lss_assign_gives_unconfigured_drives_node_ids_that_survive_a_reset() {
+    let _one = one_run_at_a_time();
+    let sim = Sim::start_with(3, &["--unconfigured", "1", "--unconfigured", "2", "--unconfigured", "3"]);
+    let d = device();
+    assert_eq!(sim.json(&["scan"]).as_array().map(Vec::len), Some(0), "no node-ID, no answer");
+    let report = sim.json(&["lss", "assign", "--from", "10"]);
+    let assigned = report["assigned"].as_array().expect("a list");
+    assert_eq!(assigned.iter().map(|a| a["node"].as_u64().unwrap()).collect::<Vec<_>>(), [10, 11, 12], "{report}");
+    let mut serials: Vec<u64> = assigned.iter().map(|a| a["serial"].as_u64().unwrap()).collect();
+    serials.sort_unstable();
+    serials.dedup();
+    assert_eq!(serials.len(), 3, "three drives, three serials: {report}");
+    for a in assigned {
+        assert_eq!(a["vendor_id"], u64::from(d.vendor_id), "{a}");
+        assert_eq!(a["product_code"], u64::from(d.product_code), "{a}");
+        assert_eq!((a["stored"].as_bool(), a["booted"].as_bool()), (Some(true), Some(true)), "{a}");
+    }
+    assert_eq!(report["unconfigured_left"], false, "{report}");
+    sim.ok(&["nmt", "reset", "--all"]);
+    let found = sim.json(&["scan"]);
+    let nodes: Vec<u64> = found.as_array().expect("a list").iter().map(|n| n["node"].as_u64().unwrap()).collect();
+    assert_eq!(nodes, [10, 11, 12], "after reset node: {found}");
+}

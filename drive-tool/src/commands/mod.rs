@@ -2,6 +2,7 @@
 
 pub mod faults;
 pub mod list;
+pub mod lss;
 pub mod motion;
 pub mod nmt;
 pub mod object;
