@@ -170,6 +170,26 @@ enum Command {
         #[arg(long)]
         stay_enabled: bool,
     },
+    /// Identify the motor (0x6060 = -2: resistance, inductances, torque constant, pole pairs, commutation,
+    /// inertia, friction, the load's resonance) and tune the gains, following the drive's progress; report what it
+    /// found.
+    Identify {
+        /// Give up after this long, seconds.
+        #[arg(long, default_value_t = 120.0)]
+        timeout_s: f64,
+        /// Pause between two progress polls, ms.
+        #[arg(long, default_value_t = 20)]
+        poll_ms: u64,
+        /// Afterwards write "save" to 0x1010:01 so that the drive keeps what it found.
+        #[arg(long)]
+        store: bool,
+    },
+    /// Compute the gains from the motor data as it stands (0x3205:01 = 1), power stage off.
+    Tune {
+        /// Velocity/position crossover in per mille of the reference's (0x3205:02).
+        #[arg(long, value_name = "PERMILLE")]
+        stiffness: Option<u16>,
+    },
     /// Layer setting services (CiA 305) for drives without a node-ID.
     #[command(subcommand)]
     Lss(LssCommand),
@@ -312,6 +332,18 @@ fn run(cli: Cli) -> Result<(), String> {
         Command::Enable => commands::motion::enable_command(&mut cx),
         Command::Disable => commands::motion::disable_command(&mut cx),
         Command::Jog { velocity, seconds } => commands::motion::jog(&mut cx, velocity, seconds),
+        Command::Identify { timeout_s, poll_ms, store } => {
+            if !(1.0..=3600.0).contains(&timeout_s) {
+                return Err(format!("--timeout-s {timeout_s}: 1..=3600"));
+            }
+            commands::identify::identify(
+                &mut cx,
+                Duration::from_secs_f64(timeout_s),
+                Duration::from_millis(poll_ms),
+                store,
+            )
+        }
+        Command::Tune { stiffness } => commands::identify::tune(&mut cx, stiffness),
         Command::Lss(LssCommand::Assign { from, count, no_store, wait_ms }) => {
             commands::lss::assign(&mut cx, from, count, !no_store, Duration::from_millis(wait_ms))
         }

@@ -528,3 +528,37 @@ fn lss_assign_gives_unconfigured_drives_node_ids_that_survive_a_reset() {
     let nodes: Vec<u64> = found.as_array().expect("a list").iter().map(|n| n["node"].as_u64().unwrap()).collect();
     assert_eq!(nodes, [10, 11, 12], "after reset node: {found}");
 }
+
+/// Proves (issue 22 "identify / tune running the any-motor procedure with progress and a report"; issue 18's
+/// bounds): `identify --json` against the reference plant runs the drive's identification (0x6060 = -2) to its
+/// end and reports resistance and torque constant within 3 % of the plant's (R at its reference temperature,
+/// kt = 3/2 p psi), the total inertia within 5 %, the pole pairs exactly, a rigid load (no resonance pair) and the
+/// tuned gains; the power stage is off afterwards. `tune --stiffness 800` then lowers the velocity P gain
+/// (the crossover scales with the stiffness) and leaves the current loop's as it was. The tolerances are the
+/// issue's: the identification's own scenario meets them with margin (drive-sim identify: R -0.31 %, kt -0.76 %,
+/// inertia -0.64 %).
+#[test]
+fn identify_reports_the_reference_motor_and_tune_follows_the_stiffness() {
+    let _one = one_run_at_a_time();
+    let sim = Sim::start(1);
+    let plant = hal_sim::plant::PlantParams::reference();
+    let report = sim.json(&["identify", "--poll-ms", "0"]);
+    let value = |key: &str| report[key].as_f64().unwrap_or_else(|| panic!("{key} in {report}"));
+    let within = |key: &str, truth: f64, pct: f64| {
+        let error = (value(key) - truth) / truth * 100.0;
+        assert!(error.abs() <= pct, "{key}: {} against {truth}, {error:.2} % (bound {pct} %)", value(key));
+    };
+    within("resistance", plant.phase_resistance_ohm, 3.0);
+    within("torque_constant", 1.5 * f64::from(plant.pole_pairs) * plant.flux_linkage_wb, 3.0);
+    within("inertia", plant.total_inertia_kg_m2(), 5.0);
+    assert_eq!(value("pole_pairs"), f64::from(plant.pole_pairs));
+    assert_eq!((value("resonance"), value("anti_resonance")), (0.0, 0.0), "a rigid load");
+    assert!(value("velocity_p_gain") > 0.0 && value("current_p_gain") > 0.0, "{report}");
+    assert_eq!(sim.json(&["info"])["cia402"], "Ready to switch on", "power stage off after the identification");
+    let tuned = sim.json(&["tune", "--stiffness", "800"]);
+    let v_before = value("velocity_p_gain");
+    let v_after = tuned["velocity_p_gain"].as_f64().expect("velocity_p_gain");
+    assert!(v_after < 0.9 * v_before, "velocity P {v_before} -> {v_after} at stiffness 800");
+    assert_eq!(tuned["current_p_gain"], report["current_p_gain"], "the current loop does not follow the stiffness");
+    assert_eq!(tuned["result"], 1, "0x3205:05 = 1 gains written");
+}

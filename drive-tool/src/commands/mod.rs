@@ -1,6 +1,7 @@
 //! The commands, one file per group.
 
 pub mod faults;
+pub mod identify;
 pub mod list;
 pub mod lss;
 pub mod motion;
