@@ -45,7 +45,7 @@ pub trait DriveLink {
 struct Watch {
     inner: Box<dyn CanInterface>,
     nmt: BTreeMap<u8, u8>,
-    /// Nodes whose boot-up (0x700 + node-ID [0x00]) passed since [`DriveLink::expect_boot_up`].
+    /// Nodes whose boot-up (0x700 + node-ID, data `00`) passed since [`DriveLink::expect_boot_up`].
     booted: std::collections::BTreeSet<u8>,
 }
 
