@@ -309,15 +309,9 @@ impl CanopenNode {
     ) {
         let state = self.nmt.state();
         let id = frame.id();
-        if id == lss::MASTER_TO_SLAVE && !frame.is_remote() {
-            match <&[u8; 8]>::try_from(frame.data()) {
-                Ok(data) => self.on_lss(data, drive, app),
-                Err(_) => self.ignore(),
-            }
-            return;
-        }
         if state == NmtState::Initialisation {
-            self.ignore();
+            // LSS serves an unconfigured node, which waits here (module documentation).
+            self.lss_or_ignore(frame, drive, app);
             return;
         }
         if id == ids::NMT {
@@ -365,7 +359,21 @@ impl CanopenNode {
                 return;
             }
         }
-        self.ignore();
+        // Last: LSS frames are rare, and the SYNC path above must not pay for their check.
+        self.lss_or_ignore(frame, drive, app);
+    }
+
+    /// An LSS request (0x7E5, 8 bytes) to the LSS slave; any other frame is ignored.
+    fn lss_or_ignore<D: FieldbusDevice + ?Sized, A: ApplicationObjects + ?Sized>(
+        &mut self,
+        frame: &CanFrame,
+        drive: &mut D,
+        app: &mut A,
+    ) {
+        match <&[u8; 8]>::try_from(frame.data()) {
+            Ok(data) if frame.id() == lss::MASTER_TO_SLAVE && !frame.is_remote() => self.on_lss(data, drive, app),
+            _ => self.ignore(),
+        }
     }
 
     /// Tier 3 without a bus: the reset and boot in initialisation, else the SDO server's own frames (block-upload

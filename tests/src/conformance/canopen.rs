@@ -34,15 +34,6 @@ const LSS_SLAVE: u16 = 0x7E4;
 const SAVE: u32 = u32::from_le_bytes(*b"save");
 const LOAD: u32 = u32::from_le_bytes(*b"load");
 
-/// The shipped EDS, read once.
-fn eds() -> &'static Eds {
-    static EDS: std::sync::OnceLock<Eds> = std::sync::OnceLock::new();
-    EDS.get_or_init(|| {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/generated/drive.eds");
-        Eds::load(&path).expect("the shipped EDS reads")
-    })
-}
-
 /// One drive on the simulated bus, and the master's side of it.
 pub struct Bus {
     runner: CanopenRunner,
@@ -284,7 +275,7 @@ fn emcy_frames(frames: &[CanFrame]) -> Vec<Vec<u8>> {
 
 fn od_every_readable_variable_uploads_with_its_size(bus: &mut Bus) -> Outcome {
     let mut wrong = Vec::new();
-    for e in eds().entries.iter().filter(|e| e.readable()) {
+    for e in Eds::shipped().entries.iter().filter(|e| e.readable()) {
         match (bus.upload(e.index, e.sub)?, e.fixed_size()) {
             (Ok(v), Some(size)) if v.len() != size => {
                 wrong.push(format!("{:#06X}:{} {} bytes, type {:#06X}", e.index, e.sub, v.len(), e.data_type));
@@ -298,7 +289,7 @@ fn od_every_readable_variable_uploads_with_its_size(bus: &mut Bus) -> Outcome {
 
 fn od_read_only_variables_refuse_a_download(bus: &mut Bus) -> Outcome {
     let mut wrong = Vec::new();
-    for e in eds().entries.iter().filter(|e| e.read_only()) {
+    for e in Eds::shipped().entries.iter().filter(|e| e.read_only()) {
         let Some(size) = e.fixed_size().filter(|s| *s <= 4) else { continue };
         let value = vec![0u8; size];
         match bus.download(e.index, e.sub, &value)? {
@@ -310,7 +301,7 @@ fn od_read_only_variables_refuse_a_download(bus: &mut Bus) -> Outcome {
 }
 
 fn od_write_only_variables_refuse_an_upload(bus: &mut Bus) -> Outcome {
-    let write_only: Vec<_> = eds().entries.iter().filter(|e| !e.readable()).collect();
+    let write_only: Vec<_> = Eds::shipped().entries.iter().filter(|e| !e.readable()).collect();
     expect_that(!write_only.is_empty(), || "the EDS lists no write-only variable".into())?;
     for e in write_only {
         expect_abort(&format!("upload of {:#06X}:{}", e.index, e.sub), bus.upload(e.index, e.sub), 0x0601_0001)?;
@@ -321,7 +312,7 @@ fn od_write_only_variables_refuse_an_upload(bus: &mut Bus) -> Outcome {
 fn od_objects_absent_from_the_eds_do_not_exist(bus: &mut Bus) -> Outcome {
     let mut wrong = Vec::new();
     for index in (0x1000..=0x1FFF).chain([0x2FFF, 0x5FFF, 0x6FFF, 0x9FFF]) {
-        if eds().has_object(index) {
+        if Eds::shipped().has_object(index) {
             continue;
         }
         match bus.upload(index, 0)? {
@@ -335,10 +326,12 @@ fn od_objects_absent_from_the_eds_do_not_exist(bus: &mut Bus) -> Outcome {
 fn od_sub_indices_past_the_highest_do_not_exist(bus: &mut Bus) -> Outcome {
     let mut wrong = Vec::new();
     let mut checked = 0;
-    for e in
-        eds().entries.iter().filter(|e| e.sub == 0 && eds().entries.iter().any(|o| o.index == e.index && o.sub > 0))
+    for e in Eds::shipped()
+        .entries
+        .iter()
+        .filter(|e| e.sub == 0 && Eds::shipped().entries.iter().any(|o| o.index == e.index && o.sub > 0))
     {
-        let highest = eds().entries.iter().filter(|o| o.index == e.index).map(|o| o.sub).max().unwrap_or(0);
+        let highest = Eds::shipped().entries.iter().filter(|o| o.index == e.index).map(|o| o.sub).max().unwrap_or(0);
         let Some(past) = highest.checked_add(1) else { continue };
         checked += 1;
         match bus.upload(e.index, past)? {
@@ -352,7 +345,7 @@ fn od_sub_indices_past_the_highest_do_not_exist(bus: &mut Bus) -> Outcome {
 fn od_constants_and_identity_read_as_the_eds_states(bus: &mut Bus) -> Outcome {
     let mut wrong = Vec::new();
     let mut checked = 0;
-    for e in eds().entries.iter().filter(|e| e.access == "const" || e.index == 0x1000 || e.index == 0x1018) {
+    for e in Eds::shipped().entries.iter().filter(|e| e.access == "const" || e.index == 0x1000 || e.index == 0x1018) {
         let (Some(expected), Some(size)) = (e.default_for(NODE), e.fixed_size()) else { continue };
         checked += 1;
         let expected = expected & size_mask(size);
@@ -366,7 +359,7 @@ fn od_constants_and_identity_read_as_the_eds_states(bus: &mut Bus) -> Outcome {
 
 fn od_writable_variables_read_their_eds_default_at_power_up(bus: &mut Bus) -> Outcome {
     let mut wrong = Vec::new();
-    for e in eds().entries.iter().filter(|e| !e.read_only() && e.readable()) {
+    for e in Eds::shipped().entries.iter().filter(|e| !e.read_only() && e.readable()) {
         let (Some(expected), Some(size)) = (e.default_for(NODE), e.fixed_size()) else { continue };
         // 0x60FE:01 shows the holding-brake and ready outputs in its read-only bits 24 and 25 (device.toml): only
         // the bits a master writes (0, 16, 17) start at the default.
@@ -406,7 +399,8 @@ fn sdo_expedited_upload_states_its_size(bus: &mut Bus) -> Outcome {
 }
 
 fn sdo_segmented_upload_toggles_and_ends_with_the_size_announced(bus: &mut Bus) -> Outcome {
-    let name = eds().entry(0x1008, 0).and_then(|e| e.default.clone()).ok_or("0x1008 has a default in the EDS")?;
+    let name =
+        Eds::shipped().entry(0x1008, 0).and_then(|e| e.default.clone()).ok_or("0x1008 has a default in the EDS")?;
     expect_that(name.len() > 4, || format!("0x1008 {name:?} needs a segmented transfer"))?;
     expect_eq("0x1008 by segments", bus.upload(0x1008, 0)?, Ok(name.into_bytes()))
 }
@@ -554,7 +548,7 @@ fn sdo_short_frame_gets_no_answer(bus: &mut Bus) -> Outcome {
     expect_eq(
         "0x1000 after it",
         bus.get(0x1000, 0)?,
-        eds().entry(0x1000, 0).and_then(|e| e.default_for(NODE)).unwrap_or(0),
+        Eds::shipped().entry(0x1000, 0).and_then(|e| e.default_for(NODE)).unwrap_or(0),
     )
 }
 
@@ -632,7 +626,7 @@ fn nmt_reset_node_boots_again_with_the_power_on_values(bus: &mut Bus) -> Outcome
     expect_that(frames.iter().any(|f| f.id() == HEARTBEAT && f.data() == [0x00]), || {
         format!("no boot-up: {frames:?}")
     })?;
-    let default = eds().entry(0x6081, 0).and_then(|e| e.default_for(NODE)).ok_or("0x6081 default")?;
+    let default = Eds::shipped().entry(0x6081, 0).and_then(|e| e.default_for(NODE)).ok_or("0x6081 default")?;
     expect_eq("0x6081 back to its power-on value", bus.get(0x6081, 0)?, default)?;
     expect_eq("0x1017 back", bus.get(0x1017, 0)?, 0)
 }
@@ -911,7 +905,7 @@ fn sr_saved_values_come_back_after_reset_node_and_restore_brings_the_defaults(bu
     expect_eq("0x6081 before the reset that restores", bus.get(0x6081, 0)?, 4_321)?;
     bus.nmt(0x81, NODE);
     bus.run_ms(100);
-    let default = eds().entry(0x6081, 0).and_then(|e| e.default_for(NODE)).ok_or("0x6081 default")?;
+    let default = Eds::shipped().entry(0x6081, 0).and_then(|e| e.default_for(NODE)).ok_or("0x6081 default")?;
     expect_eq("0x6081 after restore and reset node", bus.get(0x6081, 0)?, default)?;
     expect_eq("0x1017 after restore and reset node", bus.get(0x1017, 0)?, 0)
 }
@@ -929,7 +923,7 @@ fn lss_frame(cs: u8, rest: &[u8]) -> [u8; 8] {
 fn eds_identity() -> Result<[u32; 4], String> {
     let mut id = [0u32; 4];
     for (sub, v) in (1..=4u8).zip(id.iter_mut()) {
-        *v = eds().entry(0x1018, sub).and_then(|e| e.default_for(NODE)).ok_or("0x1018 in the EDS")? as u32;
+        *v = Eds::shipped().entry(0x1018, sub).and_then(|e| e.default_for(NODE)).ok_or("0x1018 in the EDS")? as u32;
     }
     Ok(id)
 }
@@ -940,7 +934,7 @@ fn lss_unconfigured_drive_waits_silent(_: &mut Bus) -> Outcome {
     expect_that(frames.is_empty(), || format!("an unconfigured drive sent {frames:?}"))?;
     expect_eq("SDO to node 1", bus.sdo([0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0])?, None)?;
     expect_eq("identify non-configured remote slave", bus.lss(lss_frame(0x4C, &[])), vec![lss_frame(0x50, &[])])?;
-    expect_eq("the EDS's LSS_Supported (CiA 306 §4.6.2)", eds().device_info_number("LSS_Supported"), Some(1))
+    expect_eq("the EDS's LSS_Supported (CiA 306 §4.6.2)", Eds::shipped().device_info_number("LSS_Supported"), Some(1))
 }
 
 fn lss_selective_switch_configure_and_boot(_: &mut Bus) -> Outcome {
@@ -1062,11 +1056,6 @@ fn lss_configured_node_takes_its_new_id_at_reset_communication(bus: &mut Bus) ->
 /// The suite's cases, in the tool's group order.
 #[must_use]
 pub fn cases() -> Vec<Case<Bus>> {
-    macro_rules! case {
-        ($id:literal, $clause:literal, $expect:literal, $run:ident) => {
-            Case { id: $id, clause: $clause, expect: $expect, run: $run }
-        };
-    }
     vec![
         case!("OD-01", "CiA 306 §4.6.3, CiA 301 §7.4.7.1", "every readable EDS variable uploads; a fixed-size one with its type's size", od_every_readable_variable_uploads_with_its_size),
         case!("OD-02", "CiA 301 §7.2.4.3.17 Table 22", "every ro/const EDS variable refuses a download: 0x06010002", od_read_only_variables_refuse_a_download),

@@ -130,6 +130,18 @@ impl Eds {
         Ok(Self { sections, entries })
     }
 
+    /// The EDS the project ships (`docs/generated/drive.eds`), read once.
+    ///
+    /// # Panics
+    /// If the file cannot be read or parsed (a checkout without its generated files).
+    pub fn shipped() -> &'static Self {
+        static EDS: std::sync::OnceLock<Eds> = std::sync::OnceLock::new();
+        EDS.get_or_init(|| {
+            let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/generated/drive.eds");
+            Self::load(&path).expect("the shipped EDS reads")
+        })
+    }
+
     /// The variable at `index:sub`.
     #[must_use]
     pub fn entry(&self, index: u16, sub: u8) -> Option<&EdsEntry> {

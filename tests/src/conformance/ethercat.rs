@@ -36,15 +36,6 @@ const COE_SDO_INFO: u8 = 8;
 /// Where the master maps the process image (outputs, then inputs).
 const LOGICAL: u32 = 0x0001_0000;
 
-/// The shipped EDS (for the object list; the ESI is read where a case needs it).
-fn eds() -> &'static Eds {
-    static EDS: std::sync::OnceLock<Eds> = std::sync::OnceLock::new();
-    EDS.get_or_init(|| {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/generated/drive.eds");
-        Eds::load(&path).expect("the shipped EDS reads")
-    })
-}
-
 fn esi_text() -> &'static str {
     static ESI: std::sync::OnceLock<String> = std::sync::OnceLock::new();
     ESI.get_or_init(|| {
@@ -543,7 +534,7 @@ fn coe_od_list_is_the_eds_object_list(seg: &mut Segment) -> Outcome {
     let data = seg.sdo_info(1, &1u16.to_le_bytes())?.map_err(|c| format!("aborted {c:#010X}"))?;
     expect_eq("list type echoed", data.get(..2).map(<[u8]>::to_vec), Some(vec![1, 0]))?;
     let listed: Vec<u16> = data[2..].chunks_exact(2).map(|c| u16::from_le_bytes([c[0], c[1]])).collect();
-    let mut expected: Vec<u16> = eds().entries.iter().map(|e| e.index).collect();
+    let mut expected: Vec<u16> = Eds::shipped().entries.iter().map(|e| e.index).collect();
     expected.dedup();
     expect_eq("indices of the OD list (all objects)", listed, expected)
 }
@@ -551,7 +542,7 @@ fn coe_od_list_is_the_eds_object_list(seg: &mut Segment) -> Outcome {
 fn coe_object_and_entry_descriptions(seg: &mut Segment) -> Outcome {
     seg.to_preop()?;
     let d = seg.sdo_info(3, &0x1018u16.to_le_bytes())?.map_err(|c| format!("aborted {c:#010X}"))?;
-    let name = eds().sections.get("1018").and_then(|s| s.get("parametername")).cloned().unwrap_or_default();
+    let name = Eds::shipped().sections.get("1018").and_then(|s| s.get("parametername")).cloned().unwrap_or_default();
     expect_eq(
         "0x1018: index, data type, max sub, object code, name",
         (u16::from_le_bytes([d[0], d[1]]), d[4], d[5], String::from_utf8_lossy(&d[6..]).into_owned()),
@@ -737,11 +728,6 @@ fn esi_identity_and_pdos_agree_with_the_device(seg: &mut Segment) -> Outcome {
 /// The suite's cases, in the tool's group order.
 #[must_use]
 pub fn cases() -> Vec<Case<Segment>> {
-    macro_rules! case {
-        ($id:literal, $clause:literal, $expect:literal, $run:ident) => {
-            Case { id: $id, clause: $clause, expect: $expect, run: $run }
-        };
-    }
     vec![
         case!("ESM-01", "ETG.1000.6 §6.4.1", "power-up: AL status 0x0001 (INIT), code 0x0000", esm_power_up_in_init),
         case!("ESM-02", "ETG.1000.6 §6.4.1 Table 11", "INIT -> PRE-OP without SM0/SM1: INIT + ERR, 0x0016", esm_preop_without_mailboxes),

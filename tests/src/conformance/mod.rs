@@ -6,6 +6,13 @@
 //! (`canopen_cases=N passed=P failed=F skipped=S`, `ecat_cases=...`); `tests/tests/conformance.rs` runs the suites in CI and
 //! fails on any failed case.
 
+/// `case!(id, clause, expect, check)`: one [`Case`] of a suite's table.
+macro_rules! case {
+    ($id:literal, $clause:literal, $expect:literal, $run:ident) => {
+        $crate::conformance::Case { id: $id, clause: $clause, expect: $expect, run: $run }
+    };
+}
+
 pub mod canopen;
 pub mod eds;
 pub mod ethercat;

@@ -210,6 +210,22 @@ fn csv_cycles(sim: &mut hal_sim::sim::Simulation, n: usize) {
 }
 
 /// The q reference tier 1 follows (the loops' demand), I16F16 bits.
+/// CSV enabled on the locked rotor, holding 0 rpm at a 1 ms interpolation period (0x6072 = `max_torque` when
+/// given), settled for 20 cycles: the hold in which a torque offset shows alone in the q reference.
+fn locked_csv_hold(max_torque: Option<u16>) -> hal_sim::sim::Simulation {
+    let mut sim = motion::prepare_motion(1, 9).expect("enabled in CSV");
+    sim.plant.lock_rotor(true);
+    let d = sim.drive.dictionary_mut();
+    d.set(h::INTERPOLATION_TIME_PERIOD_VALUE, 1);
+    d.set(h::INTERPOLATION_TIME_INDEX, -3);
+    d.set(h::TARGET_VELOCITY, 0);
+    if let Some(max) = max_torque {
+        d.set(h::MAX_TORQUE, max);
+    }
+    csv_cycles(&mut sim, 20);
+    sim
+}
+
 fn q_reference_bits(sim: &hal_sim::sim::Simulation) -> i32 {
     sim.tier1().signals().i_ref.q.to_bits()
 }
@@ -222,15 +238,7 @@ fn q_reference_bits(sim: &hal_sim::sim::Simulation) -> i32 {
 #[test]
 fn csv_torque_offset_adds_its_conversion_to_the_q_reference_at_standstill() {
     use firmware::control::demand::DemandScale;
-    let mut sim = motion::prepare_motion(1, 9).expect("enabled in CSV");
-    sim.plant.lock_rotor(true);
-    {
-        let d = sim.drive.dictionary_mut();
-        d.set(h::INTERPOLATION_TIME_PERIOD_VALUE, 1);
-        d.set(h::INTERPOLATION_TIME_INDEX, -3);
-        d.set(h::TARGET_VELOCITY, 0);
-    }
-    csv_cycles(&mut sim, 20);
+    let mut sim = locked_csv_hold(None);
     let before = q_reference_bits(&sim);
     let scale = DemandScale::reference();
     for offset in [200i16, -150] {
@@ -251,16 +259,7 @@ fn csv_torque_offset_adds_its_conversion_to_the_q_reference_at_standstill() {
 #[test]
 fn csv_torque_offset_is_limited_by_0x6072() {
     use firmware::control::demand::DemandScale;
-    let mut sim = motion::prepare_motion(1, 9).expect("enabled in CSV");
-    sim.plant.lock_rotor(true);
-    {
-        let d = sim.drive.dictionary_mut();
-        d.set(h::INTERPOLATION_TIME_PERIOD_VALUE, 1);
-        d.set(h::INTERPOLATION_TIME_INDEX, -3);
-        d.set(h::TARGET_VELOCITY, 0);
-        d.set(h::MAX_TORQUE, 100);
-    }
-    csv_cycles(&mut sim, 20);
+    let mut sim = locked_csv_hold(Some(100));
     let before = q_reference_bits(&sim);
     let capped = DemandScale::from_od(3200, 10_000, 3125, 100).torque_to_current(100, 0).1;
     assert_eq!(capped.to_milliamps(), 320);
