@@ -65,7 +65,7 @@
 //!   line-to-line EMF above `V_bus + 2 V_diode` charges the bus, and below it the currents decay to zero and stay
 //!   there. This part works in abc coordinates with the mean inductance `(Ld + Lq) / 2` (exact when `Ld = Lq`).
 //! * **Injected power faults** ([`faults::PlantFaults`]): an open motor phase carries no current, its terminal
-//!   floating at its back-EMF above the star point of the two others (`open_phase_terminal`), switching or not; a
+//!   floating at its back-EMF above the star point of the two others (`electrical`), switching or not; a
 //!   short between two outputs is a resistance between their poles ([`inverter::OutputShort`]), loading the legs,
 //!   their shunts, the bus and the over-current comparator while they switch.
 //! * **Safe Torque Off** ([`Plant::set_sto_inputs`]): either STO input de-energised keeps the bridge from
@@ -114,6 +114,8 @@ pub mod inverter;
 pub mod io;
 mod mechanics;
 mod params;
+#[cfg(test)]
+mod reference;
 pub mod rng;
 mod sampling;
 pub mod sensors;
@@ -262,6 +264,12 @@ pub struct Plant {
     chopper_energy_j: f64,
     /// The Safe Torque Off inputs ([`sto`]): either one de-energised keeps the bridge from switching.
     sto: firmware::hal::sto::StoInputs,
+    /// The motor's acceleration over the last stretch of switching intervals, in rad/s^2: the speed predictor of
+    /// the next ([`mechanics::Stretch`]); 0 after anything else moved the shaft.
+    stretch_acceleration: f64,
+    /// Integrate with the reference integrator (RK4 segments of the joint state, [`reference`]) instead.
+    #[cfg(test)]
+    reference_integration: bool,
 }
 
 impl core::fmt::Debug for Plant {
@@ -310,6 +318,9 @@ impl Plant {
             chopper_gate: false,
             chopper_energy_j: 0.0,
             sto: firmware::hal::sto::StoInputs::RELEASED,
+            stretch_acceleration: 0.0,
+            #[cfg(test)]
+            reference_integration: false,
             params,
         };
         plant.last_count = plant.count_now();
@@ -386,26 +397,59 @@ impl Plant {
         let mut sampled = false;
         let mut measurements = self.last_measurements;
         let mut t = 0.0;
+        // The shaft held over the switching intervals since its start ([`mechanics::Stretch`]).
+        let mut stretch: Option<mechanics::Stretch> = None;
         for &b in breaks[..n_breaks].iter() {
-            let span = b - t;
-            if span > 1e-13 {
-                // Split the interval into equal segments no longer than the maximum step.
-                let n = (span / h_max - 1e-9).ceil().max(1.0);
-                let h = span / n;
-                let mut j = 0.0;
-                while j < n {
-                    let t0 = t + j * h;
-                    let t1 = if j + 1.0 >= n { b } else { t0 + h };
-                    self.integrate_segment(&k, &patterns, enabled, t0, t1, &mut acc);
-                    j += 1.0;
+            if b - t > 1e-13 {
+                if enabled && !self.break_latched && !self.uses_reference_integration() {
+                    // One interval between two switching instants: every pole voltage is constant over it.
+                    let s = match stretch.as_mut() {
+                        Some(s) => s,
+                        None => stretch.insert(self.start_stretch(&k, t)),
+                    };
+                    let i = self.switching_interval(&k, &patterns, s, t, b, &mut acc);
+                    if i.iter().any(|x| x.abs() > self.params.break_current_a) {
+                        self.break_latched = true;
+                    }
+                    if self.stretch_breaks_away(&k, s) {
+                        if let Some(s) = stretch.take() {
+                            self.finish_stretch(&k, s, b);
+                        }
+                    }
+                } else {
+                    if let Some(s) = stretch.take() {
+                        self.finish_stretch(&k, s, t);
+                    }
+                    // Split the interval into equal segments no longer than the maximum step.
+                    let n = ((b - t) / h_max - 1e-9).ceil().max(1.0);
+                    let h = (b - t) / n;
+                    let mut j = 0.0;
+                    while j < n {
+                        let t0 = t + j * h;
+                        let t1 = if j + 1.0 >= n { b } else { t0 + h };
+                        #[cfg(test)]
+                        if enabled && !self.break_latched {
+                            self.reference_segment(&k, &patterns, t0, t1, &mut acc);
+                            j += 1.0;
+                            continue;
+                        }
+                        self.freewheel_segment(&k, t0, t1, &mut acc);
+                        j += 1.0;
+                    }
                 }
                 t = b;
             }
             if !sampled && t >= sample_t - 1e-15 {
+                if let Some(s) = stretch.take() {
+                    self.finish_stretch(&k, s, t);
+                }
                 sampled = true;
                 let switching_now = enabled && !self.break_latched;
                 measurements = self.sample(&patterns, switching_now, sample_t, t);
             }
+        }
+        if let Some(s) = stretch.take() {
+            self.finish_stretch(&k, s, t);
         }
 
         // Period bookkeeping: averages, thermal nodes, leg levels.
@@ -423,28 +467,21 @@ impl Plant {
         measurements
     }
 
-    /// One integration segment `[t0, t1)` of the period: the load torque at its start, then the switching model
-    /// (tripping the over-current break if a leg current exceeds it) or, with the outputs off or the break
-    /// tripped, the diode bridge; then the encoder follows the shaft.
-    fn integrate_segment(
-        &mut self,
-        k: &Coeffs,
-        patterns: &[LegPattern; 3],
-        enabled: bool,
-        t0: f64,
-        t1: f64,
-        acc: &mut PeriodAverages,
-    ) {
+    /// One integration segment `[t0, t1)` of the period with all switches off (outputs disabled or the break
+    /// tripped): the load torque at its start, the diode bridge ([`freewheel`]), then the encoder follows the shaft.
+    fn freewheel_segment(&mut self, k: &Coeffs, t0: f64, t1: f64, acc: &mut PeriodAverages) {
+        self.stretch_acceleration = 0.0;
         self.update_load(t0);
-        if enabled && !self.break_latched {
-            let i = self.segment_switching(k, patterns, t0, t1, acc);
-            if i.iter().any(|x| x.abs() > self.params.break_current_a) {
-                self.break_latched = true;
-            }
-        } else {
-            self.segment_freewheel(k, t1 - t0, acc);
-        }
+        self.segment_freewheel(k, t1 - t0, acc);
         self.update_encoder();
+    }
+
+    /// Whether the reference integrator is in use (only tests choose it).
+    fn uses_reference_integration(&self) -> bool {
+        #[cfg(test)]
+        return self.reference_integration;
+        #[cfg(not(test))]
+        false
     }
 
     fn state_at(&self, t_in_period: f64) -> PlantState {
@@ -510,6 +547,7 @@ impl Plant {
     /// Choose how the shaft moves (free, locked, driven at a speed). A load on a compliant coupling stays free.
     pub fn set_mechanics(&mut self, mechanics: Mechanics) {
         self.mechanics = mechanics;
+        self.stretch_acceleration = 0.0;
         match mechanics {
             Mechanics::Free => {}
             Mechanics::Locked => self.omega_m = 0.0,
@@ -536,6 +574,7 @@ impl Plant {
     pub fn set_rotor_state(&mut self, theta_m_rad: f64, omega_m_rad_s: f64) {
         self.theta_m = theta_m_rad;
         self.omega_m = omega_m_rad_s;
+        self.stretch_acceleration = 0.0;
         self.follow_motor(self.params.gear_ratio);
         self.last_count = self.count_now();
         self.pending_index = None;
