@@ -620,18 +620,22 @@ fn identify(args: &IdentifyArgs) -> Result<(), String> {
     }
 }
 
-fn bench(seconds: f64) -> Result<(), String> {
+fn bench(seconds: f64, drives: usize) -> Result<(), String> {
     if cfg!(debug_assertions) {
         println!("note: a debug build; the figure is for `cargo run --release`");
     }
-    let b = scenarios::bench(seconds).map_err(|e| e.to_string())?;
+    let b = scenarios::bench(seconds, drives).map_err(|e| e.to_string())?;
     println!(
-        "bench: {:.2} s of drive time ({} fast ticks with the plant, slow tick every 10th) in {:.3} s wall-clock",
+        "bench: {:.2} s of drive time on each of {} drive(s) ({} fast ticks each with the plant, slow tick every \
+         10th) in {:.3} s wall-clock, on one thread",
         b.simulated_s,
+        b.drives,
         (b.simulated_s * 25_000.0).round(),
         b.wall_s
     );
     println!();
+    println!("drives={}", b.drives);
+    println!("sim_speed_ratio_total={:.2}", b.sim_speed_ratio * b.drives as f64);
     println!("sim_speed_ratio={:.2}", b.sim_speed_ratio);
     Ok(())
 }
@@ -823,7 +827,9 @@ fn main() -> ExitCode {
             });
             canopen::run(args, config).map_err(|e| format!("canopen: {e}"))
         }
-        Command::Bench(args) => scenarios::with_plant(plant(args.plant.as_ref()), || bench(args.seconds)),
+        Command::Bench(args) => {
+            scenarios::with_plant(plant(args.plant.as_ref()), || bench(args.seconds, usize::from(args.drives)))
+        }
         Command::Identify(args) => {
             print_plant(args.common.plant.as_ref());
             scenarios::with_plant(plant(args.common.plant.as_ref()), || identify(args))

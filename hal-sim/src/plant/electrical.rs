@@ -97,8 +97,10 @@ pub(super) fn open_phase_terminal_drive(legs: &[LegDrive; 3], e: [f64; 3], x: us
 pub(super) fn small_rotation(delta: f64) -> (f64, f64) {
     if delta.abs() < 0.1 {
         let d2 = delta * delta;
-        let s = delta * (1.0 - d2 / 6.0 * (1.0 - d2 / 20.0 * (1.0 - d2 / 42.0)));
-        let c = 1.0 - d2 / 2.0 * (1.0 - d2 / 12.0 * (1.0 - d2 / 30.0 * (1.0 - d2 / 56.0)));
+        // Multiplications by the reciprocals (divisions are slow, and these do not fold).
+        const INV: [f64; 7] = [1.0 / 6.0, 1.0 / 20.0, 1.0 / 42.0, 1.0 / 2.0, 1.0 / 12.0, 1.0 / 30.0, 1.0 / 56.0];
+        let s = delta * (1.0 - d2 * INV[0] * (1.0 - d2 * INV[1] * (1.0 - d2 * INV[2])));
+        let c = 1.0 - d2 * INV[3] * (1.0 - d2 * INV[4] * (1.0 - d2 * INV[5] * (1.0 - d2 * INV[6])));
         (c, s)
     } else {
         let (s, c) = delta.sin_cos();

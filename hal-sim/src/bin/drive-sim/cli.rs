@@ -208,6 +208,9 @@ pub struct BenchArgs {
     /// Simulated seconds of drive time to run.
     #[arg(long, value_name = "S", default_value_t = 2.0, value_parser = parse_seconds, allow_negative_numbers = true)]
     pub seconds: f64,
+    /// Drives simulated side by side on one thread (1..=64); `sim_speed_ratio` is then each drive's.
+    #[arg(long, value_name = "N", default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=64))]
+    pub drives: u16,
 }
 
 /// ethercat's options.
