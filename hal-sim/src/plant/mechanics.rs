@@ -98,7 +98,8 @@ fn friction_motion(omega: f64, drive: f64, t_coulomb: f64) -> Option<f64> {
 }
 
 /// The shaft over a stretch of switching intervals (half a period: from the period start to the sample instant,
-/// or from there to the period end; shorter where the outputs stop switching).
+/// or from there to the period end; shorter where the outputs stop switching, where the torque breaks a held motor
+/// away, and, with a load profile, before an interval that would take it beyond `T / substeps_per_period`).
 ///
 /// The shaft's time constants are far longer than a period (the reference plant's mechanical time constant is
 /// seconds, the geared preset's coupling resonance 60 Hz), so over a stretch the electrical intervals see it turn
@@ -109,7 +110,7 @@ fn friction_motion(omega: f64, drive: f64, t_coulomb: f64) -> Option<f64> {
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Stretch {
     /// Start, in s into the period.
-    t0: f64,
+    pub(super) t0: f64,
     /// How the motor and the load move (decided at the start, as for a segment).
     shaft: ShaftSegment,
     /// Integral of the electromagnetic torque since the start, in N m s.

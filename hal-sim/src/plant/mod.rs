@@ -80,27 +80,43 @@
 //! # Integration
 //!
 //! The period is cut at every switching instant of the three legs (edges and dead-time ends) and at the sample
-//! instant; each interval is split into equal segments no longer than `T / substeps_per_period` (8 by default:
-//! 5 us, so a period has about 14 to 20 segments). The pole voltages are therefore constant on each segment apart
-//! from the bus voltage, which is part of the state, and each segment is one classical Runge-Kutta (RK4) step of
-//! the joint state (`i_d, i_q, w, theta, V_bus`, and the load's `w_l, theta_l`, integrated only on a compliant
-//! coupling: the coupling's resonance, 60 Hz for the geared preset, is slow against the 5 us step). The fastest dynamics are the bus (`R_source C` = 23.5 us, at
-//! least 4.7 steps per time constant: RK4 local error about `(h / tau)^5 / 120` = 3e-6 relative) and the winding
-//! (`L / R` = 0.61 ms, over 120 steps per time constant). Against a 128-sub-step run of 0.24 s of switching and
-//! coasting, the default differs by at most 1.2e-4 A in the currents, 0.6 mV on the bus and 1.4e-4 rad/s in speed:
-//! the model's own idealisations (ideal switches, constant diode drops) dominate by orders of magnitude. An exact
-//! discretisation of the RL part alone would not cover its coupling with the bus and the back-EMF, and RK4 needs no
-//! matrix exponentials. Angles inside a segment are advanced by a rotation instead of new `sin_cos` calls. The
-//! thermal nodes (time constants of 20 s and more) take one Euler step per period. No allocation in `step`: one
-//! simulated second costs about 0.05 s of CPU in release builds.
+//! instant: about 14 intervals, on each of which every pole voltage is `a V_bus + b` with constant `a`, `b` (the
+//! dead-time diode chosen by the current's sign at the interval's start).
+//!
+//! * **Outputs switching** (`switching`): the shaft is held over each half period (`mechanics::Stretch`): the
+//!   electrical intervals see it turn at a constant speed (the speed at the start of the half plus half a half
+//!   period of the last half's acceleration, so that the angle at the end is what a constant acceleration gives)
+//!   while they collect the integral of the electromagnetic torque (Simpson's rule per interval); at the sample
+//!   instant and at the period end the shaft and the load then move over the half under its mean torque (one RK4
+//!   step of `w, theta, w_l, theta_l`; the load's pair only on a compliant coupling, whose resonance, 60 Hz for the
+//!   geared preset, is slow against 20 us). A motor held by static friction is released at the end of the interval
+//!   where the torque breaks it away. With the shaft's speed fixed, the electrical state `[i_d, i_q, V_bus]` is a
+//!   linear system whose only time dependence is the rotation of the rotor frame, and each interval is one
+//!   classical Runge-Kutta (RK4) step of it, the frame's sine and cosine at the step's start, midpoint and end
+//!   reached by rotation (one `sin_cos` per half period). The fastest dynamics are the bus (`R_source C` =
+//!   23.5 us against intervals of at most 20 us, mostly under 10 us: RK4 local error about `(h / tau)^5 / 120`, below
+//!   4e-3 of the bus's few millivolts of ripple at 20 us) and the winding (`L / R` = 0.61 ms).
+//! * **Outputs off** (`freewheel`): each interval is split into equal segments no longer than
+//!   `T / substeps_per_period` (8 by default: 5 us), each one RK4 step of the joint state (`i_abc, w, theta, V_bus`,
+//!   `w_l, theta_l`): the diodes stop conducting at a segment's end.
+//!
+//! Held against the reference integrator the plant used before (RK4 segments of at most 5 us of the joint state
+//! with the shaft; kept for the tests in `reference`, itself within 1.2e-4 A, 0.6 mV and 1.4e-4 rad/s of a
+//! 128-sub-step run), fed the same commands: a 5 A current step on the free reference rotor differs by 0.2 mA in
+//! the currents, 0.02 mV on the bus and 0.002 rad/s in speed, a run at 3,000 rpm with a load step by 0.4 mA, and
+//! with the shaft's motion given (dynamometer, currents crossing zero in the dead times) by 1e-7 A; the sampled
+//! codes differ by at most one. The model's own idealisations (ideal switches, constant diode drops) dominate by
+//! orders of magnitude. The thermal nodes (time constants of 20 s and more) take one Euler step per period. No
+//! allocation in `step`: one simulated second costs about 0.03 s of CPU in release builds (`drive-sim bench`).
 //!
 //! # Code layout
 //!
 //! This file holds the plant's state, the period loop ([`Plant::step`]) and the public accessors and hooks. The
 //! rest is split by job: `coeffs` (the constants of one period), `switching` and `freewheel` (one integration
-//! segment with the legs switching, and with all switches off), `electrical` (the transforms, back-EMF and RK4
-//! step both use), `mechanics` (torque, friction, stiction, load), `thermal` (the temperature nodes) and
-//! `sampling` (the encoder after each segment, the sample at the period centre); the public modules [`inverter`],
+//! interval with the legs switching, and one segment with all switches off), `electrical` (the transforms,
+//! back-EMF, rotations and RK4 step both use), `mechanics` (torque, friction, stiction, load, the shaft held over
+//! a half period), `reference` (the reference integrator, tests only), `thermal` (the temperature nodes) and
+//! `sampling` (the encoder after each segment and stretch, the sample at the period centre); the public modules [`inverter`],
 //! [`sensors`], [`faults`], [`io`] and [`rng`] hold the leg patterns, the sensor functions, the injected faults, the
 //! digital I/O and the noise source.
 
@@ -216,7 +232,8 @@ pub struct PeriodAverages {
 }
 
 /// A load-torque profile: `f(time_s, theta_l_rad, omega_l_rad_s) -> N m` at the gear output, from the load's angle
-/// and speed (the motor's for the direct-drive reference plant), evaluated at the start of every integration segment.
+/// and speed (the motor's for the direct-drive reference plant), evaluated at the start of every half period while the
+/// outputs switch (the shaft is held over it, `mechanics::Stretch`) and of every integration segment while they are off.
 pub type LoadProfile = Box<dyn FnMut(f64, f64, f64) -> f64 + Send>;
 
 /// The simulated plant: PMSM, mechanics, inverter, DC bus, thermal nodes and sensors. See the module docs.
@@ -366,7 +383,7 @@ impl Plant {
     ///   injected sensor faults ([`faults::PlantFaults`]: wire break, noise burst, lost index, stuck Halls) act on
     ///   these three only.
     /// * `break_input`: the over-current comparator (any leg current, the phase current plus the share of an
-    ///   injected output short, beyond `break_current_a`, checked every sub-step while the outputs are enabled)
+    ///   injected output short, beyond `break_current_a`, checked after every switching interval while the outputs are enabled)
     ///   has tripped. The trip latches and forces the outputs off until a command
     ///   with `enabled == false` acknowledges it.
     pub fn step(&mut self, cmd: &PwmCommand) -> Measurements {
@@ -402,6 +419,13 @@ impl Plant {
         for &b in breaks[..n_breaks].iter() {
             if b - t > 1e-13 {
                 if enabled && !self.break_latched && !self.uses_reference_integration() {
+                    // A load profile (an end stop's stiff spring, a cogging map) is evaluated at least every
+                    // `T / substeps_per_period` unless one interval is longer, as the outputs-off segments do.
+                    if self.load_profile.is_some() && stretch.is_some_and(|s| b - s.t0 > h_max + 1e-12) {
+                        if let Some(s) = stretch.take() {
+                            self.finish_stretch(&k, s, t);
+                        }
+                    }
                     // One interval between two switching instants: every pole voltage is constant over it.
                     let s = match stretch.as_mut() {
                         Some(s) => s,
@@ -601,7 +625,8 @@ impl Plant {
     }
 
     /// Set a load-torque profile `f(time_s, theta_l_rad, omega_l_rad_s) -> N m` (see [`LoadProfile`]), added to the
-    /// constant load torque and evaluated at the start of every integration segment; `None` removes it.
+    /// constant load torque and evaluated at the start of every half period (outputs switching) or integration segment
+    /// (outputs off); `None` removes it.
     pub fn set_load_profile(&mut self, profile: Option<LoadProfile>) {
         self.load_profile = profile;
     }

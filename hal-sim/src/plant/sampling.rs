@@ -1,4 +1,4 @@
-//! What the sensors capture: the encoder counter and its index latch, followed after every segment; at the centre
+//! What the sensors capture: the encoder counter and its index latch, followed after every segment and half-period stretch; at the centre
 //! of the period, the ADC sample of the shunts, the bus voltage and the temperatures, and the encoder and Hall
 //! readings, with their noise and the injected sensor faults ([`super::faults::PlantFaults`]).
 
