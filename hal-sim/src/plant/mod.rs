@@ -284,8 +284,8 @@ pub struct Plant {
     /// The motor's acceleration over the last stretch of switching intervals, in rad/s^2: the speed predictor of
     /// the next ([`mechanics::Stretch`]); 0 after anything else moved the shaft.
     stretch_acceleration: f64,
-    /// Integrate with the reference integrator (RK4 segments of the joint state, [`reference`]) instead.
-    #[cfg(test)]
+    /// Integrate with the reference integrator (RK4 segments of the joint state, `reference`) instead: only the
+    /// tests set it.
     reference_integration: bool,
 }
 
@@ -336,7 +336,6 @@ impl Plant {
             chopper_energy_j: 0.0,
             sto: firmware::hal::sto::StoInputs::RELEASED,
             stretch_acceleration: 0.0,
-            #[cfg(test)]
             reference_integration: false,
             params,
         };
@@ -418,7 +417,7 @@ impl Plant {
         let mut stretch: Option<mechanics::Stretch> = None;
         for &b in breaks[..n_breaks].iter() {
             if b - t > 1e-13 {
-                if enabled && !self.break_latched && !self.uses_reference_integration() {
+                if enabled && !self.break_latched && !self.reference_integration {
                     // A load profile (an end stop's stiff spring, a cogging map) is evaluated at least every
                     // `T / substeps_per_period` unless one interval is longer, as the outputs-off segments do.
                     if self.load_profile.is_some() && stretch.is_some_and(|s| b - s.t0 > h_max + 1e-12) {
@@ -500,18 +499,14 @@ impl Plant {
         self.update_encoder();
     }
 
-    /// Whether the reference integrator is in use (only tests choose it).
-    fn uses_reference_integration(&self) -> bool {
-        #[cfg(test)]
-        return self.reference_integration;
-        #[cfg(not(test))]
-        false
+    fn state_at(&self, t_in_period: f64) -> PlantState {
+        self.state_with(t_in_period, self.i_abc())
     }
 
-    fn state_at(&self, t_in_period: f64) -> PlantState {
+    /// The state at `t_in_period` with the phase currents `i_abc` (those now, computed by the caller).
+    fn state_with(&self, t_in_period: f64, i_abc: [f64; 3]) -> PlantState {
         let p = &self.params;
         let pp = f64::from(p.pole_pairs);
-        let i_abc = self.i_abc();
         let r = self.phase_resistance();
         let k = self.coeffs();
         PlantState {
