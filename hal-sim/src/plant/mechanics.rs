@@ -5,7 +5,7 @@
 
 use super::coeffs::Coeffs;
 use super::drivetrain::LoadMotion;
-use super::electrical::rk4;
+use super::electrical::{rk4, small_rotation};
 use super::{Mechanics, Plant, PERIOD_S};
 
 fn sign(x: f64) -> f64 {
@@ -99,7 +99,7 @@ fn friction_motion(omega: f64, drive: f64, t_coulomb: f64) -> Option<f64> {
 
 /// The shaft over a stretch of switching intervals (half a period: from the period start to the sample instant,
 /// or from there to the period end; shorter where the outputs stop switching, where the torque breaks a held motor
-/// away, and, with a load profile, before an interval that would take it beyond `T / substeps_per_period`).
+/// away, and, with a load profile, to one segment of at most `T / substeps_per_period`).
 ///
 /// The shaft's time constants are far longer than a period (the reference plant's mechanical time constant is
 /// seconds, the geared preset's coupling resonance 60 Hz), so over a stretch the electrical intervals see it turn
@@ -110,7 +110,7 @@ fn friction_motion(omega: f64, drive: f64, t_coulomb: f64) -> Option<f64> {
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Stretch {
     /// Start, in s into the period.
-    pub(super) t0: f64,
+    t0: f64,
     /// How the motor and the load move (decided at the start, as for a segment).
     shaft: ShaftSegment,
     /// Integral of the electromagnetic torque since the start, in N m s.
@@ -121,6 +121,8 @@ pub(super) struct Stretch {
     pub(super) sin: f64,
     /// Cosine of the electrical angle at the start of the next interval.
     pub(super) cos: f64,
+    /// The electrical angle at the start, in rad.
+    theta_e0: f64,
     /// The free motor is held by static friction over the stretch: the stretch ends where the torque breaks it
     /// away ([`Plant::stretch_breaks_away`]).
     held: bool,
@@ -137,9 +139,10 @@ impl Plant {
             SegmentMotion::Driven(w) => w,
             SegmentMotion::Free { .. } => self.omega_m + self.stretch_acceleration * 0.25 * PERIOD_S,
         };
-        let (sin, cos) = (k.p * self.theta_m).sin_cos();
+        let theta_e0 = k.p * self.theta_m;
+        let (sin, cos) = theta_e0.sin_cos();
         let held = self.mechanics == Mechanics::Free && matches!(shaft.motor, SegmentMotion::Frozen);
-        Stretch { t0, shaft, torque_integral: 0.0, omega_m, sin, cos, held }
+        Stretch { t0, shaft, torque_integral: 0.0, omega_m, sin, cos, theta_e0, held }
     }
 
     /// The motor held by static friction over `stretch` breaks away with the currents now: the stretch ends here,
@@ -175,6 +178,13 @@ impl Plant {
             }
         }
         self.end_segment(k, &stretch.shaft, omega_before, omega_l_before);
+        // The intervals' frame turned at the held speed; the rotor is where the mechanics put it. The winding
+        // currents are continuous: the dq currents follow the frame's difference (a few microradians).
+        let slip = k.p * self.theta_m - (stretch.theta_e0 + k.p * stretch.omega_m * h);
+        if slip != 0.0 {
+            let (c, s) = small_rotation(slip);
+            [self.i_d, self.i_q] = [self.i_d * c + self.i_q * s, -self.i_d * s + self.i_q * c];
+        }
         // The predictor of the next stretch; none after a stop (friction ended the motion) or without free motion.
         self.stretch_acceleration = match stretch.shaft.motor {
             SegmentMotion::Free { .. } if self.omega_m != 0.0 => (self.omega_m - omega_before) / h,

@@ -89,8 +89,11 @@
 //!   while they collect the integral of the electromagnetic torque (Simpson's rule per interval); at the sample
 //!   instant and at the period end the shaft and the load then move over the half under its mean torque (one RK4
 //!   step of `w, theta, w_l, theta_l`; the load's pair only on a compliant coupling, whose resonance, 60 Hz for the
-//!   geared preset, is slow against 20 us). A motor held by static friction is released at the end of the interval
-//!   where the torque breaks it away. With the shaft's speed fixed, the electrical state `[i_d, i_q, V_bus]` is a
+//!   geared preset, is slow against 20 us); the dq currents then turn by the few microradians between the frame
+//!   the intervals used and the rotor's new angle, so the winding currents stay continuous. A motor held by static
+//!   friction is released at the end of the interval where the torque breaks it away; with a load profile (an end
+//!   stop's stiff spring) the intervals are split into segments of at most `T / substeps_per_period`, each a
+//!   stretch of its own, so the profile is evaluated as often as before. With the shaft's speed fixed, the electrical state `[i_d, i_q, V_bus]` is a
 //!   linear system whose only time dependence is the rotation of the rotor frame, and each interval is one
 //!   classical Runge-Kutta (RK4) step of it, the frame's sine and cosine at the step's start, midpoint and end
 //!   reached by rotation (one `sin_cos` per half period). The fastest dynamics are the bus (`R_source C` =
@@ -417,48 +420,53 @@ impl Plant {
         let mut stretch: Option<mechanics::Stretch> = None;
         for &b in breaks[..n_breaks].iter() {
             if b - t > 1e-13 {
-                if enabled && !self.break_latched && !self.reference_integration {
-                    // A load profile (an end stop's stiff spring, a cogging map) is evaluated at least every
-                    // `T / substeps_per_period` unless one interval is longer, as the outputs-off segments do.
-                    if self.load_profile.is_some() && stretch.is_some_and(|s| b - s.t0 > h_max + 1e-12) {
-                        if let Some(s) = stretch.take() {
-                            self.finish_stretch(&k, s, t);
-                        }
-                    }
-                    // One interval between two switching instants: every pole voltage is constant over it.
-                    let s = match stretch.as_mut() {
-                        Some(s) => s,
-                        None => stretch.insert(self.start_stretch(&k, t)),
-                    };
-                    let i = self.switching_interval(&k, &patterns, s, t, b, &mut acc);
-                    if i.iter().any(|x| x.abs() > self.params.break_current_a) {
-                        self.break_latched = true;
-                    }
-                    if self.stretch_breaks_away(&k, s) {
-                        if let Some(s) = stretch.take() {
-                            self.finish_stretch(&k, s, b);
-                        }
-                    }
+                // While the outputs switch, the interval between two switching instants is one step: every pole
+                // voltage is constant over it. With the outputs off (and with the reference integrator), and with a
+                // load profile (an end stop's stiff spring, a cogging map: evaluated as often as before), it is
+                // split into equal segments no longer than the maximum step.
+                let one_step = enabled && !self.break_latched && !self.reference_integration;
+                let n = if one_step && self.load_profile.is_none() {
+                    1.0
                 } else {
-                    if let Some(s) = stretch.take() {
-                        self.finish_stretch(&k, s, t);
-                    }
-                    // Split the interval into equal segments no longer than the maximum step.
-                    let n = ((b - t) / h_max - 1e-9).ceil().max(1.0);
-                    let h = (b - t) / n;
-                    let mut j = 0.0;
-                    while j < n {
-                        let t0 = t + j * h;
-                        let t1 = if j + 1.0 >= n { b } else { t0 + h };
-                        #[cfg(test)]
-                        if enabled && !self.break_latched {
-                            self.reference_segment(&k, &patterns, t0, t1, &mut acc);
-                            j += 1.0;
-                            continue;
+                    ((b - t) / h_max - 1e-9).ceil().max(1.0)
+                };
+                let h = (b - t) / n;
+                let mut j = 0.0;
+                while j < n {
+                    let t0 = t + j * h;
+                    let t1 = if j + 1.0 >= n { b } else { t0 + h };
+                    j += 1.0;
+                    if enabled && !self.break_latched && !self.reference_integration {
+                        // A segment of a split interval is a stretch of its own.
+                        if n > 1.0 {
+                            if let Some(s) = stretch.take() {
+                                self.finish_stretch(&k, s, t0);
+                            }
                         }
-                        self.freewheel_segment(&k, t0, t1, &mut acc);
-                        j += 1.0;
+                        let s = match stretch.as_mut() {
+                            Some(s) => s,
+                            None => stretch.insert(self.start_stretch(&k, t0)),
+                        };
+                        let i = self.switching_interval(&k, &patterns, s, t0, t1, &mut acc);
+                        if i.iter().any(|x| x.abs() > self.params.break_current_a) {
+                            self.break_latched = true;
+                        }
+                        if self.stretch_breaks_away(&k, s) {
+                            if let Some(s) = stretch.take() {
+                                self.finish_stretch(&k, s, t1);
+                            }
+                        }
+                        continue;
                     }
+                    if let Some(s) = stretch.take() {
+                        self.finish_stretch(&k, s, t0);
+                    }
+                    #[cfg(test)]
+                    if enabled && !self.break_latched {
+                        self.reference_segment(&k, &patterns, t0, t1, &mut acc);
+                        continue;
+                    }
+                    self.freewheel_segment(&k, t0, t1, &mut acc);
                 }
                 t = b;
             }

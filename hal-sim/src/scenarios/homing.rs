@@ -400,9 +400,8 @@ pub fn geometry_scaled(truth: &Truth, start: Start, index: i64, displacement: i6
 /// with a gear, `counts_per_rev` is the counts per output revolution, `j` the inertia at the output and the
 /// stiffness [`END_STOP_STIFFNESS_NM_PER_RAD`] x [`PlantScale::torque`] (`end_stop_load_scaled`). Beyond the
 /// stop by `x` rad at `w` rad/s: `max(0, k x + c w)`. The plant holds the load over each stretch of its shaft
-/// (with a load profile at most 5 us, or one switching interval where that is longer): with `w_n = sqrt(k / j)` =
-/// 16,900 rad/s, `w_n h` = 0.08 and `2 zeta w_n h` = 0.7 at 5 us (1.4 for an interval of 10 us), inside the
-/// stability of that explicit step.
+/// (with a load profile, one integration segment of at most 5 us): with `w_n = sqrt(k / j)` = 16,900 rad/s,
+/// `w_n h` = 0.08 and `2 zeta w_n h` = 0.7, well inside the stability of that explicit step.
 pub fn end_stop_load(
     positive: bool,
     stop_counts: f64,
