@@ -5,7 +5,7 @@
 
 use super::coeffs::Coeffs;
 use super::drivetrain::LoadMotion;
-use super::electrical::{rk4, small_rotation};
+use super::electrical::{abc_to_dq, dq_to_abc, remove_phase_current, rk4};
 use super::{Mechanics, Plant, PERIOD_S};
 
 fn sign(x: f64) -> f64 {
@@ -121,8 +121,6 @@ pub(super) struct Stretch {
     pub(super) sin: f64,
     /// Cosine of the electrical angle at the start of the next interval.
     pub(super) cos: f64,
-    /// The electrical angle at the start, in rad.
-    theta_e0: f64,
     /// The free motor is held by static friction over the stretch: the stretch ends where the torque breaks it
     /// away ([`Plant::stretch_breaks_away`]).
     held: bool,
@@ -139,10 +137,9 @@ impl Plant {
             SegmentMotion::Driven(w) => w,
             SegmentMotion::Free { .. } => self.omega_m + self.stretch_acceleration * 0.25 * PERIOD_S,
         };
-        let theta_e0 = k.p * self.theta_m;
-        let (sin, cos) = theta_e0.sin_cos();
+        let (sin, cos) = (k.p * self.theta_m).sin_cos();
         let held = self.mechanics == Mechanics::Free && matches!(shaft.motor, SegmentMotion::Frozen);
-        Stretch { t0, shaft, torque_integral: 0.0, omega_m, sin, cos, theta_e0, held }
+        Stretch { t0, shaft, torque_integral: 0.0, omega_m, sin, cos, held }
     }
 
     /// The motor held by static friction over `stretch` breaks away with the currents now: the stretch ends here,
@@ -178,12 +175,13 @@ impl Plant {
             }
         }
         self.end_segment(k, &stretch.shaft, omega_before, omega_l_before);
-        // The intervals' frame turned at the held speed; the rotor is where the mechanics put it. The winding
-        // currents are continuous: the dq currents follow the frame's difference (a few microradians).
-        let slip = k.p * self.theta_m - (stretch.theta_e0 + k.p * stretch.omega_m * h);
-        if slip != 0.0 {
-            let (c, s) = small_rotation(slip);
-            [self.i_d, self.i_q] = [self.i_d * c + self.i_q * s, -self.i_d * s + self.i_q * c];
+        // An open phase ([`super::faults::PlantFaults::phase_open`]) ends every interval at exactly zero current;
+        // at the rotor's new angle (a few microradians from the frame the intervals used) it still does.
+        if let Some(x) = self.faults.phase_open.filter(|&x| x < 3) {
+            let (sn, cs) = (k.p * self.theta_m).sin_cos();
+            let mut i = dq_to_abc(self.i_d, self.i_q, sn, cs);
+            remove_phase_current(&mut i, x);
+            [self.i_d, self.i_q] = abc_to_dq(i, sn, cs);
         }
         // The predictor of the next stretch; none after a stop (friction ended the motion) or without free motion.
         self.stretch_acceleration = match stretch.shaft.motor {

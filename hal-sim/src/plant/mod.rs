@@ -84,21 +84,21 @@
 //! dead-time diode chosen by the current's sign at the interval's start).
 //!
 //! * **Outputs switching** (`switching`): the shaft is held over each half period (`mechanics::Stretch`): the
-//!   electrical intervals see it turn at a constant speed (the speed at the start of the half plus half a half
-//!   period of the last half's acceleration, so that the angle at the end is what a constant acceleration gives)
-//!   while they collect the integral of the electromagnetic torque (Simpson's rule per interval); at the sample
-//!   instant and at the period end the shaft and the load then move over the half under its mean torque (one RK4
-//!   step of `w, theta, w_l, theta_l`; the load's pair only on a compliant coupling, whose resonance, 60 Hz for the
-//!   geared preset, is slow against 20 us); the dq currents then turn by the few microradians between the frame
-//!   the intervals used and the rotor's new angle, so the winding currents stay continuous. A motor held by static
-//!   friction is released at the end of the interval where the torque breaks it away; with a load profile (an end
-//!   stop's stiff spring) the intervals are split into segments of at most `T / substeps_per_period`, each a
-//!   stretch of its own, so the profile is evaluated as often as before. With the shaft's speed fixed, the electrical state `[i_d, i_q, V_bus]` is a
-//!   linear system whose only time dependence is the rotation of the rotor frame, and each interval is one
-//!   classical Runge-Kutta (RK4) step of it, the frame's sine and cosine at the step's start, midpoint and end
-//!   reached by rotation (one `sin_cos` per half period). The fastest dynamics are the bus (`R_source C` =
-//!   23.5 us against intervals of at most 20 us, mostly under 10 us: RK4 local error about `(h / tau)^5 / 120`, below
-//!   4e-3 of the bus's few millivolts of ripple at 20 us) and the winding (`L / R` = 0.61 ms).
+//!   electrical intervals see it turn at a constant speed (the speed at the start of the half plus half a half period
+//!   of the last half's acceleration, so that the angle at the end is what a constant acceleration gives) while they
+//!   collect the integral of the electromagnetic torque (Simpson's rule per interval); at the sample instant and at the
+//!   period end the shaft and the load then move over the half under its mean torque (one RK4 step of `w, theta, w_l,
+//!   theta_l`; the load's pair only on a compliant coupling, whose resonance, 60 Hz for the geared preset, is slow
+//!   against 20 us); the dq currents carry over to the rotor's new angle (a few microradians from the frame the
+//!   intervals used; an open phase is held at zero there too). A motor held by static friction is released at the end
+//!   of the interval where the torque breaks it away; with a load profile (an end stop's stiff spring) the intervals
+//!   are split into segments of at most `T / substeps_per_period`, each a stretch of its own, so the profile is
+//!   evaluated as often as before. With the shaft's speed fixed, the electrical state `[i_d, i_q, V_bus]` is a linear
+//!   system whose only time dependence is the rotation of the rotor frame, and each interval is one classical
+//!   Runge-Kutta (RK4) step of it, the frame's sine and cosine at the step's start, midpoint and end reached by
+//!   rotation (one `sin_cos` per half period). The fastest dynamics are the bus (`R_source C` = 23.5 us against
+//!   intervals of at most 20 us, mostly under 10 us: RK4 local error about `(h / tau)^5 / 120`, below 4e-3 of the bus's
+//!   few millivolts of ripple at 20 us) and the winding (`L / R` = 0.61 ms).
 //! * **Outputs off** (`freewheel`): each interval is split into equal segments no longer than
 //!   `T / substeps_per_period` (8 by default: 5 us), each one RK4 step of the joint state (`i_abc, w, theta, V_bus`,
 //!   `w_l, theta_l`): the diodes stop conducting at a segment's end.
@@ -114,12 +114,12 @@
 //!
 //! # Code layout
 //!
-//! This file holds the plant's state, the period loop ([`Plant::step`]) and the public accessors and hooks. The
-//! rest is split by job: `coeffs` (the constants of one period), `switching` and `freewheel` (one integration
-//! interval with the legs switching, and one segment with all switches off), `electrical` (the transforms,
-//! back-EMF, rotations and RK4 step both use), `mechanics` (torque, friction, stiction, load, the shaft held over
-//! a half period), `reference` (the reference integrator, tests only), `thermal` (the temperature nodes) and
-//! `sampling` (the encoder after each segment and stretch, the sample at the period centre); the public modules [`inverter`],
+//! This file holds the plant's state, the period loop ([`Plant::step`]) and the public accessors and hooks. The rest is
+//! split by job: `coeffs` (the constants of one period), `switching` and `freewheel` (one integration interval with the
+//! legs switching, and one segment with all switches off), `electrical` (the transforms, back-EMF, rotations and RK4
+//! step both use), `mechanics` (torque, friction, stiction, load, the shaft held over a half period), `reference` (the
+//! reference integrator, tests only), `thermal` (the temperature nodes) and `sampling` (the encoder after each segment
+//! and stretch, the sample at the period centre); the public modules [`inverter`],
 //! [`sensors`], [`faults`], [`io`] and [`rng`] hold the leg patterns, the sensor functions, the injected faults, the
 //! digital I/O and the noise source.
 
@@ -234,9 +234,9 @@ pub struct PeriodAverages {
     pub copper_loss_w: f64,
 }
 
-/// A load-torque profile: `f(time_s, theta_l_rad, omega_l_rad_s) -> N m` at the gear output, from the load's angle
-/// and speed (the motor's for the direct-drive reference plant), evaluated at the start of every half period while the
-/// outputs switch (the shaft is held over it, `mechanics::Stretch`) and of every integration segment while they are off.
+/// A load-torque profile: `f(time_s, theta_l_rad, omega_l_rad_s) -> N m` at the gear output, from the load's angle and
+/// speed (the motor's for the direct-drive reference plant), evaluated at the start of every integration segment (at
+/// most `T / substeps_per_period`, with the outputs switching or not).
 pub type LoadProfile = Box<dyn FnMut(f64, f64, f64) -> f64 + Send>;
 
 /// The simulated plant: PMSM, mechanics, inverter, DC bus, thermal nodes and sensors. See the module docs.
@@ -384,10 +384,10 @@ impl Plant {
     ///   the last entry into the index state since the previous sample; `hall`: the Hall state at the sample. The
     ///   injected sensor faults ([`faults::PlantFaults`]: wire break, noise burst, lost index, stuck Halls) act on
     ///   these three only.
-    /// * `break_input`: the over-current comparator (any leg current, the phase current plus the share of an
-    ///   injected output short, beyond `break_current_a`, checked after every switching interval while the outputs are enabled)
-    ///   has tripped. The trip latches and forces the outputs off until a command
-    ///   with `enabled == false` acknowledges it.
+    /// * `break_input`: the over-current comparator (any leg current, the phase current plus the share of an injected
+    ///   output short, beyond `break_current_a`, checked after every switching interval while the outputs are enabled)
+    ///   has tripped. The trip latches and forces the outputs off until a command with `enabled == false` acknowledges
+    ///   it.
     pub fn step(&mut self, cmd: &PwmCommand) -> Measurements {
         let p = &self.params;
         let k = self.coeffs();
@@ -628,8 +628,7 @@ impl Plant {
     }
 
     /// Set a load-torque profile `f(time_s, theta_l_rad, omega_l_rad_s) -> N m` (see [`LoadProfile`]), added to the
-    /// constant load torque and evaluated at the start of every half period (outputs switching) or integration segment
-    /// (outputs off); `None` removes it.
+    /// constant load torque and evaluated at the start of every integration segment; `None` removes it.
     pub fn set_load_profile(&mut self, profile: Option<LoadProfile>) {
         self.load_profile = profile;
     }
