@@ -1,0 +1,168 @@
+//! Tier 1's part of the data recorder: a fixed copy of the values tier 1 has already computed and published in its
+//! state (`FastSignals`, the PWM command, the encoder position) every period, into a small ring that tier 2 drains.
+//!
+//! The copy is the same twelve words whatever the recorder records (or whether it records at all): no channel
+//! list, no branch on the configuration, no conversion, so its cost in tier 1 is small and fixed. Tier 2 picks the
+//! channels, converts the units and triggers ([`super::Recorder::drain`]).
+//!
+//! One writer (tier 1, [`SampleRing::push`]), one reader (tier 2, [`SampleRing::slot_at`]): the writer fills a
+//! slot, then moves the count on (release); the reader takes the count (acquire), copies the slots before it and
+//! asks [`SampleRing::overwritten`] afterwards whether the writer came round to the oldest meanwhile. The ring holds
+//! [`RING_SLOTS`] periods, more than three slow periods, so tier 2 loses samples only when it is held off that long
+//! (it then knows, and counts them).
+
+use core::sync::atomic::{AtomicU32, Ordering};
+
+use crate::drive::tier1::Tier1State;
+use crate::hal::power::PwmCommand;
+
+/// Words of one snapshot.
+pub const SAMPLE_WORDS: usize = 12;
+/// Slots of the ring: a power of two (the slot is the count's low bits), over three slow periods of ten.
+pub const RING_SLOTS: usize = 32;
+/// Snapshots a reader may lag behind the writer and still read one (the writer starts on the oldest slot again
+/// once it is [`RING_SLOTS`] behind).
+pub const RING_REACH: u32 = RING_SLOTS as u32 - 1;
+
+/// The words of a snapshot. The current-loop variables 0x3303:01..09 are words 0..8 (sub - 1); the duties of
+/// phases A and B share word 9 (A in the low half), C is word 10, the encoder position word 11.
+pub mod word {
+    /// Phase current A (`Amps` bits); B and C follow.
+    pub const I_A: u8 = 0;
+    /// Measured q current (`Amps` bits).
+    pub const I_Q: u8 = 4;
+    /// Bus voltage (`Volts` bits).
+    pub const V_BUS: u8 = 8;
+    /// Duties of phases A (low half) and B (high half), compare ticks.
+    pub const DUTY_AB: u8 = 9;
+    /// Duty of phase C, compare ticks.
+    pub const DUTY_C: u8 = 10;
+    /// Tier 1's encoder position (increments).
+    pub const POSITION: u8 = 11;
+}
+
+/// A snapshot of tier 1's variables after one period (the words of [`word`]).
+pub type Tier1Sample = [u32; SAMPLE_WORDS];
+
+/// The ring (module documentation).
+#[derive(Debug)]
+pub struct SampleRing {
+    slots: [[AtomicU32; SAMPLE_WORDS]; RING_SLOTS],
+    /// Snapshots pushed so far (wrapping). Writer: tier 1.
+    written: AtomicU32,
+}
+
+impl SampleRing {
+    /// An empty ring.
+    #[must_use]
+    pub const fn new() -> Self {
+        Self { slots: [const { [const { AtomicU32::new(0) }; SAMPLE_WORDS] }; RING_SLOTS], written: AtomicU32::new(0) }
+    }
+
+    /// Tier 1, every period after the command is decided: copies `t1`'s published values and `pwm` into the next
+    /// slot. A fixed sequence of loads and stores (twelve of each and the count), never a branch on what is recorded.
+    #[inline(always)]
+    pub fn push(&self, t1: &Tier1State, pwm: &PwmCommand) {
+        let n = self.written.load(Ordering::Relaxed);
+        let s = t1.signals();
+        let [duty_a, duty_b, duty_c] = pwm.duty;
+        // The mask keeps the index within the array: the bounds check folds away.
+        if let Some([i_a, i_b, i_c, i_d, i_q, i_ref, v_d, v_q, v_bus, duty_ab, duty_c_word, position]) =
+            self.slots.get(n as usize & (RING_SLOTS - 1))
+        {
+            let bits = |x: i32| x.cast_unsigned();
+            i_a.store(bits(s.i_abc.a.to_bits()), Ordering::Relaxed);
+            i_b.store(bits(s.i_abc.b.to_bits()), Ordering::Relaxed);
+            i_c.store(bits(s.i_abc.c.to_bits()), Ordering::Relaxed);
+            i_d.store(bits(s.i_dq.d.to_bits()), Ordering::Relaxed);
+            i_q.store(bits(s.i_dq.q.to_bits()), Ordering::Relaxed);
+            i_ref.store(bits(s.i_ref.q.to_bits()), Ordering::Relaxed);
+            v_d.store(bits(s.v_dq.d.to_bits()), Ordering::Relaxed);
+            v_q.store(bits(s.v_dq.q.to_bits()), Ordering::Relaxed);
+            v_bus.store(bits(s.v_bus.to_bits()), Ordering::Relaxed);
+            duty_ab.store(u32::from(duty_a) | (u32::from(duty_b) << 16), Ordering::Relaxed);
+            duty_c_word.store(u32::from(duty_c), Ordering::Relaxed);
+            position.store(bits(t1.commutation().encoder().position()), Ordering::Relaxed);
+        }
+        // Release: the slot's words before the count that makes them readable.
+        self.written.store(n.wrapping_add(1), Ordering::Release);
+    }
+
+    /// Stores a snapshot given word by word (tests and tools; tier 1 uses [`Self::push`]).
+    pub fn push_sample(&self, sample: &Tier1Sample) {
+        let n = self.written.load(Ordering::Relaxed);
+        if let Some(slot) = self.slot_at(n) {
+            for (to, from) in slot.iter().zip(sample) {
+                to.store(*from, Ordering::Relaxed);
+            }
+        }
+        self.written.store(n.wrapping_add(1), Ordering::Release);
+    }
+
+    /// Snapshots pushed so far (wrapping).
+    #[must_use]
+    pub fn written(&self) -> u32 {
+        self.written.load(Ordering::Acquire)
+    }
+
+    /// The slot of snapshot `n`, without a check: for a reader that checked the range of its snapshots against
+    /// one [`Self::written`] and asks [`Self::overwritten`] afterwards.
+    #[inline(always)]
+    #[must_use]
+    pub fn slot_at(&self, n: u32) -> Option<&[AtomicU32; SAMPLE_WORDS]> {
+        self.slots.get(n as usize & (RING_SLOTS - 1))
+    }
+
+    /// Whether the writer has started on the slot of snapshot `n` again (its next write begins once `written` =
+    /// `n` + [`RING_SLOTS`]).
+    #[must_use]
+    pub fn overwritten(&self, n: u32) -> bool {
+        self.written().wrapping_sub(n) >= RING_SLOTS as u32
+    }
+
+    /// A copy of snapshot `n`, or `None` when it is not written yet or was overwritten (tests and diagnostics).
+    #[must_use]
+    pub fn read(&self, n: u32) -> Option<Tier1Sample> {
+        if self.written().wrapping_sub(n).wrapping_sub(1) >= RING_REACH {
+            return None;
+        }
+        let slot = self.slot_at(n)?;
+        let sample = core::array::from_fn(|w| slot.get(w).map_or(0, |x| x.load(Ordering::Relaxed)));
+        (!self.overwritten(n)).then_some(sample)
+    }
+}
+
+impl Default for SampleRing {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::drive::DriveConfig;
+
+    /// The ring keeps the last [`RING_REACH`] snapshots readable in order; older ones read as overwritten, newer
+    /// ones as not yet written.
+    #[test]
+    fn snapshots_read_back_in_order_until_the_writer_comes_round() {
+        let drive = crate::drive::Drive::new(DriveConfig::DEFAULT);
+        let t1 = Tier1State::new(drive.settings());
+        let ring = SampleRing::new();
+        assert_eq!(ring.read(0), None, "nothing written yet");
+        for k in 0..40u16 {
+            ring.push(&t1, &PwmCommand { duty: [k, k + 1000, k + 2000], enabled: true });
+        }
+        assert_eq!(ring.written(), 40);
+        for k in 9..40u32 {
+            let s = ring.read(k).expect("within reach");
+            assert_eq!(s[word::DUTY_AB as usize], k | ((k + 1000) << 16), "snapshot {k}");
+            assert_eq!(s[word::DUTY_C as usize], k + 2000, "snapshot {k}");
+        }
+        for k in 0..9 {
+            assert_eq!(ring.read(k), None, "snapshot {k} overwritten");
+        }
+        assert_eq!(ring.read(40), None, "not yet written");
+    }
+}
