@@ -135,10 +135,11 @@ const PLAN_WIDE: u8 = 0x80;
 /// The plan of the 0x3303 variable `sub` (module documentation), or `None`.
 const fn tier1_variable(sub: u8) -> Option<u8> {
     Some(match sub {
-        // Currents (mA, 16 bits): words 0..5.
-        1..=6 => sub.wrapping_sub(1) | PLAN_MILLI,
-        // Voltages (mV, 32 bits): words 6..8.
-        7..=9 => sub.wrapping_sub(1) | PLAN_MILLI | PLAN_WIDE,
+        // Currents (mA, 16 bits): words 0..4, the q reference word 6.
+        1..=5 => sub.wrapping_sub(1) | PLAN_MILLI,
+        6 => ring::word::I_REF_Q | PLAN_MILLI,
+        // Voltages (mV, 32 bits): words 7..9.
+        7..=9 => sub | PLAN_MILLI | PLAN_WIDE,
         10 => ring::word::DUTY_AB,
         11 => ring::word::DUTY_AB | PLAN_HIGH_HALF,
         12 => ring::word::DUTY_C,

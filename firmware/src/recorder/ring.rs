@@ -1,7 +1,7 @@
 //! Tier 1's part of the data recorder: a fixed copy of the values tier 1 has already computed and published in its
 //! state (`FastSignals`, the PWM command, the encoder position) every period, into a small ring that tier 2 drains.
 //!
-//! The copy is the same twelve words whatever the recorder records (or whether it records at all): no channel
+//! The copy is the same thirteen words whatever the recorder records (or whether it records at all): no channel
 //! list, no branch on the configuration, no conversion, so its cost in tier 1 is small and fixed. Tier 2 picks the
 //! channels, converts the units and triggers ([`super::Recorder::drain`]).
 //!
@@ -16,29 +16,34 @@ use core::sync::atomic::{AtomicU32, Ordering};
 use crate::drive::tier1::Tier1State;
 use crate::hal::power::PwmCommand;
 
-/// Words of one snapshot.
-pub const SAMPLE_WORDS: usize = 12;
+/// Words of one snapshot: thirteen used, the slot padded to a power of two so that tier 1 finds it with one shift.
+pub const SAMPLE_WORDS: usize = 16;
 /// Slots of the ring: a power of two (the slot is the count's low bits), over three slow periods of ten.
 pub const RING_SLOTS: usize = 32;
 /// Snapshots a reader may lag behind the writer and still read one (the writer starts on the oldest slot again
 /// once it is [`RING_SLOTS`] behind).
 pub const RING_REACH: u32 = RING_SLOTS as u32 - 1;
 
-/// The words of a snapshot. The current-loop variables 0x3303:01..09 are words 0..8 (sub - 1); the duties of
-/// phases A and B share word 9 (A in the low half), C is word 10, the encoder position word 11.
+/// The words of a snapshot: words 0..9 in the order `FastSignals` holds them (phase currents A, B, C, d and q
+/// current, d and q reference, d and q voltage, bus voltage: `I16F16` bits), so that tier 1 loads them in runs;
+/// then the duties of phases A and B (A in the low half), C, and the encoder position.
 pub mod word {
-    /// Phase current A (`Amps` bits); B and C follow.
+    /// Phase current A (`Amps` bits); B and C follow, then the d and q currents.
     pub const I_A: u8 = 0;
     /// Measured q current (`Amps` bits).
     pub const I_Q: u8 = 4;
+    /// The q current reference (`Amps` bits).
+    pub const I_REF_Q: u8 = 6;
+    /// Applied d voltage (`Volts` bits); q follows.
+    pub const V_D: u8 = 7;
     /// Bus voltage (`Volts` bits).
-    pub const V_BUS: u8 = 8;
+    pub const V_BUS: u8 = 9;
     /// Duties of phases A (low half) and B (high half), compare ticks.
-    pub const DUTY_AB: u8 = 9;
+    pub const DUTY_AB: u8 = 10;
     /// Duty of phase C, compare ticks.
-    pub const DUTY_C: u8 = 10;
+    pub const DUTY_C: u8 = 11;
     /// Tier 1's encoder position (increments).
-    pub const POSITION: u8 = 11;
+    pub const POSITION: u8 = 12;
 }
 
 /// A snapshot of tier 1's variables after one period (the words of [`word`]).
@@ -60,14 +65,14 @@ impl SampleRing {
     }
 
     /// Tier 1, every period after the command is decided: copies `t1`'s published values and `pwm` into the next
-    /// slot. A fixed sequence of loads and stores (twelve of each and the count), never a branch on what is recorded.
+    /// slot. A fixed sequence of loads and stores (thirteen stores and the count), never a branch on what is recorded.
     #[inline(always)]
     pub fn push(&self, t1: &Tier1State, pwm: &PwmCommand) {
         let n = self.written.load(Ordering::Relaxed);
         let s = t1.signals();
         let [duty_a, duty_b, duty_c] = pwm.duty;
         // The mask keeps the index within the array: the bounds check folds away.
-        if let Some([i_a, i_b, i_c, i_d, i_q, i_ref, v_d, v_q, v_bus, duty_ab, duty_c_word, position]) =
+        if let Some([i_a, i_b, i_c, i_d, i_q, i_ref_d, i_ref_q, v_d, v_q, v_bus, duty_ab, duty_c_word, position, ..]) =
             self.slots.get(n as usize & (RING_SLOTS - 1))
         {
             let bits = |x: i32| x.cast_unsigned();
@@ -76,7 +81,8 @@ impl SampleRing {
             i_c.store(bits(s.i_abc.c.to_bits()), Ordering::Relaxed);
             i_d.store(bits(s.i_dq.d.to_bits()), Ordering::Relaxed);
             i_q.store(bits(s.i_dq.q.to_bits()), Ordering::Relaxed);
-            i_ref.store(bits(s.i_ref.q.to_bits()), Ordering::Relaxed);
+            i_ref_d.store(bits(s.i_ref.d.to_bits()), Ordering::Relaxed);
+            i_ref_q.store(bits(s.i_ref.q.to_bits()), Ordering::Relaxed);
             v_d.store(bits(s.v_dq.d.to_bits()), Ordering::Relaxed);
             v_q.store(bits(s.v_dq.q.to_bits()), Ordering::Relaxed);
             v_bus.store(bits(s.v_bus.to_bits()), Ordering::Relaxed);

@@ -18,7 +18,9 @@ use core::sync::atomic::Ordering;
 use crate::board::flash::ParamFlash;
 use crate::drive::objects::BootReport;
 use crate::drive::tier1::Tier1State;
+use crate::drive::blocks::Settings;
 use crate::drive::{Drive, DriveConfig, FastTick};
+use crate::handoff::Words;
 use crate::hal::power::Measurements;
 use crate::od::abort::SdoAbort;
 use crate::od::access::AccessContext;
@@ -73,7 +75,7 @@ pub fn sdo_write(params: &mut Params, index: u16, sub: u8, data: &[u8], ctx: Acc
 }
 
 /// One current-loop period: the blocks the drive published since the last period (settings first), then the fast
-/// tick. Not inlined: tier 1 measures exactly this call. `settings_epoch` and `setpoint_epoch` are the epochs of
+/// tick and the data recorder's copy of its values. Not inlined: tier 1 measures exactly this call. `settings_epoch` and `setpoint_epoch` are the epochs of
 /// the blocks taken last; a block is decoded only when its epoch moved on (one load and a compare otherwise).
 #[inline(never)]
 pub fn fast_tick(
@@ -83,9 +85,13 @@ pub fn fast_tick(
     setpoint_epoch: &mut u32,
 ) -> FastTick {
     if super::tier1::SETTINGS.epoch() != *settings_epoch {
-        let settings = super::tier1::SETTINGS.read();
-        *settings_epoch = settings.epoch;
-        t1.apply_settings(&settings.block);
+        // The words loaded straight into the decoder's input: `Command::read` zeroes an array, loads the words in a
+        // loop and copies them again into its result, about 100 instructions more in the period that takes new
+        // settings, tier 1's longest (the room the data recorder's copy below takes).
+        let front = super::tier1::SETTINGS.front();
+        let words = front.block.each_ref().map(|cell| cell.load(Ordering::Relaxed));
+        *settings_epoch = front.epoch;
+        t1.apply_settings(&<Settings as Words<15>>::from_words(&words));
     }
     if super::tier1::SETPOINT.epoch() != *setpoint_epoch {
         let setpoint = super::tier1::SETPOINT.front();
@@ -104,7 +110,11 @@ pub fn fast_tick(
             t1.apply_setpoint_words(&[version, power, i_q, i_d, apply_from]);
         }
     }
-    t1.fast_tick(m)
+    let tick = t1.fast_tick(m);
+    // The data recorder's fixed copy of what this period computed (the same words whatever is recorded): inside
+    // the measured call, so that `insn.fast_tick_max` is tier 1's cost with the recorder.
+    super::tier1::RECORDER_RING.push(t1, &tick.pwm);
+    tick
 }
 
 /// One velocity/position-loop period. Not inlined: tier 2 measures exactly this call.

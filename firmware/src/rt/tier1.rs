@@ -26,6 +26,7 @@ use crate::drive::blocks::{SetPoint, Settings, Tier1Report, REPORT_WORDS, SETPOI
 #[cfg(not(feature = "qemu"))]
 use crate::hal::power::PWM_FREQUENCY_HZ;
 use crate::handoff::{Command, Report};
+use crate::recorder::ring::SampleRing;
 
 /// Cost budget of one fast tick in counter units: half the 6,720-cycle period at 168 MHz, the rest is left to
 /// the interrupt entry/exit and tiers 2 and 3.
@@ -54,6 +55,9 @@ pub static SLOW_TICK_RAISED_AT: AtomicU32 = AtomicU32::new(0);
 pub static PERIOD_SUPERVISED: AtomicBool = AtomicBool::new(false);
 /// Largest cost of publishing the report (after the PWM write, every tenth period; counter units). Writer: tier 1.
 pub static REPORT_MAX: AtomicU32 = AtomicU32::new(0);
+/// Tier 1's copies of its values for the data recorder (`crate::recorder::ring`), one every period inside the
+/// measured fast tick (`app::fast_tick`). Writer: tier 1; reader: tier 2 (`tier2::RECORDER`'s drain).
+pub static RECORDER_RING: SampleRing = SampleRing::new();
 
 /// One current-loop period in counter units: cycles at 168 MHz on the board, the QEMU bench's instruction period.
 #[cfg(not(feature = "qemu"))]

@@ -51,6 +51,7 @@ use firmware::canopen::nmt::{NmtState, ResetKind};
 use firmware::canopen::{CanopenNode, NodeEvent};
 use firmware::cia402::State;
 use firmware::drive::objects::DriveObjects;
+use firmware::recorder::objects::RecorderObjects;
 use firmware::hal::power::SLOW_TICK_DIVIDER;
 use firmware::od::generated::handles as h;
 use firmware::od::store::ParamStore;
@@ -356,8 +357,9 @@ impl CanDrive {
         }
         while let Some(frame) = self.inbox.pop_front() {
             let on = self.sim.drive.power_stage_enabled();
-            let mut app =
+            let mut drive_objects =
                 DriveObjects::new(&mut self.store, on).with_program_control(self.program.port(Interface::Canopen, on));
+            let mut app = RecorderObjects::new(&mut self.sim.recorder, &mut drive_objects);
             self.node.handle_frame(&frame, &mut self.sim.drive, &mut app, now_us);
             self.follow_program();
             if self.in_fallback() {
@@ -375,8 +377,9 @@ impl CanDrive {
         }
         self.node.observe_bus(self.controller, &mut self.sim.drive);
         let on = self.sim.drive.power_stage_enabled();
-        let mut app =
+        let mut drive_objects =
             DriveObjects::new(&mut self.store, on).with_program_control(self.program.port(Interface::Canopen, on));
+        let mut app = RecorderObjects::new(&mut self.sim.recorder, &mut drive_objects);
         if let Some(event) = self.node.process(&mut self.sim.drive, &mut app, now_us) {
             self.events.push(event);
             if event == NodeEvent::Booted {
@@ -460,6 +463,8 @@ impl CanopenRunner {
                 if *params != crate::plant::PlantParams::reference() {
                     sim.commission_motor_data(params);
                 }
+                // A master records through the data recorder (0x3300..0x3302) as on the board.
+                sim.attach_recorder();
                 // The factory image in slot A, or (`empty_slot_nodes`) nothing: the bootloader's fallback.
                 let program = if config.empty_slot(id) { update::blank_program() } else { update::factory_program() };
                 let mut drive = CanDrive::power_on(id, id, bus.attach(), sim, program);

@@ -9,4 +9,5 @@ mod mailbox;
 mod process_data;
 mod slave;
 mod spi_pdi;
+mod recorder;
 mod sync_pll;
