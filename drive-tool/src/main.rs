@@ -1,7 +1,8 @@
 //! `drive-tool`: the command-line tool a machine builder commissions a drive with over CANopen: finds the drives
 //! (`scan`, `info`), reads and writes objects by index or name with their types (`get`, `set`), saves and
 //! loads parameter sets as CiA 306 DCF files (`params`), reads the error history (`faults`, `fault reset`) and
-//! makes a first move of an axis (`enable`, `disable`, `jog`, `move`).
+//! makes a first move of an axis (`enable`, `disable`, `jog`, `move`), and records traces with the drive's data
+//! recorder (`record`: CSV and SVG).
 //!
 //! Links: `--socketcand HOST:PORT` (the simulator, `drive-sim canopen`) or `--can IFACE` (Linux SocketCAN).
 //! The dictionary is the project's EDS, embedded, or `--eds FILE`.
@@ -30,6 +31,11 @@ mod sdo;
 mod socketcan_if;
 mod socketcand;
 mod value;
+/// The SVG line plots of `record`: hal-sim's dependency-free plot writer (`hal-sim/src/sim/plot.rs`), compiled
+/// into this tool from its one source rather than pulling the simulator in as a dependency.
+#[path = "../../hal-sim/src/sim/plot.rs"]
+#[allow(dead_code, reason = "the tool draws plain line plots: no markers, log axis or reference lines")]
+mod plot;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -193,6 +199,10 @@ enum Command {
     /// Layer setting services (CiA 305) for drives without a node-ID.
     #[command(subcommand)]
     Lss(LssCommand),
+    /// The data recorder (0x3300..0x3302): configure up to 8 channels, the sampling divider and the trigger with
+    /// its preceding samples, arm, wait for the recording, upload it by SDO block transfer and write a CSV file
+    /// and an SVG plot; `--no-wait` arms only, `--fetch` uploads a recording armed earlier.
+    Record(commands::record::RecordArgs),
     /// Install a signed firmware image by program control (0x1F51 stop/clear, 0x1F50 block download with its CRC,
     /// start), wait for the restart and read the new version back; a refused image is shown with the drive's SDO
     /// abort and flash status 0x1F57, and the old firmware keeps running.
@@ -347,6 +357,7 @@ fn run(cli: Cli) -> Result<(), String> {
         Command::Lss(LssCommand::Assign { from, count, no_store, wait_ms }) => {
             commands::lss::assign(&mut cx, from, count, !no_store, Duration::from_millis(wait_ms))
         }
+        Command::Record(args) => commands::record::record(&mut cx, &args),
         Command::Update { image, no_start } => commands::update::update(&mut cx, &image, !no_start),
         Command::Move { target, relative, velocity, timeout_s, stay_enabled } => commands::motion::move_to(
             &mut cx,
