@@ -28,10 +28,12 @@
 //!
 //! # Tiers and owner
 //! Tier 1 pays a fixed cost whatever is recorded: a copy of its published values into [`ring::SampleRing`] every
-//! period. Tier 2 drains the ring once a slow period, after its set-point is published ([`Recorder::drain`]): it
-//! picks the channels, converts the units, runs the trigger and stores the samples, so the cost per channel falls
-//! in tier 2's step and delays no loop. Dictionary objects are read once per drain: at 25 kHz they repeat over the
-//! ten samples of a slow period (they change at 2.5 kHz at most). A sample row never straddles the end of the
+//! period. Tier 2 takes the object channels' values once a slow period after its set-point is published
+//! ([`Recorder::take_objects`]: at 25 kHz they repeat over the ten samples of a slow period, they change at 2.5 kHz
+//! at most). Tier 3 drains the ring ([`Recorder::drain`], a few snapshots per section so that it holds tier 2 off
+//! briefly): it picks the channels, converts the units, runs the trigger and stores the samples, so the cost per
+//! channel falls in neither loop's step. The ring is deep enough for tier 3 to fall behind by
+//! [`ring::RING_SLOTS`] periods; beyond that samples are lost and counted ([`Recorder::lost`]). A sample row never straddles the end of the
 //! buffer (its capacity is a whole number of rows), so the drain checks the wrap once a sample, not once a channel.
 //!
 //! The recorder belongs to the runtime, not to the dictionary: on the target `rt::tier2::RECORDER` (tier 2's
@@ -252,6 +254,8 @@ pub struct Recorder {
     /// are objects.
     plan: [u8; MAX_CHANNELS],
     objects: [Option<&'static Entry>; MAX_CHANNELS],
+    /// The object channels' values of this slow period ([`Self::take_objects`]).
+    object_values: [i32; MAX_CHANNELS],
     count: usize,
     /// Half-words of one sample, and of the stream (a whole number of samples).
     row_halves: u32,
@@ -295,6 +299,7 @@ impl Recorder {
             state: RecorderState::Idle,
             plan: [0; MAX_CHANNELS],
             objects: [None; MAX_CHANNELS],
+            object_values: [0; MAX_CHANNELS],
             count: 0,
             row_halves: 0,
             capacity: 0,
@@ -422,30 +427,44 @@ impl Recorder {
     // Sampling (tier 2, once per slow period)
     // -----------------------------------------------------------------------------------------------------
 
-    /// Takes the snapshots tier 1 pushed since the last call: while armed or recording, every `period`-th becomes
-    /// a sample of the configured channels (the objects read once, from `values`), and the trigger runs on it.
-    #[inline(never)]
-    pub fn drain(&mut self, ring: &SampleRing, values: &[u8]) {
-        let written = ring.written();
+    /// Tier 2, once a slow period: the values of the object channels from the dictionary's value storage `values`
+    /// (they change at 2.5 kHz at most, so every sample of the slow period takes them; a few loads, so that the
+    /// drain itself needs no dictionary and can run in tier 3).
+    pub fn take_objects(&mut self, values: &[u8]) {
         if !matches!(self.state, RecorderState::Waiting | RecorderState::Recording) {
-            self.next = written;
             return;
         }
-        // Just armed: from the newest snapshot on. Fallen behind the ring: from the oldest it still holds.
-        let mut next = if self.fresh { written.wrapping_sub(1) } else { self.next };
+        for (value, entry) in self.object_values.iter_mut().zip(&self.objects).take(self.count) {
+            if let Some(entry) = entry {
+                *value = entry_value(entry, values);
+            }
+        }
+    }
+
+    /// Takes up to `limit` of the snapshots tier 1 pushed since the last call: while armed or recording, every
+    /// `period`-th becomes a sample of the configured channels, and the trigger runs on it. Whether snapshots are
+    /// left (the caller drains again, after letting others run: tier 3 keeps its sections short, see `rt::tier3`).
+    #[inline(never)]
+    pub fn drain(&mut self, ring: &SampleRing, limit: u32) -> bool {
+        let written = ring.written();
+        let sampling = matches!(self.state, RecorderState::Waiting | RecorderState::Recording);
+        // Tier 1 copies only while the recorder samples (from its next period on).
+        ring.set_enabled(sampling);
+        if !sampling {
+            self.next = written;
+            return false;
+        }
+        // Just armed: from the next snapshot tier 1 copies on. Fallen behind the ring: from the oldest it holds.
+        let mut next = if self.fresh { written } else { self.next };
         if written.wrapping_sub(next) > RING_REACH {
             self.lost = self.lost.wrapping_add(written.wrapping_sub(RING_REACH).wrapping_sub(next));
             next = written.wrapping_sub(RING_REACH);
         }
         self.fresh = false;
-        let mut objects = [0i32; MAX_CHANNELS];
-        for (value, entry) in objects.iter_mut().zip(&self.objects).take(self.count) {
-            if let Some(entry) = entry {
-                *value = entry_value(entry, values);
-            }
-        }
+        let objects = self.object_values;
         let first = next;
-        while next != written && self.state != RecorderState::Complete {
+        let end = if written.wrapping_sub(next) > limit { next.wrapping_add(limit) } else { written };
+        while next != end && self.state != RecorderState::Complete {
             let Some(words) = ring.slot_at(next) else { break };
             next = next.wrapping_add(1);
             self.countdown = self.countdown.wrapping_sub(1);
@@ -458,7 +477,8 @@ impl Recorder {
         if ring.overwritten(first) {
             self.lost = self.lost.wrapping_add(1);
         }
-        self.next = written;
+        self.next = next;
+        next != written && self.state != RecorderState::Complete
     }
 
     /// Stores one sample of the snapshot `words` and runs the trigger.

@@ -1,25 +1,27 @@
 //! Tier 1's part of the data recorder: a fixed copy of the values tier 1 has already computed and published in its
 //! state (`FastSignals`, the PWM command, the encoder position) every period, into a small ring that tier 2 drains.
 //!
-//! The copy is the same thirteen words whatever the recorder records (or whether it records at all): no channel
-//! list, no branch on the configuration, no conversion, so its cost in tier 1 is small and fixed. Tier 2 picks the
-//! channels, converts the units and triggers ([`super::Recorder::drain`]).
+//! The copy is the same thirteen words whatever the recorder records: no channel list, no branch on the
+//! configuration, no conversion, so its cost in tier 1 is small and fixed; while the recorder does not sample,
+//! tier 1 skips it after one load ([`SampleRing::set_enabled`], the drain's). Tier 2 picks the
+//! channels, converts the units and triggers ([`super::Recorder::drain`], in tier 3).
 //!
-//! One writer (tier 1, [`SampleRing::push`]), one reader (tier 2, [`SampleRing::slot_at`]): the writer fills a
+//! One writer (tier 1, [`SampleRing::push`]), one reader (tier 3, [`SampleRing::slot_at`]): the writer fills a
 //! slot, then moves the count on (release); the reader takes the count (acquire), copies the slots before it and
 //! asks [`SampleRing::overwritten`] afterwards whether the writer came round to the oldest meanwhile. The ring holds
-//! [`RING_SLOTS`] periods, more than three slow periods, so tier 2 loses samples only when it is held off that long
-//! (it then knows, and counts them).
+//! [`RING_SLOTS`] periods, so the drain (tier 3) loses samples only when it is held off that long (it then knows,
+//! and counts them).
 
-use core::sync::atomic::{AtomicU32, Ordering};
+use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use crate::drive::tier1::Tier1State;
 use crate::hal::power::PwmCommand;
 
 /// Words of one snapshot: thirteen used, the slot padded to a power of two so that tier 1 finds it with one shift.
 pub const SAMPLE_WORDS: usize = 16;
-/// Slots of the ring: a power of two (the slot is the count's low bits), over three slow periods of ten.
-pub const RING_SLOTS: usize = 32;
+/// Slots of the ring: a power of two (the slot is the count's low bits): 5.1 ms, 12.8 slow periods for tier 3 to
+/// drain it in (8 KiB of RAM).
+pub const RING_SLOTS: usize = 128;
 /// Snapshots a reader may lag behind the writer and still read one (the writer starts on the oldest slot again
 /// once it is [`RING_SLOTS`] behind).
 pub const RING_REACH: u32 = RING_SLOTS as u32 - 1;
@@ -55,19 +57,29 @@ pub struct SampleRing {
     slots: [[AtomicU32; SAMPLE_WORDS]; RING_SLOTS],
     /// Snapshots pushed so far (wrapping). Writer: tier 1.
     written: AtomicU32,
+    /// Whether tier 1 copies at all: set while the recorder samples, so that tier 1 pays one load and a branch
+    /// otherwise. Writer: tier 2 (the drain, [`Self::set_enabled`]).
+    enabled: AtomicBool,
 }
 
 impl SampleRing {
     /// An empty ring.
     #[must_use]
     pub const fn new() -> Self {
-        Self { slots: [const { [const { AtomicU32::new(0) }; SAMPLE_WORDS] }; RING_SLOTS], written: AtomicU32::new(0) }
+        Self {
+            slots: [const { [const { AtomicU32::new(0) }; SAMPLE_WORDS] }; RING_SLOTS],
+            written: AtomicU32::new(0),
+            enabled: AtomicBool::new(false),
+        }
     }
 
     /// Tier 1, every period after the command is decided: copies `t1`'s published values and `pwm` into the next
     /// slot. A fixed sequence of loads and stores (thirteen stores and the count), never a branch on what is recorded.
     #[inline(always)]
     pub fn push(&self, t1: &Tier1State, pwm: &PwmCommand) {
+        if !self.enabled.load(Ordering::Relaxed) {
+            return;
+        }
         let n = self.written.load(Ordering::Relaxed);
         let s = t1.signals();
         let [duty_a, duty_b, duty_c] = pwm.duty;
@@ -103,6 +115,11 @@ impl SampleRing {
             }
         }
         self.written.store(n.wrapping_add(1), Ordering::Release);
+    }
+
+    /// The drain: whether tier 1 copies from its next period on.
+    pub fn set_enabled(&self, enabled: bool) {
+        self.enabled.store(enabled, Ordering::Relaxed);
     }
 
     /// Snapshots pushed so far (wrapping).
@@ -156,19 +173,24 @@ mod tests {
         let drive = crate::drive::Drive::new(DriveConfig::DEFAULT);
         let t1 = Tier1State::new(drive.settings());
         let ring = SampleRing::new();
+        ring.push(&t1, &PwmCommand::OFF);
+        assert_eq!(ring.written(), 0, "no copy before the recorder enables it");
+        ring.set_enabled(true);
         assert_eq!(ring.read(0), None, "nothing written yet");
         for k in 0..40u16 {
             ring.push(&t1, &PwmCommand { duty: [k, k + 1000, k + 2000], enabled: true });
         }
         assert_eq!(ring.written(), 40);
-        for k in 9..40u32 {
+        for k in 0..40u32 {
             let s = ring.read(k).expect("within reach");
             assert_eq!(s[word::DUTY_AB as usize], k | ((k + 1000) << 16), "snapshot {k}");
             assert_eq!(s[word::DUTY_C as usize], k + 2000, "snapshot {k}");
         }
-        for k in 0..9 {
-            assert_eq!(ring.read(k), None, "snapshot {k} overwritten");
-        }
         assert_eq!(ring.read(40), None, "not yet written");
+        for k in 40..200u16 {
+            ring.push(&t1, &PwmCommand { duty: [k, k + 1000, k + 2000], enabled: true });
+        }
+        assert_eq!(ring.read(200 - RING_REACH - 1), None, "overwritten once the writer came round");
+        assert!(ring.read(200 - RING_REACH).is_some(), "the oldest within reach");
     }
 }

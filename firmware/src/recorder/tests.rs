@@ -21,7 +21,8 @@ impl Drive {
     }
 
     fn record(&mut self, ring: &SampleRing) {
-        self.recorder.drain(ring, self.dict.values().bytes());
+        self.recorder.take_objects(self.dict.values().bytes());
+        while self.recorder.drain(ring, 3) {}
     }
 }
 

@@ -43,13 +43,10 @@ pub static TIER2_TOTAL_MAX: AtomicU32 = AtomicU32::new(0);
 /// from a fixed period (`crate::drive::blocks::LOOP_SETPOINT_DELAY_PERIODS`), the same on the host, so this must
 /// not exceed that delay (the QEMU test holds it to it). Writer: tier 2.
 pub static SETPOINT_PERIODS_LATE_MAX: AtomicU32 = AtomicU32::new(0);
-/// Largest cost of the data recorder's drain of one slow period (`recorder::Recorder::drain` after the slow tick,
-/// with the locks; counter units; QEMU bench only). Writer: tier 2; the bench resets it with tier 2 idle.
-#[cfg(feature = "qemu")]
-pub static RECORDER_DRAIN_MAX: AtomicU32 = AtomicU32::new(0);
-/// The data recorder (`crate::recorder`): tier 2 drains tier 1's ring into it after each slow tick, tier 3's SDO
-/// servers configure and upload it through the application-objects port, both under the tier-2 lock. Placed at
-/// start-up with its sample memory (`rt::RECORDER_BUFFER`).
+/// The data recorder (`crate::recorder`): tier 2 gives it the object channels' values after each slow tick, tier 3
+/// drains tier 1's ring into it ([`drain_recorder`]) and its SDO servers configure and upload it through the
+/// application-objects port, all under the tier-2 lock. Placed at start-up with its sample memory
+/// (`rt::RECORDER_BUFFER`).
 pub static RECORDER: Tier2Slot<Recorder> = Tier2Slot::new();
 /// Reports that could not be read whole ([`crate::handoff::Torn`]: tier 2 was held off for a whole slow period in
 /// the middle of its copy); the drive then keeps the previous one. Writer: tier 2.
@@ -159,11 +156,21 @@ fn take_report(drive: &mut Drive) {
     }
 }
 
-/// The recorder's drain of tier 1's ring (`tier1::RECORDER_RING`), object channels read from the drive's
-/// dictionary.
+/// The recorder's object channels from the drive's dictionary (a few loads: the drain runs in tier 3).
 #[inline(never)]
-fn record(drive: &mut Drive) {
-    let _ = RECORDER.with(|recorder| recorder.drain(&super::tier1::RECORDER_RING, drive.dictionary().values().bytes()));
+fn record_objects(drive: &mut Drive) {
+    let _ = RECORDER.with(|recorder| recorder.take_objects(drive.dictionary().values().bytes()));
+}
+
+/// Snapshots of tier 1's ring the recorder's drain takes per section: with 8 channels about 1,500 instructions
+/// (`insn.recorder_drain_8ch` is ten of them), the longest tier 3 holds tier 2 off for it.
+const DRAIN_SNAPSHOTS_PER_SECTION: u32 = 4;
+
+/// Tier 3: drains tier 1's ring (`tier1::RECORDER_RING`) into the recorder, [`DRAIN_SNAPSHOTS_PER_SECTION`] at a
+/// time under the tier-2 lock, until it is empty.
+pub fn drain_recorder() {
+    let ring = &super::tier1::RECORDER_RING;
+    while RECORDER.with(|recorder| recorder.drain(ring, DRAIN_SNAPSHOTS_PER_SECTION)) == Some(true) {}
 }
 
 /// [`with_drive`] timed in counter units (the section and the publications).
@@ -227,12 +234,8 @@ async fn slow_loop() {
             &SETPOINT_PERIODS_LATE_MAX,
             super::tier1::FAST_TICKS.load(Ordering::Relaxed).wrapping_sub(raised_at),
         );
-        // The data recorder takes tier 1's snapshots of the slow period that ended: after the set-point is
-        // published, so that its work per channel delays no loop; in the tier-2 step's time.
-        #[cfg(feature = "qemu")]
-        let _ = with_drive_timed(record, &RECORDER_DRAIN_MAX);
-        #[cfg(not(feature = "qemu"))]
-        let _ = with_drive(record);
+        // The data recorder's object channels of this slow period: after the set-point is published.
+        let _ = with_drive(record_objects);
         // The free-run process-data cycle (EtherCAT, feature `ethercat`): after the slow tick, as the other cycle
         // sources run between slow ticks.
         #[cfg(all(feature = "ethercat", not(feature = "qemu")))]
