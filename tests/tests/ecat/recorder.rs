@@ -45,7 +45,9 @@ fn recording_uploads_by_coe() {
 
     sim.run(2_100);
     let mut direct = vec![0u8; 1_200];
-    let outcome = sim.drive.dictionary().read(BUFFER, 0, 0, &mut direct, &mut RecorderObjects::new(&mut sim.recorder, &mut NoApplicationObjects)).expect("complete");
+    let mut none = NoApplicationObjects;
+    let mut port = RecorderObjects::new(&mut sim.recorder, &mut none);
+    let outcome = sim.drive.dictionary().read(BUFFER, 0, 0, &mut direct, &mut port).expect("complete");
     assert_eq!(outcome.total_len, 1_200);
     bench.dict = sim.drive.dictionary().clone();
     std::mem::swap(&mut bench.recorder, &mut sim.recorder);
