@@ -25,17 +25,17 @@ mod context;
 mod dcf;
 mod eds;
 mod link;
+/// The SVG line plots of `record`: hal-sim's dependency-free plot writer (`hal-sim/src/sim/plot.rs`), compiled
+/// into this tool from its one source rather than pulling the simulator in as a dependency.
+#[path = "../../hal-sim/src/sim/plot.rs"]
+#[allow(dead_code, reason = "the tool draws plain line plots: no markers, log axis or reference lines")]
+mod plot;
 mod project;
 mod sdo;
 #[cfg(target_os = "linux")]
 mod socketcan_if;
 mod socketcand;
 mod value;
-/// The SVG line plots of `record`: hal-sim's dependency-free plot writer (`hal-sim/src/sim/plot.rs`), compiled
-/// into this tool from its one source rather than pulling the simulator in as a dependency.
-#[path = "../../hal-sim/src/sim/plot.rs"]
-#[allow(dead_code, reason = "the tool draws plain line plots: no markers, log axis or reference lines")]
-mod plot;
 
 use std::path::PathBuf;
 use std::process::ExitCode;

@@ -601,16 +601,16 @@ fn record_of_a_current_step_matches_the_simulators_own_trace() {
     sim.ok(&["set", "0x6060", "10"]);
     sim.ok(&["enable"]);
     let args = ["record", "--channel", "iq", "--channel", "iq_ref", "--samples", "200", "--pre", "20"];
-    let armed = sim.json(
-        &[&args[..], &["--trigger", "rising", "--trigger-channel", "2", "--level", "100", "--no-wait"]].concat(),
-    );
+    let armed = sim
+        .json(&[&args[..], &["--trigger", "rising", "--trigger-channel", "2", "--level", "100", "--no-wait"]].concat());
     assert_eq!(armed["armed"], true, "{armed}");
     for _ in 0..10 {
         assert_eq!(sim.get("0x3300:02"), 1, "waiting for the trigger");
     }
     sim.ok(&["set", "0x6071", "600"]);
     let (csv, svg) = (dir.join("step.csv"), dir.join("step.svg"));
-    let out = sim.json(&["record", "--fetch", "--csv", csv.to_str().expect("utf-8"), "--svg", svg.to_str().expect("utf-8")]);
+    let out =
+        sim.json(&["record", "--fetch", "--csv", csv.to_str().expect("utf-8"), "--svg", svg.to_str().expect("utf-8")]);
     sim.ok(&["disable"]);
     assert_eq!(out["samples"], 200, "{out}");
     assert_eq!(out["channels"][0]["name"], "iq", "{out}");

@@ -168,7 +168,13 @@ fn channel_of(cx: &Context, code: u32) -> Result<Channel, String> {
             .iter()
             .find(|v| v.1 == sub)
             .ok_or_else(|| format!("0x3301 names current-loop variable {sub}, unknown to this tool"))?;
-        return Ok(Channel { name: (*name).to_owned(), code, unit: (*unit).to_owned(), bytes: *bytes, signed: *signed });
+        return Ok(Channel {
+            name: (*name).to_owned(),
+            code,
+            unit: (*unit).to_owned(),
+            bytes: *bytes,
+            signed: *signed,
+        });
     }
     let entry = cx.entry(index, sub)?;
     // CiA 301 Table 44: BOOLEAN 0x01, INTEGER8/16/32 0x02..0x04, UNSIGNED8/16/32 0x05..0x07.
@@ -185,7 +191,7 @@ fn channel_of(cx: &Context, code: u32) -> Result<Channel, String> {
 /// The samples of `data`, row by row, each channel decoded with its size and sign.
 fn decode_rows(data: &[u8], channels: &[Channel]) -> Result<Vec<Vec<i64>>, String> {
     let row: usize = channels.iter().map(|c| c.bytes).sum();
-    if row == 0 || data.len() % row != 0 {
+    if row == 0 || !data.len().is_multiple_of(row) {
         return Err(format!("the buffer holds {} bytes, not whole samples of {row}", data.len()));
     }
     Ok(data

@@ -15,7 +15,13 @@ struct Drive {
 }
 
 impl Drive {
-    fn read(&mut self, index: u16, sub: u8, offset: usize, buf: &mut [u8]) -> Result<crate::od::access::ReadOutcome, SdoAbort> {
+    fn read(
+        &mut self,
+        index: u16,
+        sub: u8,
+        offset: usize,
+        buf: &mut [u8],
+    ) -> Result<crate::od::access::ReadOutcome, SdoAbort> {
         let mut none = NoApplicationObjects;
         self.dict.read(index, sub, offset, buf, &mut RecorderObjects::new(&mut self.recorder, &mut none))
     }
@@ -165,8 +171,7 @@ fn falling_and_bit_triggers_with_a_sampling_period() {
         ring.push_sample(&snapshot(0, 0));
         d.record(&ring);
         // Falling: 120 down to 91 (crosses 100 at 100 or just below); bits: 50 up to 79 (bit 6 from 64).
-        let values: Vec<u32> =
-            if mode == trigger::FALLING { (91..=120).rev().collect() } else { (50..80).collect() };
+        let values: Vec<u32> = if mode == trigger::FALLING { (91..=120).rev().collect() } else { (50..80).collect() };
         run(&mut d, &ring, values.iter().map(|v| snapshot(0, *v)));
         let data = upload(&mut d).expect("complete");
         let got: Vec<u32> = (0..3).map(|s| u32_at(&data, s * 4)).collect();

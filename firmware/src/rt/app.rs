@@ -16,12 +16,12 @@
 use core::sync::atomic::Ordering;
 
 use crate::board::flash::ParamFlash;
+use crate::drive::blocks::Settings;
 use crate::drive::objects::BootReport;
 use crate::drive::tier1::Tier1State;
-use crate::drive::blocks::Settings;
 use crate::drive::{Drive, DriveConfig, FastTick};
-use crate::handoff::Words;
 use crate::hal::power::Measurements;
+use crate::handoff::Words;
 use crate::od::abort::SdoAbort;
 use crate::od::access::AccessContext;
 use crate::od::store::ParamStore;

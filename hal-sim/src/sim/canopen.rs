@@ -51,10 +51,10 @@ use firmware::canopen::nmt::{NmtState, ResetKind};
 use firmware::canopen::{CanopenNode, NodeEvent};
 use firmware::cia402::State;
 use firmware::drive::objects::DriveObjects;
-use firmware::recorder::objects::RecorderObjects;
 use firmware::hal::power::SLOW_TICK_DIVIDER;
 use firmware::od::generated::handles as h;
 use firmware::od::store::ParamStore;
+use firmware::recorder::objects::RecorderObjects;
 
 use super::ethercat::{MAX_CATCH_UP_PERIODS, PERIOD_NS};
 use super::update::{self, SimProgram};

@@ -47,7 +47,6 @@ use firmware::boot::program::{Interface, Request, SharedPort};
 use firmware::boot::tables::{APPLICATION_TABLE, BOOTLOADER_TABLE};
 use firmware::cia402::State;
 use firmware::drive::objects::DriveObjects;
-use firmware::recorder::objects::RecorderObjects;
 use firmware::ecat::esm::AlState;
 use firmware::ecat::slave::EthercatSlave;
 use firmware::ecat::sync::sync_type;
@@ -55,6 +54,7 @@ use firmware::ecat::sync_pll::{PllStatus, Sync0Capture, SyncPll};
 use firmware::hal::power::{PWM_FREQUENCY_HZ, SLOW_TICK_DIVIDER};
 use firmware::od::generated::handles as h;
 use firmware::od::store::ParamStore;
+use firmware::recorder::objects::RecorderObjects;
 
 use super::update::{self, SimProgram};
 use super::Simulation;
