@@ -24,7 +24,8 @@
 //! device state"), an arm whose configuration cannot be recorded (no channel, a trigger channel beyond the
 //! channels, more samples than the buffer holds, as many preceding samples as samples, no buffer) with
 //! 0x0604_0043 ("general parameter incompatibility"), a trigger-now outside the waiting state with 0x0800_0022,
-//! and a buffer read before a recording is complete with 0x0800_0022.
+//! and a buffer read while the recorder samples into it with 0x0800_0022 (idle without a recording, the buffer
+//! reads empty).
 //!
 //! # Tiers and owner
 //! Tier 1 pays a fixed cost whatever is recorded: a copy of its published values into [`ring::SampleRing`] every

@@ -14,7 +14,7 @@ impl Recorder {
     /// A read of a recorder entry from byte `offset` into `buf`.
     ///
     /// # Errors
-    /// 0x0800_0022 for the buffer before a recording is complete; 0x0609_0011 for an entry it does not serve.
+    /// 0x0800_0022 for the buffer while the recorder samples into it; 0x0609_0011 for an entry it does not serve.
     pub fn read(&self, entry: &Entry, offset: usize, buf: &mut [u8]) -> Result<ReadOutcome, SdoAbort> {
         let c = &self.config;
         let value: u32 = match (entry.index, entry.sub) {
@@ -46,10 +46,13 @@ impl Recorder {
         Ok(ReadOutcome { len, total_len: value.len() })
     }
 
-    /// 0x3302 from byte `offset`: the complete recording, oldest sample first.
+    /// 0x3302 from byte `offset`: the complete recording, oldest sample first; empty before any recording or after
+    /// a stop (every readable variable uploads, CiA 306 §4.6.3); refused while the recorder samples into it.
     fn read_buffer(&self, offset: usize, buf: &mut [u8]) -> Result<ReadOutcome, SdoAbort> {
-        if self.state != RecorderState::Complete {
-            return Err(SdoAbort::DeviceState);
+        match self.state {
+            RecorderState::Complete => {}
+            RecorderState::Idle => return Ok(ReadOutcome { len: 0, total_len: 0 }),
+            RecorderState::Waiting | RecorderState::Recording => return Err(SdoAbort::DeviceState),
         }
         let total = (self.recorded as usize).saturating_mul(self.row_halves as usize).saturating_mul(2);
         let len = total.saturating_sub(offset).min(buf.len());

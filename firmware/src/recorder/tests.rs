@@ -234,6 +234,7 @@ fn trigger_now_only_while_waiting() {
     assert_eq!(write(&mut d, RECORDER, sub::CONTROL, &[2]), Err(SdoAbort::DeviceState));
     write(&mut d, RECORDER, sub::CONTROL, &[0]).expect("stop");
     assert_eq!(state(&mut d), RecorderState::Idle as u8);
+    assert_eq!(upload(&mut d), Ok(Vec::new()), "idle without a recording: the buffer reads empty");
 }
 
 /// While armed or recording, every configuration write is refused with 0x0800_0022 and changes nothing;
