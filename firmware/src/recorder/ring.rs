@@ -3,7 +3,7 @@
 //!
 //! The copy is the same thirteen words whatever the recorder records: no channel list, no branch on the
 //! configuration, no conversion, so its cost in tier 1 is small and fixed; while the recorder does not sample,
-//! tier 1 skips it after one load ([`SampleRing::set_enabled`], the drain's). Tier 2 picks the
+//! tier 1 skips it after one load ([`SampleRing::enabled`], set by the drain). Tier 2 picks the
 //! channels, converts the units and triggers ([`super::Recorder::drain`], in tier 3).
 //!
 //! One writer (tier 1, [`SampleRing::push`]), one reader (tier 3, [`SampleRing::slot_at`]): the writer fills a
@@ -77,9 +77,6 @@ impl SampleRing {
     /// slot. A fixed sequence of loads and stores (thirteen stores and the count), never a branch on what is recorded.
     #[inline(always)]
     pub fn push(&self, t1: &Tier1State, pwm: &PwmCommand) {
-        if !self.enabled.load(Ordering::Relaxed) {
-            return;
-        }
         let n = self.written.load(Ordering::Relaxed);
         let s = t1.signals();
         let [duty_a, duty_b, duty_c] = pwm.duty;
@@ -115,6 +112,13 @@ impl SampleRing {
             }
         }
         self.written.store(n.wrapping_add(1), Ordering::Release);
+    }
+
+    /// Whether tier 1 copies ([`Self::push`] only when it does; tier 1 asks first).
+    #[inline(always)]
+    #[must_use]
+    pub fn enabled(&self) -> bool {
+        self.enabled.load(Ordering::Relaxed)
     }
 
     /// The drain: whether tier 1 copies from its next period on.
@@ -173,8 +177,7 @@ mod tests {
         let drive = crate::drive::Drive::new(DriveConfig::DEFAULT);
         let t1 = Tier1State::new(drive.settings());
         let ring = SampleRing::new();
-        ring.push(&t1, &PwmCommand::OFF);
-        assert_eq!(ring.written(), 0, "no copy before the recorder enables it");
+        assert!(!ring.enabled(), "no copy before the recorder enables it");
         ring.set_enabled(true);
         assert_eq!(ring.read(0), None, "nothing written yet");
         for k in 0..40u16 {

@@ -75,7 +75,7 @@ pub fn sdo_write(params: &mut Params, index: u16, sub: u8, data: &[u8], ctx: Acc
 }
 
 /// One current-loop period: the blocks the drive published since the last period (settings first), then the fast
-/// tick and the data recorder's copy of its values. Not inlined: tier 1 measures exactly this call. `settings_epoch` and `setpoint_epoch` are the epochs of
+/// tick. Not inlined: tier 1 measures exactly this call. `settings_epoch` and `setpoint_epoch` are the epochs of
 /// the blocks taken last; a block is decoded only when its epoch moved on (one load and a compare otherwise).
 #[inline(never)]
 pub fn fast_tick(
@@ -110,11 +110,7 @@ pub fn fast_tick(
             t1.apply_setpoint_words(&[version, power, i_q, i_d, apply_from]);
         }
     }
-    let tick = t1.fast_tick(m);
-    // The data recorder's fixed copy of what this period computed (the same words whatever is recorded): inside
-    // the measured call, so that `insn.fast_tick_max` is tier 1's cost with the recorder.
-    super::tier1::RECORDER_RING.push(t1, &tick.pwm);
-    tick
+    t1.fast_tick(m)
 }
 
 /// One velocity/position-loop period. Not inlined: tier 2 measures exactly this call.

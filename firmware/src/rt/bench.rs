@@ -534,8 +534,8 @@ pub async fn bench() {
     let slow = tier2::SLOW_TICKS.load(Ordering::Relaxed);
     print(format_args!(
         "source.fast_tick=rt::app::fast_tick: the blocks taken from tier 2 when new, then \
-         drive::tier1::Tier1State::fast_tick and the data recorder's copy of its values (8 channels recorded at \
-         25 kHz all along)\n"
+         drive::tier1::Tier1State::fast_tick, plus the data recorder's copy of its values after the PWM write \
+         (8 channels recorded at 25 kHz all along)\n"
     ));
     print(format_args!("insn.fast_tick_max={}\n", tier1::FAST_TICK_MAX.load(Ordering::Relaxed)));
     print(format_args!(

@@ -136,7 +136,9 @@ impl Simulation {
             self.published = None;
         }
         let tick = self.tier1.fast_tick(&m);
-        self.recorder_ring.push(&self.tier1, &tick.pwm);
+        if self.recorder_ring.enabled() {
+            self.recorder_ring.push(&self.tier1, &tick.pwm);
+        }
         if tick.slow_tick_due {
             self.drive.receive_report(&self.tier1.report());
             // Tier 2 reads the STO inputs at the start of its slow period, as `rt::tier2` does on the target.
