@@ -28,8 +28,8 @@
 //! reads empty).
 //!
 //! # Tiers and owner
-//! Tier 1 pays a fixed cost whatever is recorded: a copy of its published values into [`ring::SampleRing`] every
-//! period. Tier 2 takes the object channels' values once a slow period after its set-point is published
+//! Tier 1 pays a fixed cost whatever is recorded: while the recorder samples, a copy of its published values into
+//! [`ring::SampleRing`] every period after the PWM write (one load otherwise). Tier 2 takes the object channels' values once a slow period after its set-point is published
 //! ([`Recorder::take_objects`]: at 25 kHz they repeat over the ten samples of a slow period, they change at 2.5 kHz
 //! at most). Tier 3 drains the ring ([`Recorder::drain`], a few snapshots per section so that it holds tier 2 off
 //! briefly): it picks the channels, converts the units, runs the trigger and stores the samples, so the cost per
