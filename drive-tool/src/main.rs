@@ -122,6 +122,10 @@ enum Command {
         /// Objects to read.
         #[arg(required = true, value_name = "OBJ")]
         objects: Vec<String>,
+        /// EtherCAT: read each whole object in one CoE complete access (ETG.1000.6 §5.6.2.1.2) instead of sub-index
+        /// by sub-index; give whole objects (`0x1018`).
+        #[arg(long)]
+        complete: bool,
     },
     /// Write one object; the value is checked against its type and EDS limits before anything is sent.
     Set {
@@ -383,7 +387,7 @@ fn run(cli: Cli) -> Result<(), String> {
         Command::Scan { wait_ms } => commands::scan::scan(&mut cx, Duration::from_millis(wait_ms)),
         Command::Info => commands::scan::info(&mut cx),
         Command::List { .. } | Command::Completions { .. } => Ok(()),
-        Command::Get { objects } => commands::object::get(&mut cx, &objects),
+        Command::Get { objects, complete } => commands::object::get(&mut cx, &objects, complete),
         Command::Set { object, value } => commands::object::set(&mut cx, &object, &value),
         Command::Params(ParamsCommand::Save { file }) => commands::params::save(&mut cx, &file),
         Command::Params(ParamsCommand::Load { file, store, force, dry_run }) => {

@@ -1,7 +1,7 @@
 //! The CoE SDO client (ETG.1000.6 §5.6.2): upload and download of an object through the mailbox, expedited
 //! (up to 4 bytes in the request), normal (the whole value in one mailbox) and segmented (the rest in segments of
-//! up to the mailbox's length), with complete access (the whole object from sub-index 0 or 1 at once, §5.6.2.1.2)
-//! on request. The SDO part of each message is CiA 301's (command specifier, index, sub-index, 4 data bytes), after
+//! up to the mailbox's length), with the complete-access flag (the whole object from sub-index 0 or 1 at once,
+//! §5.6.2.1.2) for a caller that wants it. The SDO part of each message is CiA 301's (command specifier, index, sub-index, 4 data bytes), after
 //! a 2-byte CoE header (number, service 2 = request, 3 = response; ETG.1000.6 Table 35). An abort keeps the drive's
 //! code, shown with its CiA 301 text as over CANopen.
 

@@ -59,10 +59,12 @@ pub struct Mailbox<'a> {
 }
 
 impl<'a> Mailbox<'a> {
-    /// The mailbox of `station`, its layout read from the ESC's SM0/SM1 registers (as the master configured them).
+    /// The mailbox of `station` with `layout`, or the layout read from the ESC's SM0/SM1 registers (as the master
+    /// configured them) when `None`.
     pub async fn open(
         master: &'a MainDevice<'a>,
         station: u16,
+        layout: Option<Layout>,
         timeout: Duration,
         counter: &'a mut u8,
         emergencies: &'a mut Vec<[u8; 8]>,
@@ -75,7 +77,10 @@ impl<'a> Mailbox<'a> {
                 .map_err(|e| link_error(&format!("station 0x{station:04X} SM{n} registers"), e))?;
             Ok::<_, String>((u16::from_le_bytes([raw[0], raw[1]]), u16::from_le_bytes([raw[2], raw[3]])))
         };
-        let layout = Layout { receive: sm(0).await?, send: sm(1).await? };
+        let layout = match layout {
+            Some(known) => known,
+            None => Layout { receive: sm(0).await?, send: sm(1).await? },
+        };
         if layout.receive.1 < 16 || layout.send.1 < 16 {
             return Err(format!(
                 "station 0x{station:04X} has no mailbox configured (SM0 {} bytes, SM1 {} bytes)",
@@ -90,9 +95,9 @@ impl<'a> Mailbox<'a> {
         usize::from(self.layout.receive.1)
     }
 
-    /// The SM1 length: the largest answer, header included.
-    pub fn send_len(&self) -> usize {
-        usize::from(self.layout.send.1)
+    /// Where SM0 and SM1 are.
+    pub fn layout(&self) -> Layout {
+        self.layout
     }
 
     /// Reads SM1's status byte.

@@ -84,6 +84,8 @@ pub struct EcatLink {
     timeout: Duration,
     /// The mailbox counter of each drive (by position), 1..7.
     counters: Vec<u8>,
+    /// The mailbox layout of each drive (by position) once read: SM0/SM1 change only with the AL state.
+    layouts: Vec<Option<mailbox::Layout>>,
     /// CoE emergencies received while waiting for answers.
     pub emergencies: Vec<[u8; 8]>,
 }
@@ -126,7 +128,14 @@ impl EcatLink {
             timeouts(timeout),
             MainDeviceConfig { dc_static_sync_iterations: 0, ..MainDeviceConfig::default() },
         )));
-        let mut link = Self { master, drives: Vec::new(), timeout, counters: Vec::new(), emergencies: Vec::new() };
+        let mut link = Self {
+            master,
+            drives: Vec::new(),
+            timeout,
+            counters: Vec::new(),
+            layouts: Vec::new(),
+            emergencies: Vec::new(),
+        };
         link.find(wait)?;
         Ok(link)
     }
@@ -181,13 +190,9 @@ impl EcatLink {
             Ok(drives)
         })?;
         self.counters = vec![0; drives.len()];
+        self.layouts = vec![None; drives.len()];
         self.drives = drives;
         Ok(())
-    }
-
-    /// The drives found, by position (index 0 is position 1).
-    pub fn drives(&self) -> &[Drive] {
-        &self.drives
     }
 
     /// The position (1-based) of the drive with station address or alias `station`.
@@ -221,9 +226,12 @@ impl EcatLink {
         let master = self.master;
         let timeout = self.timeout;
         let counter = &mut self.counters[index];
+        let layout = &mut self.layouts[index];
         let emergencies = &mut self.emergencies;
         block_on(async move {
-            let mut mbx = Mailbox::open(master, station, timeout, counter, emergencies).await.map_err(E::from)?;
+            let mut mbx =
+                Mailbox::open(master, station, *layout, timeout, counter, emergencies).await.map_err(E::from)?;
+            *layout = Some(mbx.layout());
             f(&mut mbx).await
         })
     }
@@ -240,9 +248,9 @@ impl EcatLink {
         block_on(request_state(self.master, station, state, Duration::from_secs(5)))
     }
 
-    /// Upload with complete access (the whole object from `sub`).
-    pub fn upload_complete(&mut self, node: u8, index: u16, sub: u8) -> Result<Vec<u8>, SdoError> {
-        self.with_mailbox(node, async |m| coe::upload(m, index, sub, true).await)
+    /// Uploads the whole object `index` with one complete access from sub-index 0 (ETG.1000.6 §5.6.2.1.2).
+    pub fn upload_complete(&mut self, node: u8, index: u16) -> Result<Vec<u8>, SdoError> {
+        self.with_mailbox(node, async |m| coe::upload(m, index, 0, true).await)
     }
 
     /// The firmware download of the seeds (E4 Table 4-29): INIT; the SII's bootstrap mailbox into SM0/SM1 where it
@@ -280,12 +288,15 @@ impl EcatLink {
             }
             request_state(master, station, BOOT, Duration::from_secs(5)).await.map_err(|e| format!("BOOT: {e}"))
         })?;
+        // BOOT has its own mailbox layout: read it afresh, and again after leaving BOOT.
+        self.layouts.iter_mut().for_each(|l| *l = None);
         let written = self.with_mailbox(node, async |m| {
             foe::write(m, name, password, file, progress).await.map_err(|e| e.to_string())
         });
         // Leaving BOOT ends the download either way: a complete image is activated (the drive restarts), anything
         // else lets the old application run again.
         let left = block_on(request_state(master, station, INIT, Duration::from_secs(5)));
+        self.layouts.iter_mut().for_each(|l| *l = None);
         if let Err(refused) = written {
             self.find(restart)?;
             return Err(match left {
@@ -443,10 +454,14 @@ impl DriveLink for EcatLink {
 
     fn describe(&mut self, node: u8) -> Vec<(&'static str, serde_json::Value, String)> {
         let Ok((_, d)) = self.drive(node) else { return Vec::new() };
+        let [vendor, product, revision, _] = d.identity;
         vec![
             ("station", json!(d.station), format!("0x{:04X}", d.station)),
             ("alias", json!(d.alias), format!("0x{:04X}", d.alias)),
             ("sii_name", json!(d.name), d.name.clone()),
+            ("sii_vendor_id", json!(vendor), format!("0x{vendor:08X}")),
+            ("sii_product_code", json!(product), format!("0x{product:08X}")),
+            ("sii_revision", json!(revision), format!("0x{revision:08X}")),
         ]
     }
 
