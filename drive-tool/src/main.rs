@@ -294,6 +294,11 @@ fn open_link(args: &LinkArgs) -> Result<Box<dyn DriveLink>, String> {
     if given > 1 {
         return Err("--socketcand, --can and --ecat: give one link, not several".into());
     }
+    if args.sdo_block && args.ecat.is_some() {
+        return Err(
+            "--sdo-block: CoE has no block transfer (ETG.1000.6); over EtherCAT large values go segmented".into()
+        );
+    }
     if args.station.is_some() && args.ecat.is_none() {
         return Err("--station addresses an EtherCAT drive (with --ecat IFACE); on CANopen give --node".into());
     }

@@ -113,8 +113,14 @@ impl EcatLink {
     pub fn open(iface: &str, timeout: Duration, wait: Duration) -> Result<Self, String> {
         let (tx, rx, pdu_loop) =
             PDU_STORAGE.try_split().map_err(|_| "ethercrab's PDU storage split twice".to_owned())?;
-        let task = tx_rx_task(iface, tx, rx)
-            .map_err(|e| format!("--ecat {iface}: cannot open a raw socket ({e}); it needs root or CAP_NET_RAW"))?;
+        let task = tx_rx_task(iface, tx, rx).map_err(|e| {
+            let hint = if e.kind() == std::io::ErrorKind::PermissionDenied {
+                "; a raw socket needs root or CAP_NET_RAW (`sudo setcap cap_net_raw+ep drive-tool`)"
+            } else {
+                ""
+            };
+            format!("--ecat {iface}: cannot open a raw socket: {e}{hint}")
+        })?;
         std::thread::Builder::new()
             .name("ecat-tx-rx".into())
             .spawn(move || {
@@ -164,7 +170,11 @@ impl EcatLink {
                         async_io::Timer::after(Duration::from_millis(50)).await;
                     }
                     Ok(_) => return Ok(Vec::new()),
-                    Err(e) => return Err(format!("no answer on the segment: {e}")),
+                    Err(e) => {
+                        return Err(format!(
+                            "no EtherCAT frame came back within {wait:?} ({e}): no drive on the interface, or no link"
+                        ))
+                    }
                 }
             }
             let group = master
