@@ -1,12 +1,14 @@
 //! The EtherCAT mailbox as the master sees it (ETG.1000.4 §5.6 / ETG.1000.6 §5.2): a request written whole into
 //! the drive's receive mailbox (SM0), the answer read whole out of its send mailbox (SM1) once the ESC reports it
 //! full, through configured-address datagrams (FPWR/FPRD) of the master library. The protocols on top (CoE SDO,
-//! FoE) build their messages with [`Mailbox::exchange`].
+//! FoE) exchange their messages with [`Mailbox::send`] and [`Mailbox::receive`].
 //!
 //! Every message starts with the 6-byte mailbox header: length u16 (of what follows the header), address u16,
 //! channel/priority u8, then the type in bits 3..0 and the counter in bits 6..4 (ETG.1000.6 Table 29). The counter
 //! runs 1..7 (ETG.1000.6 §5.2.1); a drive drops a request that repeats the previous one's counter as a
-//! retransmission, so the counter starts from the one the drive saw last where the library used the mailbox before.
+//! retransmission. Each run of the tool starts at 1: the init that precedes it takes the drive through INIT, where
+//! the drive forgets the last counter (`firmware::ecat::mailbox`), and the master library sends no CoE request of
+//! its own on the way to PRE-OP.
 
 use std::time::{Duration, Instant};
 
