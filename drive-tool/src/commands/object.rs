@@ -1,10 +1,12 @@
 //! `get` and `set`: objects by index or name, with type-aware parsing and display.
 
+use std::collections::{BTreeMap, BTreeSet};
+
 use serde_json::json;
 
 use crate::context::Context;
 use crate::eds::{Dictionary, Entry};
-use crate::value::{decode, encode, type_name, Value};
+use crate::value::{decode, encode, type_name, Kind, Value};
 
 /// `get OBJ... [--complete]`: reads each entry the specs name and prints `0xIIII:SS name = value`, or a JSON
 /// list; with `complete` (EtherCAT), each object in one CoE complete access.
@@ -13,7 +15,7 @@ pub fn get(cx: &mut Context, specs: &[String], complete: bool) -> Result<(), Str
     for spec in specs {
         entries.extend(cx.dict.resolve(spec)?.into_iter().cloned());
     }
-    let mut read = if complete { complete_values(cx, &entries)? } else { Vec::new() }.into_iter();
+    let read = if complete { complete_values(cx, &entries)? } else { BTreeMap::new() };
     let mut out = Vec::new();
     let mut failures = Vec::new();
     for entry in &entries {
@@ -21,10 +23,9 @@ pub fn get(cx: &mut Context, specs: &[String], complete: bool) -> Result<(), Str
             failures.push(format!("{} ({}) is write-only", entry.address(), entry.full_name()));
             continue;
         }
-        let value = if complete {
-            read.next().unwrap_or_else(|| Err("no value".into()))
-        } else {
-            cx.read_entry_of(cx.node, entry)
+        let value = match read.get(&(entry.index, entry.sub)) {
+            Some(value) => value.clone(),
+            None => cx.read_entry_of(cx.node, entry),
         };
         match value {
             Ok(value) => {
@@ -56,69 +57,70 @@ pub fn get(cx: &mut Context, specs: &[String], complete: bool) -> Result<(), Str
     }
 }
 
-/// The values of `entries` (readable ones, in order) by one CoE complete access per object (ETG.1000.6
-/// §5.6.2.1.2, the packing the firmware's server uses: sub-index 0 as UNSIGNED8 padded to 16 bits, then every
-/// sub-index's value in order). Objects with BOOLEAN (packed as bits), string or domain entries are refused: their
-/// packing is not byte-aligned or has no fixed size.
-fn complete_values(cx: &mut Context, entries: &[Entry]) -> Result<Vec<Result<Value, String>>, String> {
-    #[cfg(target_os = "linux")]
-    {
-        let node = cx.node;
-        let mut indices: Vec<u16> = entries.iter().map(|e| e.index).collect();
-        indices.dedup();
-        let mut values = Vec::new();
-        for index in indices {
-            // The offsets come from the whole object; the values shown are the entries asked for.
-            let object: Vec<Entry> = cx.dict.object(index).into_iter().cloned().collect();
-            if let [single] = object.as_slice() {
-                // A VAR has no sub-indices to access completely: its one value, read as usual.
-                if single.access.readable() {
-                    values.push(cx.read_entry_of(node, single));
-                }
-                continue;
-            }
-            let ecat = cx.link.ecat().ok_or("--complete is CoE complete access: it needs --ecat")?;
-            let bytes = ecat
-                .upload_complete(node, index)
-                .map_err(|e| format!("drive {node} 0x{index:04X} (complete access): {e}"))?;
-            let mut at = 0usize;
-            for entry in &object {
-                let len = match (entry.sub, crate::value::Kind::of(entry.data_type)) {
-                    (0, _) => 2,
-                    (_, Some(crate::value::Kind::Integer { bytes, .. })) => bytes,
-                    (_, Some(crate::value::Kind::Real32)) => 4,
-                    (_, Some(crate::value::Kind::Real64)) => 8,
-                    _ => {
-                        return Err(format!(
-                            "0x{index:04X}: {} is {}, which complete access does not pack by bytes; read it without \
-                             --complete",
-                            entry.address(),
-                            type_name(entry.data_type)
-                        ))
-                    }
-                };
-                let raw = bytes.get(at..at + len).ok_or_else(|| {
-                    format!(
-                        "0x{index:04X}: the complete access gave {} bytes, {} needs more",
-                        bytes.len(),
-                        entry.address()
-                    )
-                })?;
-                let raw = if entry.sub == 0 { &raw[..1] } else { raw };
-                at += len;
-                let asked = entries.iter().any(|e| e.index == index && e.sub == entry.sub);
-                if asked && entry.access.readable() {
-                    values.push(decode(entry.data_type, raw));
-                }
-            }
+/// Values read, or why not, by (index, sub-index).
+type ValuesRead = BTreeMap<(u16, u8), Result<Value, String>>;
+
+/// The values of `entries` by one CoE complete access per object, by (index, sub-index); a VAR is read as usual.
+fn complete_values(cx: &mut Context, entries: &[Entry]) -> Result<ValuesRead, String> {
+    let node = cx.node;
+    let indices: BTreeSet<u16> = entries.iter().map(|e| e.index).collect();
+    let mut values = BTreeMap::new();
+    for index in indices {
+        // The offsets come from the whole object; the values kept are the entries asked for.
+        let object: Vec<Entry> = cx.dict.object(index).into_iter().cloned().collect();
+        if let [single] = object.as_slice() {
+            // A VAR has no sub-indices to access completely: its one value, read as usual.
+            values.insert((index, single.sub), cx.read_entry_of(node, single));
+            continue;
         }
-        Ok(values)
+        let bytes = complete_upload(cx, index)?;
+        for (entry, raw) in object.iter().zip(split_complete(&object, &bytes)?) {
+            values.insert((index, entry.sub), decode(entry.data_type, raw));
+        }
     }
-    #[cfg(not(target_os = "linux"))]
-    {
-        let _ = (cx, entries);
-        Err("--complete is CoE complete access: it needs --ecat".into())
+    Ok(values)
+}
+
+#[cfg(target_os = "linux")]
+fn complete_upload(cx: &mut Context, index: u16) -> Result<Vec<u8>, String> {
+    let node = cx.node;
+    let ecat = cx.link.ecat().ok_or("--complete is CoE complete access: it needs --ecat")?;
+    ecat.upload_complete(node, index).map_err(|e| format!("drive {node} 0x{index:04X} (complete access): {e}"))
+}
+
+#[cfg(not(target_os = "linux"))]
+fn complete_upload(_cx: &mut Context, _index: u16) -> Result<Vec<u8>, String> {
+    Err("--complete is CoE complete access: it needs --ecat".into())
+}
+
+/// The value of each entry of `object` (all its sub-indices, in order) in the bytes of a complete access from
+/// sub-index 0, packed as ETG.1000.6 §5.6.2.1.2 and the firmware's server do it: sub-index 0 as UNSIGNED8 padded
+/// to 16 bits, then every sub-index's value in order. Objects with BOOLEAN (packed as bits), string or domain
+/// entries are refused: their packing is not byte-aligned or has no fixed size.
+fn split_complete<'b>(object: &[Entry], bytes: &'b [u8]) -> Result<Vec<&'b [u8]>, String> {
+    let mut at = 0usize;
+    let mut values = Vec::new();
+    for entry in object {
+        let len = match (entry.sub, Kind::of(entry.data_type)) {
+            (0, _) => 2,
+            (_, Some(Kind::Integer { bytes, .. })) => bytes,
+            (_, Some(Kind::Real32)) => 4,
+            (_, Some(Kind::Real64)) => 8,
+            _ => {
+                return Err(format!(
+                    "{} is {}, which complete access does not pack by bytes; read it without --complete",
+                    entry.address(),
+                    type_name(entry.data_type)
+                ))
+            }
+        };
+        let raw = bytes
+            .get(at..at + len)
+            .ok_or_else(|| format!("the complete access gave {} bytes, {} needs more", bytes.len(), entry.address()))?;
+        values.push(if entry.sub == 0 { &raw[..1] } else { raw });
+        at += len;
     }
+    Ok(values)
 }
 
 /// The entry `spec` names and the bytes of `text` for it: the type's range, the EDS limits and the drive's value
@@ -144,4 +146,37 @@ pub fn set(cx: &mut Context, spec: &str, text: &str) -> Result<(), String> {
         say!("{} {} := {text}", entry.address(), entry.full_name());
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Proves the complete-access packing (ETG.1000.6 §5.6.2.1.2, sub-index 0 padded to 16 bits): 0x1C12 (sub 0
+    /// UNSIGNED8, subs 1..4 UNSIGNED16) from 2 + 4 x 2 bytes, each value where the firmware's server puts it; one
+    /// byte short is an error naming the entry that lacks it.
+    #[test]
+    fn complete_access_bytes_split_into_the_objects_entries() {
+        let dict = Dictionary::project();
+        let object: Vec<Entry> = dict.object(0x1C12).into_iter().cloned().collect();
+        assert_eq!(object.len(), 5);
+        let bytes = [2, 0, 0x00, 0x16, 0x01, 0x16, 0, 0, 0, 0];
+        let values = split_complete(&object, &bytes).expect("split");
+        assert_eq!(values, [&[2u8][..], &[0x00, 0x16], &[0x01, 0x16], &[0, 0], &[0, 0]]);
+        let short = split_complete(&object, &bytes[..9]).expect_err("one byte short");
+        assert!(short.contains("0x1C12:04"), "{short}");
+    }
+
+    /// Proves that an object with a string entry is refused for complete access with the entry and its type
+    /// named, while the same object with numbers only (0x1018 as the EDS has it) is accepted.
+    #[test]
+    fn complete_access_refuses_entries_that_are_not_byte_packed() {
+        let dict = Dictionary::project();
+        let identity: Vec<Entry> = dict.object(0x1018).into_iter().cloned().collect();
+        assert!(split_complete(&identity, &[4, 0, 1, 0, 0, 0, 2, 0, 0, 0, 3, 0, 0, 0, 4, 0, 0, 0]).is_ok());
+        let mut with_text = identity.clone();
+        with_text[1].data_type = 0x0009;
+        let refused = split_complete(&with_text, &[0; 18]).expect_err("a VISIBLE_STRING");
+        assert!(refused.contains("0x1018:01") && refused.contains("VISIBLE_STRING"), "{refused}");
+    }
 }
