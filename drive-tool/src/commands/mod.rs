@@ -10,3 +10,5 @@ pub mod object;
 pub mod params;
 pub mod scan;
 pub mod update;
+#[cfg(target_os = "linux")]
+pub mod update_foe;
