@@ -340,3 +340,221 @@ impl EthercatRunner {
         node.on_dropped(esc);
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::esc::datagram::{Frame, FrameBuilder};
+    use crate::plant::PlantParams;
+
+    fn line(n: usize) -> EthercatLine {
+        let config = EthercatConfig { clock: ClockMode::LockStep, ..EthercatConfig::default() };
+        EthercatLine::new(config, &vec![PlantParams::reference(); n], 100_000).expect("line")
+    }
+
+    /// Sends `frame` through the line; returns the frame as it came back.
+    fn send(l: &mut EthercatLine, frame: FrameBuilder) -> Vec<u8> {
+        let mut f = frame.build();
+        l.frame(&mut f).expect("a well-formed frame passes");
+        f
+    }
+
+    fn datagram(f: &[u8], n: usize) -> (Vec<u8>, u16, u16) {
+        let frame = Frame::new_checked(f).expect("frame");
+        let d = frame.datagram(n).expect("datagram");
+        (d.data().to_vec(), d.wkc(), d.adp())
+    }
+
+    #[test]
+    fn broadcasts_add_every_slaves_working_counter_read_1_write_1_read_write_3() {
+        // ETG.1000.4 §5.4: each slave that reads adds 1, that writes adds 1, that reads and writes adds 3.
+        let mut l = line(3);
+        let f = send(
+            &mut l,
+            FrameBuilder::new().push(Command::Brd, 0, 0x0000, &[0]).push(Command::Bwr, 0, 0x0F80, &[1]).push(
+                Command::Brw,
+                0,
+                0x0F81,
+                &[2],
+            ),
+        );
+        assert_eq!(datagram(&f, 0).1, 3);
+        assert_eq!(datagram(&f, 1).1, 3);
+        assert_eq!(datagram(&f, 2).1, 9);
+        // Every slave incremented the position field of the broadcasts.
+        assert_eq!(datagram(&f, 0).2, 3);
+    }
+
+    #[test]
+    fn auto_increment_reaches_the_slave_whose_position_counts_to_zero_and_configured_addresses_each_slave() {
+        let mut l = line(3);
+        // Station addresses 0x1001.. by position (ADP = -k reaches slave k), as masters assign them.
+        for k in 0..3u16 {
+            let f = send(
+                &mut l,
+                FrameBuilder::new().push(Command::Apwr, 0u16.wrapping_sub(k), 0x0010, &(0x1001 + k).to_le_bytes()),
+            );
+            assert_eq!(datagram(&f, 0).1, 1, "exactly one slave at position {k}");
+        }
+        for k in 0..3 {
+            assert_eq!(l.slaves[k].esc.station_address(), 0x1001 + k as u16);
+        }
+        let f = send(&mut l, FrameBuilder::new().push(Command::Fprd, 0x1002, 0x0010, &[0, 0]));
+        let (data, wkc, _) = datagram(&f, 0);
+        assert_eq!((data, wkc), (vec![0x02, 0x10], 1));
+        let f = send(&mut l, FrameBuilder::new().push(Command::Fprd, 0x1009, 0x0010, &[0, 0]));
+        assert_eq!(datagram(&f, 0).1, 0, "no slave has 0x1009");
+    }
+
+    #[test]
+    fn only_the_last_slave_shows_port_1_closed_in_dl_status() {
+        let l = line(3);
+        let dl: Vec<u16> = l.slaves.iter().map(|s| s.esc.register_u16(0x0110)).collect();
+        // Bit 5 link port 1, bit 10 loop port 1 closed, bit 11 communication on port 1 (ESC datasheet 0x0110).
+        assert_eq!(
+            dl.iter().map(|d| (d & 0x0020 != 0, d & 0x0400 != 0, d & 0x0800 != 0)).collect::<Vec<_>>(),
+            vec![(true, false, true), (true, false, true), (false, true, false)]
+        );
+        assert_eq!(
+            line(1).slaves[0].esc.register_u16(0x0110),
+            crate::esc::registers::DL_STATUS,
+            "one slave: as before"
+        );
+    }
+
+    #[test]
+    fn the_receive_times_of_ports_0_and_1_give_each_port_to_port_delay() {
+        let mut l = line(4);
+        // Some time first, so the clocks with different rate errors stand apart.
+        for _ in 0..5 {
+            send(&mut l, FrameBuilder::new().push_logical(Command::Lrw, 0, &[0; 4]));
+        }
+        send(&mut l, FrameBuilder::new().push(Command::Bwr, 0, 0x0900, &[0; 4]));
+        let port = |s: &EthercatRunner, a: u16| u32::from_le_bytes([a, a + 1, a + 2, a + 3].map(|x| s.esc.register(x)));
+        // Loop time behind each port 1: twice the delays of the rest of the line.
+        let loops: Vec<i64> =
+            l.slaves[..3].iter().map(|s| i64::from(port(s, 0x0904).wrapping_sub(port(s, 0x0900)))).collect();
+        for k in 0..2 {
+            let measured = (loops[k] - loops[k + 1]) / 2;
+            assert!((measured - l.hop(k) as i64).abs() <= 1, "hop {k}: measured {measured}, line {}", l.hop(k));
+        }
+        assert_eq!(loops[2] / 2, l.hop(2) as i64, "the loop behind slave 2 is slave 3's hop, out and back");
+    }
+
+    #[test]
+    fn armw_of_the_reference_clocks_system_time_brings_the_other_clocks_together() {
+        let mut l = line(4);
+        // Offsets as a master writes them: each slave's system time = its local time at the latch minus that.
+        send(&mut l, FrameBuilder::new().push(Command::Bwr, 0, 0x0900, &[0; 4]));
+        let mut delay = 0u64;
+        for k in 0..4 {
+            let s = &l.slaves[k];
+            let rx = u64::from_le_bytes(std::array::from_fn(|i| s.esc.register(0x0918 + i as u16)));
+            let offset = 0u64.wrapping_sub(rx);
+            let adp = 0u16.wrapping_sub(k as u16);
+            send(&mut l, FrameBuilder::new().push(Command::Apwr, adp, 0x0920, &offset.to_le_bytes()));
+            send(&mut l, FrameBuilder::new().push(Command::Apwr, adp, 0x0928, &(delay as u32).to_le_bytes()));
+            delay += l.hop(k);
+        }
+        // Static drift compensation: ARMW 0x0910 from slave 0, one per 1 ms cycle.
+        for _ in 0..200 {
+            send(
+                &mut l,
+                FrameBuilder::new().push_logical(Command::Lrw, 0, &[0; 4]).push(Command::Armw, 0, 0x0910, &[0; 8]),
+            );
+        }
+        // +-100 ppm apart: at most 200 ns drift per 1 ms cycle between corrections.
+        let spread = l.system_time_spread_ns();
+        assert!(spread <= 250, "system times {spread} ns apart");
+    }
+
+    #[test]
+    fn logical_commands_go_through_each_slaves_own_fmmus() {
+        let mut l = line(2);
+        // FMMU0 of slave k: logical 0x100 + 4k, 4 bytes -> physical 0x1000 (user RAM), read+write.
+        for k in 0..2u16 {
+            let mut fmmu = [0u8; 16];
+            fmmu[0..4].copy_from_slice(&(0x100u32 + 4 * u32::from(k)).to_le_bytes());
+            fmmu[4..6].copy_from_slice(&4u16.to_le_bytes());
+            fmmu[7] = 7;
+            fmmu[8..10].copy_from_slice(&0x1000u16.to_le_bytes());
+            fmmu[11] = 3;
+            fmmu[12] = 1;
+            send(&mut l, FrameBuilder::new().push(Command::Apwr, 0u16.wrapping_sub(k), 0x0600, &fmmu));
+        }
+        let f = send(&mut l, FrameBuilder::new().push_logical(Command::Lwr, 0x100, &[1, 2, 3, 4, 5, 6, 7, 8]));
+        assert_eq!(datagram(&f, 0).1, 2, "one write per slave");
+        let f = send(&mut l, FrameBuilder::new().push_logical(Command::Lrd, 0x100, &[0; 8]));
+        assert_eq!(datagram(&f, 0), (vec![1, 2, 3, 4, 5, 6, 7, 8], 2, 0x100));
+        // Each slave's own RAM holds its own four bytes.
+        for k in 0..2u16 {
+            let f = send(&mut l, FrameBuilder::new().push(Command::Aprd, 0u16.wrapping_sub(k), 0x1000, &[0; 4]));
+            let first = 1 + 4 * k as u8;
+            assert_eq!(datagram(&f, 0).0, vec![first, first + 1, first + 2, first + 3], "slave {k}");
+        }
+    }
+
+    #[test]
+    fn each_slave_has_its_own_serial_number_in_the_sii_and_0x1018_04() {
+        let l = line(3);
+        for (k, s) in l.slaves.iter().enumerate() {
+            let sii = &s.esc.sii().image;
+            assert_eq!(u32::from_le_bytes([sii[0x1C], sii[0x1D], sii[0x1E], sii[0x1F]]), k as u32 + 1);
+            let mut b = [0u8; 4];
+            s.node
+                .sim
+                .drive
+                .dictionary()
+                .read(0x1018, 4, 0, &mut b, &mut firmware::od::access::NoApplicationObjects)
+                .expect("0x1018:04");
+            assert_eq!(u32::from_le_bytes(b), k as u32 + 1);
+        }
+        let rates: Vec<i64> = l.slaves.iter().map(|s| s.node.config().clock_error_ppb).collect();
+        assert_eq!(rates, vec![-100_000, -27_000, 46_000], "each its own oscillator error within +-100 ppm");
+    }
+
+    #[test]
+    fn a_line_of_one_answers_byte_for_byte_as_the_single_slave_runner() {
+        let config = EthercatConfig { clock: ClockMode::LockStep, ..EthercatConfig::default() };
+        let mut single = EthercatRunner::new(config).expect("runner");
+        let mut l = line(1);
+        let frames = [
+            FrameBuilder::new().push(Command::Brd, 0, 0x0000, &[0; 16]),
+            FrameBuilder::new().push(Command::Bwr, 0, 0x0900, &[0; 4]).push(Command::Aprd, 0, 0x0900, &[0; 32]),
+            FrameBuilder::new().push_logical(Command::Lrw, 0, &[0; 8]).push(Command::Armw, 0, 0x0910, &[0; 8]),
+            FrameBuilder::new().push(Command::Brd, 0, 0x0130, &[0; 6]),
+        ];
+        for fb in frames.iter().cycle().take(40) {
+            let (mut a, mut b) = (fb.build(), fb.build());
+            single.frame(&mut a);
+            l.frame(&mut b);
+            assert_eq!(a, b);
+        }
+    }
+
+    #[test]
+    fn stepping_the_drives_on_two_threads_gives_the_same_result_as_on_one() {
+        let mut results = Vec::new();
+        for parallel in [false, true] {
+            let mut l = line(3);
+            l.set_parallel(parallel);
+            for _ in 0..50 {
+                send(&mut l, FrameBuilder::new().push_logical(Command::Lrw, 0, &[0; 4]));
+            }
+            results.push(
+                l.slaves
+                    .iter()
+                    .map(|s| {
+                        (
+                            s.node.sim.ticks(),
+                            s.esc.local_time(),
+                            s.node.sim.statusword(),
+                            format!("{:?}", s.node.sim.plant.state()),
+                        )
+                    })
+                    .collect::<Vec<_>>(),
+            );
+        }
+        assert_eq!(results[0], results[1]);
+    }
+}
