@@ -49,7 +49,7 @@ def run(args):
             raise Fail("PRE-OP not reached on every drive")
         identities = {(s.man, s.id, s.rev) for s in slaves}
         emit("identities", len(identities))
-        serials_sii = [struct.unpack("<I", s.eeprom_read(0x0E))[0] for s in slaves]
+        serials_sii = [struct.unpack("<I", s.eeprom_read(0x0E, 500_000))[0] for s in slaves]
         serials_sdo = [u(s, 0x1018, 4, "<I") for s in slaves]
         emit("serials_sii", ",".join(str(v) for v in serials_sii))
         emit("serials_sdo", ",".join(str(v) for v in serials_sdo))
@@ -203,15 +203,15 @@ def run(args):
         # delay 0x0928.
         starts, times, delays = [], [], []
         for s in slaves:
-            starts.append(struct.unpack("<Q", s._fprd(0x0990, 8))[0])
+            starts.append(struct.unpack("<Q", s._fprd(0x0990, 8, 200_000))[0])
         for s in slaves:
-            times.append(struct.unpack("<Q", s._fprd(0x0910, 8))[0])
-            delays.append(struct.unpack("<I", s._fprd(0x0928, 4))[0])
+            times.append(struct.unpack("<Q", s._fprd(0x0910, 8, 200_000))[0])
+            delays.append(struct.unpack("<I", s._fprd(0x0928, 4, 200_000))[0])
         emit("sync0_start_spread_ns", max(starts) - min(starts))
         emit("system_delay_ns_each", ",".join(str(d) for d in delays))
-        cyc = [struct.unpack("<I", s._fprd(0x09A0, 4))[0] for s in slaves]
+        cyc = [struct.unpack("<I", s._fprd(0x09A0, 4, 200_000))[0] for s in slaves]
         emit("sync0_cycle_ns_all", ",".join(sorted({str(c) for c in cyc})))
-        act = [s._fprd(0x0981, 1)[0] for s in slaves]
+        act = [s._fprd(0x0981, 1, 200_000)[0] for s in slaves]
         emit("dc_activation_all", ",".join(sorted({f"0x{a:02x}" for a in act})))
         master.read_state()
         emit("states_after_cycles", ",".join(sorted({state_name(s.state) for s in slaves})))
