@@ -11,10 +11,10 @@
 //! clock, reads its system time into the datagram and every other ESC takes it as the time control loop's
 //! input). The malformed-frame check is the same for all, so a frame one ESC drops, all drop.
 //!
-//! **Delays and distributed clocks**: slave `k` has a port-to-port delay ([`EthercatLine::hop_ns`]: through the
+//! **Delays and distributed clocks**: slave `k` has a port-to-port delay ([`hop_ns`]: through the
 //! ESC and its PHYs and the cable to the next one, the same both ways). The frame reaches slave `k` at
 //! `T_k = hop_0 + ... + hop_(k-1)` after slave 0 and comes back through its port 1 at `2 T_last - T_k`; each ESC
-//! latches its local clock at those instants ([`Esc::process_frame_at`]), so a master's propagation-delay
+//! latches its local clock at those instants ([`crate::esc::Esc::process_frame_at`]), so a master's propagation-delay
 //! measurement (0x0900 latch, port receive times 0x0900..0x090F) finds `hop_k` between neighbours. The ESCs'
 //! times step on their own (each drive runs whole PWM periods of its own oscillator), so the instant of a frame
 //! is slave 0's time and the others' clocks are read at it, corrected by how far each lies from it.
@@ -170,7 +170,7 @@ impl EthercatLine {
         let mut dropped = false;
         for (k, s) in self.slaves.iter_mut().enumerate() {
             // The frame's instant is slave 0's time; this ESC's clock may stand a little apart from it.
-            let skew = now as i128 - i128::from(s.esc.elapsed());
+            let skew = i128::from(now) - i128::from(s.esc.elapsed());
             let at = i64::try_from(skew + i128::from(arrival[k])).unwrap_or(0);
             let back =
                 (k + 1 < n).then(|| i64::try_from(skew + 2 * i128::from(last) - i128::from(arrival[k])).unwrap_or(0));
