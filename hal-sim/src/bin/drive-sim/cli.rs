@@ -398,6 +398,20 @@ mod tests {
             "tests/tests/ecat_real_masters.rs soem-sto",
             "ethercat --iface ecs0 --lock-step --cycle-us 1000 --sto-open --seconds 280 --idle-exit-ms 1500",
         ),
+        // tests/tests/ecat_multi_axis.rs: the lock-step line and the real-time measurement.
+        (
+            "tests/tests/ecat_multi_axis.rs line",
+            "ethercat --iface ecs0 --slaves 16 --lock-step --cycle-us 200 --seconds 280 --idle-exit-ms 1500",
+        ),
+        ("tests/tests/ecat_multi_axis.rs real time", "ethercat --iface ecs0 --slaves 4 --seconds 280 --idle-exit-ms 1500"),
+        (
+            "ethercat line every option",
+            concat!(
+                "ethercat --iface ecs0 --slaves 3 --clock-spread-ppm 50 --plant-for 2=",
+                env!("CARGO_MANIFEST_DIR"),
+                "/presets/small-gimbal.toml --seconds 1"
+            ),
+        ),
         // tests/src/can_master.rs run: `canopen --port 0 --seconds 150 --idle-exit-ms 2000 {sim_args}`.
         ("tests/tests/canopen_real_master.rs bad_frames", "canopen --port 0 --seconds 150 --idle-exit-ms 2000"),
         ("tests/tests/canopen_real_master.rs nmt, sdo, update", "canopen --port 0 --seconds 150 --idle-exit-ms 2000 --lock-step"),
@@ -513,6 +527,10 @@ mod tests {
             ("ethercat --iface ecs0 --cycle-us 0", "--cycle-us"),
             ("ethercat --iface ecs0 --clock-error-ppm 1001", "--clock-error-ppm"),
             ("ethercat --iface ecs0 --drive-clock-error-ppm inf", "--drive-clock-error-ppm"),
+            ("ethercat --iface ecs0 --slaves 0", "--slaves"),
+            ("ethercat --iface ecs0 --slaves 65", "--slaves"),
+            ("ethercat --iface ecs0 --clock-spread-ppm 501", "--clock-spread-ppm"),
+            ("ethercat --iface ecs0 --plant-for 1", "--plant-for"),
             ("canopen --port 70000", "--port"),
             ("canopen --port 0 --nodes 0", "--nodes"),
             ("canopen --port 0 --nodes 128", "--nodes"),
