@@ -525,7 +525,7 @@ impl<const N: usize> Dictionary<N> {
         if result.is_err() || last {
             download.done = true;
         }
-        if result.is_err() && download.entry.storage == Storage::Application {
+        if result.is_err() && matches!(download.entry.storage, Storage::Application) {
             app.abort(download.entry);
         }
         result
@@ -593,7 +593,7 @@ impl<const N: usize> Dictionary<N> {
         download: &mut Download<S>,
         app: &mut A,
     ) {
-        if !download.done && download.entry.storage == Storage::Application {
+        if !download.done && matches!(download.entry.storage, Storage::Application) {
             app.abort(download.entry);
         }
         download.done = true;

@@ -65,26 +65,49 @@ impl Storage {
 
 /// The name of an object or entry: its place in the generated text of every name, `NAMES` (od-gen writes each
 /// name once, and a name that is part of another one not at all). Three bytes instead of a `&str`'s eight in each
-/// entry and object; the CANopen image, which serves no names, has an empty `NAMES` and every name empty.
+/// entry and object. The CANopen image serves no names (build.rs leaves `od_names` unset): there `NAMES` is empty
+/// and a name takes no bytes at all, which makes an object 8 bytes instead of 12 and, with the entry's packing
+/// of 2, an entry 22 bytes instead of 24.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg(od_names)]
 pub struct Name([u8; 3]);
+
+/// The name of an object or entry in an image that serves no names: always empty, no bytes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg(not(od_names))]
+pub struct Name;
 
 impl Name {
     /// The empty name.
     pub const EMPTY: Self = Self::new(0, 0);
 
     /// The `len` bytes at `offset` in `NAMES`. Only generated code and tests create names.
+    #[cfg(od_names)]
     pub const fn new(offset: u16, len: u8) -> Self {
         let [lo, hi] = offset.to_le_bytes();
         Self([lo, hi, len])
     }
 
+    /// The empty name, whatever the place (the image has no `NAMES` to point into).
+    #[cfg(not(od_names))]
+    pub const fn new(_offset: u16, _len: u8) -> Self {
+        Self
+    }
+
     /// The text, empty when it lies outside `NAMES` (never for a generated name).
+    #[cfg(od_names)]
     #[must_use]
     pub fn as_str(self) -> &'static str {
         let [lo, hi, len] = self.0;
         let start = usize::from(u16::from_le_bytes([lo, hi]));
         super::generated::NAMES.get(start..start.saturating_add(usize::from(len))).unwrap_or("")
+    }
+
+    /// The text: always empty in an image without names.
+    #[cfg(not(od_names))]
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        ""
     }
 }
 
@@ -94,8 +117,12 @@ impl core::fmt::Display for Name {
     }
 }
 
-/// One sub-object of the dictionary. The generated table holds one per (index, sub-index), sorted.
+/// One sub-object of the dictionary. The generated table holds one per (index, sub-index), sorted. Packed to 2
+/// bytes: of its 21 bytes in an image without names (the name takes none there, [`Name`]) the alignment of the two
+/// references would make 24; the access layer reads entries on no fast path, and the Cortex-M4 loads a word from
+/// any half-word address.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(packed(2))]
 pub struct Entry {
     /// Object index.
     pub index: u16,
