@@ -185,14 +185,14 @@ fn storage(s: &SubObject, slot: Option<RamSlot>) -> Result<String, String> {
             let slot = slot.ok_or("RAM entry without a slot")?;
             format!("Storage::Ram {{ offset: {}, len: {} }}", slot.offset, slot.len)
         }
-        // `Storage::Const` holds a reference to the bytes' slice (`entry.rs`).
+        // `Storage::Const` holds a thin reference to the bytes' slice (`entry.rs` `ConstRef`).
         StorageKind::Const => {
             let bytes = match (&s.default, s.data_type.fixed_size()) {
                 (Value::Text(t), _) => t.as_bytes().to_vec(),
                 (v, Some(n)) => value_bytes(v, n),
                 (_, None) => Vec::new(),
             };
-            format!("Storage::Const(&({} as &[u8]))", byte_string(&bytes))
+            format!("Storage::Const(ConstRef::new(&({} as &[u8])))", byte_string(&bytes))
         }
         StorageKind::Application => "Storage::Application".to_string(),
     })

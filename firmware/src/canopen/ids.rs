@@ -71,9 +71,9 @@ pub fn read<const N: usize>(d: &Dictionary<N>, index: u16, sub: u8) -> Option<u6
     // A copy: the entry is packed (`od::entry::Entry`), and the guard borrows the binding.
     let storage = entry.storage;
     match storage {
-        Storage::Const(bytes) if bytes.len() <= 8 => {
+        Storage::Const(bytes) if bytes.bytes().len() <= 8 => {
             let mut wide = [0u8; 8];
-            for (w, b) in wide.iter_mut().zip(bytes.iter()) {
+            for (w, b) in wide.iter_mut().zip(bytes.bytes().iter()) {
                 *w = *b;
             }
             Some(u64::from_le_bytes(wide))
