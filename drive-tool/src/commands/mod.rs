@@ -11,3 +11,5 @@ pub mod params;
 pub mod record;
 pub mod scan;
 pub mod update;
+#[cfg(target_os = "linux")]
+pub mod update_foe;

@@ -333,7 +333,7 @@ impl SlaveNode {
         &self.config
     }
 
-    fn on_frame(&mut self, esc: &mut Esc, report: &FrameReport) {
+    pub(crate) fn on_frame(&mut self, esc: &mut Esc, report: &FrameReport) {
         self.stats.frames = self.stats.frames.saturating_add(1);
         let cyclic = report.datagrams.iter().any(|(c, _)| matches!(c, Command::Lrw | Command::Lrd | Command::Lwr));
         let sm2_written = self.take_sm2_write(esc);
@@ -357,7 +357,7 @@ impl SlaveNode {
         }
     }
 
-    fn on_dropped(&mut self, esc: &mut Esc) {
+    pub(crate) fn on_dropped(&mut self, esc: &mut Esc) {
         self.stats.dropped = self.stats.dropped.saturating_add(1);
         self.poll(esc);
         if self.config.clock == ClockMode::RealTime {

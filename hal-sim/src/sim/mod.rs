@@ -13,6 +13,7 @@
 
 pub mod canopen;
 pub mod ethercat;
+pub mod ethercat_line;
 pub mod plot;
 pub mod trace;
 pub mod update;
