@@ -63,8 +63,10 @@ const ECAT_CYCLE_BUDGET: u64 = 1_500;
 /// dictionary's entries and objects took no name bytes in the CAN image and were packed (an entry 20 bytes
 /// there, 22 with names, instead of 24; -2,688 in the CAN image), and the default values were kept sparse (-324).
 /// Measured at the last change: 194,792, 226,420 and 232,472; the CAN image is 10,008 bytes under its 200 KiB
-/// ceiling.
-const TEXT_BUDGETS: [(&str, u64); 3] = [("can", 192 * 1024), ("ethercat", 223 * 1024), ("ethercat_defmt", 229 * 1024)];
+/// ceiling. Raised by 4, 3 and 3 KiB for the data recorder (issue 22 item 2: its entries, tier 3's drain, the
+/// SDO serving behind the application-objects port and tier 1's copy; +4,084, +3,740 and +3,744 bytes of text):
+/// 198,876, 230,160 and 236,216; the CAN image is 5,924 bytes under its ceiling.
+const TEXT_BUDGETS: [(&str, u64); 3] = [("can", 196 * 1024), ("ethercat", 226 * 1024), ("ethercat_defmt", 232 * 1024)];
 
 #[test]
 fn board_images_fit_their_text_budgets() {

@@ -176,7 +176,7 @@ fn entry_value(entry: &Entry, values: &[u8]) -> i32 {
             let start = usize::from(offset);
             values.get(start..start.saturating_add(usize::from(len))).unwrap_or_default()
         }
-        Storage::Const(bytes) => bytes,
+        Storage::Const(bytes) => bytes.bytes(),
         Storage::Application => &[],
     };
     let mut word = [0u8; 4];
