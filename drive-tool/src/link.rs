@@ -1,6 +1,6 @@
 //! The link to the drives: the services every command needs from a fieldbus (object access by SDO, finding the
 //! drives, their communication state). CANopen over a CAN interface implements it here; EtherCAT (CoE SDO
-//! through a master library) is meant to be a second implementation of the same trait.
+//! through the mailbox, `crate::ecat`) is the second implementation.
 
 use std::collections::BTreeMap;
 use std::io;
@@ -25,6 +25,8 @@ pub trait DriveLink {
         data: &[u8],
         progress: &mut dyn FnMut(usize),
     ) -> Result<(), SdoError>;
+    /// Reads a large `index:sub` of `node` by the link's bulk transfer (CANopen: SDO block upload with CRC).
+    fn upload_bulk(&mut self, node: u8, index: u16, sub: u8) -> Result<Vec<u8>, SdoError>;
     /// One LSS request (CiA 305: 0x7E5 to the slaves) and the first answer (0x7E4) within `wait`, if any; an
     /// error on a link without LSS.
     fn lss(&mut self, request: [u8; 8], wait: Duration) -> Result<Vec<[u8; 8]>, String>;
@@ -39,6 +41,20 @@ pub trait DriveLink {
     fn command_state(&mut self, node: u8, command: StateCommand, timeout: Duration) -> Result<bool, String>;
     /// The communication state of `node` as last seen (CANopen: the NMT state of its heartbeat), if known.
     fn comm_state(&self, node: u8) -> Option<String>;
+    /// The name `scan` and `info` give the communication state (CANopen: `nmt`).
+    fn comm_state_key(&self) -> &'static str {
+        "nmt"
+    }
+    /// What the link itself knows of `node` beyond its objects (EtherCAT: station address, alias, SII name): JSON
+    /// name, value and text.
+    fn describe(&mut self, _node: u8) -> Vec<(&'static str, serde_json::Value, String)> {
+        Vec::new()
+    }
+    /// The EtherCAT link, for the services only EtherCAT has (FoE, AL states); `None` on CANopen.
+    #[cfg(target_os = "linux")]
+    fn ecat(&mut self) -> Option<&mut crate::ecat::EcatLink> {
+        None
+    }
 }
 
 /// A CAN interface that remembers the heartbeats (NMT states, CiA 301 §7.2.8.3.2.2) it passes.
@@ -150,6 +166,10 @@ impl DriveLink for CanopenLink {
         } else {
             client.download(node, index, sub, data)
         }
+    }
+
+    fn upload_bulk(&mut self, node: u8, index: u16, sub: u8) -> Result<Vec<u8>, SdoError> {
+        SdoClient::new(&mut self.bus, self.timeout).block_upload(node, index, sub)
     }
 
     fn download_bulk(

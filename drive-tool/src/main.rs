@@ -1,9 +1,12 @@
-//! `drive-tool`: the command-line tool a machine builder commissions a drive with over CANopen: finds the drives
+//! `drive-tool`: the command-line tool a machine builder commissions a drive with over CANopen or EtherCAT: finds the drives
 //! (`scan`, `info`), reads and writes objects by index or name with their types (`get`, `set`), saves and
 //! loads parameter sets as CiA 306 DCF files (`params`), reads the error history (`faults`, `fault reset`) and
-//! makes a first move of an axis (`enable`, `disable`, `jog`, `move`).
+//! makes a first move of an axis (`enable`, `disable`, `jog`, `move`), and records traces with the drive's data
+//! recorder (`record`: CSV and SVG).
 //!
-//! Links: `--socketcand HOST:PORT` (the simulator, `drive-sim canopen`) or `--can IFACE` (Linux SocketCAN).
+//! Links: `--socketcand HOST:PORT` (the simulator, `drive-sim canopen`), `--can IFACE` (Linux SocketCAN) or
+//! `--ecat IFACE` (EtherCAT through a raw socket: `drive-sim ethercat` on one end of a veth pair, or a real
+//! segment; CoE SDO and FoE through the mailbox).
 //! The dictionary is the project's EDS, embedded, or `--eds FILE`.
 
 /// `println!` that does not panic when stdout is gone (`drive-tool list | head`): the output is lost, the
@@ -22,8 +25,15 @@ mod cia402;
 mod commands;
 mod context;
 mod dcf;
+#[cfg(target_os = "linux")]
+mod ecat;
 mod eds;
 mod link;
+/// The SVG line plots of `record`: hal-sim's dependency-free plot writer (`hal-sim/src/sim/plot.rs`), compiled
+/// into this tool from its one source rather than pulling the simulator in as a dependency.
+#[path = "../../hal-sim/src/sim/plot.rs"]
+#[allow(dead_code, reason = "the tool draws plain line plots: no markers, log axis or reference lines")]
+mod plot;
 mod project;
 mod sdo;
 #[cfg(target_os = "linux")]
@@ -41,7 +51,7 @@ use crate::context::Context;
 use crate::eds::Dictionary;
 use crate::link::{CanopenLink, DriveLink};
 
-/// Commissioning tool for the drive over CANopen.
+/// Commissioning tool for the drive over CANopen and EtherCAT.
 #[derive(Parser, Debug)]
 #[command(name = "drive-tool", version, about, long_about = None, propagate_version = true)]
 struct Cli {
@@ -63,9 +73,17 @@ struct LinkArgs {
     /// A Linux SocketCAN interface (can0, vcan0, ...).
     #[arg(long, global = true, value_name = "IFACE")]
     can: Option<String>,
-    /// Node-ID of the drive.
+    /// An EtherCAT segment through a raw socket on this interface (root or CAP_NET_RAW): the drives are
+    /// addressed by position (`--node 1` is the first) or `--station`.
+    #[arg(long, global = true, value_name = "IFACE")]
+    ecat: Option<String>,
+    /// Node-ID of the drive (CANopen), or its position on the segment, 1 for the first (EtherCAT).
     #[arg(long, short, global = true, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=127))]
     node: u8,
+    /// EtherCAT: the drive with this configured station address or alias (the tool assigns 0x1000 to the first
+    /// drive, 0x1001 to the second, ...) instead of `--node`.
+    #[arg(long, global = true, value_name = "ADDR", value_parser = parse_station)]
+    station: Option<u16>,
     /// The drive's EDS (or a DCF) instead of the project's embedded EDS.
     #[arg(long, global = true, value_name = "FILE")]
     eds: Option<PathBuf>,
@@ -110,6 +128,10 @@ enum Command {
         /// Objects to read.
         #[arg(required = true, value_name = "OBJ")]
         objects: Vec<String>,
+        /// EtherCAT: read each whole object in one CoE complete access (ETG.1000.6 §5.6.2.1.2) instead of sub-index
+        /// by sub-index; give whole objects (`0x1018`).
+        #[arg(long)]
+        complete: bool,
     },
     /// Write one object; the value is checked against its type and EDS limits before anything is sent.
     Set {
@@ -193,14 +215,19 @@ enum Command {
     /// Layer setting services (CiA 305) for drives without a node-ID.
     #[command(subcommand)]
     Lss(LssCommand),
-    /// Install a signed firmware image by program control (0x1F51 stop/clear, 0x1F50 block download with its CRC,
-    /// start), wait for the restart and read the new version back; a refused image is shown with the drive's SDO
-    /// abort and flash status 0x1F57, and the old firmware keeps running.
+    /// The data recorder (0x3300..0x3302): configure up to 8 channels, the sampling divider and the trigger with
+    /// its preceding samples, arm, wait for the recording, upload it by SDO block transfer and write a CSV file
+    /// and an SVG plot; `--no-wait` arms only, `--fetch` uploads a recording armed earlier.
+    Record(commands::record::RecordArgs),
+    /// Install a signed firmware image and read the new version back after the restart. CANopen: program control
+    /// (0x1F51 stop/clear, 0x1F50 block download with its CRC, start); a refusal shows the SDO abort and flash
+    /// status 0x1F57. EtherCAT: FoE in BOOT (INIT, BOOT, FoE write, INIT); a refusal shows the FoE error code and
+    /// the drive's text. The old firmware keeps running after a refusal.
     Update {
         /// The signed image (`drive-image pack`).
         #[arg(value_name = "IMAGE")]
         image: PathBuf,
-        /// Download and verify only; do not start it (0x1F51:01 = 1 later starts it).
+        /// CANopen: download and verify only; do not start it (0x1F51:01 = 1 later starts it).
         #[arg(long)]
         no_start: bool,
     },
@@ -261,18 +288,55 @@ enum FaultCommand {
     Reset,
 }
 
+/// `--station 0x1001` or `--station 4097`.
+fn parse_station(text: &str) -> Result<u16, String> {
+    let parsed = match text.strip_prefix("0x").or_else(|| text.strip_prefix("0X")) {
+        Some(hex) => u16::from_str_radix(hex, 16),
+        None => text.parse(),
+    };
+    parsed.map_err(|e| format!("{text}: a station address 0..=0xFFFF ({e})"))
+}
+
 fn open_link(args: &LinkArgs) -> Result<Box<dyn DriveLink>, String> {
     let timeout = Duration::from_millis(args.sdo_timeout_ms);
     let block = args.sdo_block;
-    match (&args.socketcand, &args.can) {
-        (Some(_), Some(_)) => Err("--socketcand and --can: give one link, not both".into()),
-        (Some(address), None) => {
+    let given = [args.socketcand.is_some(), args.can.is_some(), args.ecat.is_some()].iter().filter(|&&g| g).count();
+    if given > 1 {
+        return Err("--socketcand, --can and --ecat: give one link, not several".into());
+    }
+    if args.sdo_block && args.ecat.is_some() {
+        return Err(
+            "--sdo-block: CoE has no block transfer (ETG.1000.6); over EtherCAT large values go segmented".into()
+        );
+    }
+    if args.station.is_some() && args.ecat.is_none() {
+        return Err("--station addresses an EtherCAT drive (with --ecat IFACE); on CANopen give --node".into());
+    }
+    match (&args.socketcand, &args.can, &args.ecat) {
+        (Some(address), _, _) => {
             let bus = socketcand::Socketcand::connect(address, &args.socketcand_bus)?;
             Ok(Box::new(CanopenLink::new(Box::new(bus), timeout, block)))
         }
-        (None, Some(iface)) => open_socketcan(iface, timeout, block),
-        (None, None) => Err("no link: give --socketcand HOST:PORT (the simulator) or --can IFACE (SocketCAN)".into()),
+        (None, Some(iface), _) => open_socketcan(iface, timeout, block),
+        (None, None, Some(iface)) => open_ecat(iface, timeout),
+        (None, None, None) => Err("no link: give --socketcand HOST:PORT (the simulator), --can IFACE (SocketCAN) \
+                                   or --ecat IFACE (EtherCAT)"
+            .into()),
     }
+}
+
+/// How long `--ecat` waits for a first answer on the segment (a simulator that is still starting).
+const ECAT_FIRST_ANSWER: Duration = Duration::from_secs(2);
+
+#[cfg(target_os = "linux")]
+fn open_ecat(iface: &str, timeout: Duration) -> Result<Box<dyn DriveLink>, String> {
+    Ok(Box::new(ecat::EcatLink::open(iface, timeout, ECAT_FIRST_ANSWER)?))
+}
+
+#[cfg(not(target_os = "linux"))]
+fn open_ecat(iface: &str, _timeout: Duration) -> Result<Box<dyn DriveLink>, String> {
+    let _ = ECAT_FIRST_ANSWER;
+    Err(format!("--ecat {iface}: the raw-socket EtherCAT link exists on Linux only"))
 }
 
 #[cfg(target_os = "linux")]
@@ -284,6 +348,20 @@ fn open_socketcan(iface: &str, timeout: Duration, block: bool) -> Result<Box<dyn
 #[cfg(not(target_os = "linux"))]
 fn open_socketcan(iface: &str, _timeout: Duration, _block: bool) -> Result<Box<dyn DriveLink>, String> {
     Err(format!("--can {iface}: SocketCAN exists on Linux only"))
+}
+
+/// The position of the EtherCAT drive with station address (or alias) `station`.
+#[cfg(target_os = "linux")]
+fn station_position(link: &mut dyn DriveLink, station: u16) -> Result<u8, String> {
+    match link.ecat() {
+        Some(ecat) => ecat.position_of_station(station),
+        None => Err("--station needs --ecat".into()),
+    }
+}
+
+#[cfg(not(target_os = "linux"))]
+fn station_position(_link: &mut dyn DriveLink, _station: u16) -> Result<u8, String> {
+    Err("--station needs --ecat".into())
 }
 
 fn dictionary(args: &LinkArgs) -> Result<Dictionary, String> {
@@ -314,13 +392,17 @@ fn run(cli: Cli) -> Result<(), String> {
     if let Command::Set { object, value } = &cli.command {
         commands::object::checked_value(&dict, cli.link.node, object, value)?;
     }
-    let link = open_link(&cli.link)?;
-    let mut cx = Context::new(link, dict, cli.link.node, cli.link.json);
+    let mut link = open_link(&cli.link)?;
+    let node = match cli.link.station {
+        Some(station) => station_position(link.as_mut(), station)?,
+        None => cli.link.node,
+    };
+    let mut cx = Context::new(link, dict, node, cli.link.json);
     match cli.command {
         Command::Scan { wait_ms } => commands::scan::scan(&mut cx, Duration::from_millis(wait_ms)),
         Command::Info => commands::scan::info(&mut cx),
         Command::List { .. } | Command::Completions { .. } => Ok(()),
-        Command::Get { objects } => commands::object::get(&mut cx, &objects),
+        Command::Get { objects, complete } => commands::object::get(&mut cx, &objects, complete),
         Command::Set { object, value } => commands::object::set(&mut cx, &object, &value),
         Command::Params(ParamsCommand::Save { file }) => commands::params::save(&mut cx, &file),
         Command::Params(ParamsCommand::Load { file, store, force, dry_run }) => {
@@ -347,6 +429,7 @@ fn run(cli: Cli) -> Result<(), String> {
         Command::Lss(LssCommand::Assign { from, count, no_store, wait_ms }) => {
             commands::lss::assign(&mut cx, from, count, !no_store, Duration::from_millis(wait_ms))
         }
+        Command::Record(args) => commands::record::record(&mut cx, &args),
         Command::Update { image, no_start } => commands::update::update(&mut cx, &image, !no_start),
         Command::Move { target, relative, velocity, timeout_s, stay_enabled } => commands::motion::move_to(
             &mut cx,

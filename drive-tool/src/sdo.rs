@@ -21,6 +21,15 @@ pub enum SdoError {
     Protocol(String),
     /// The CAN interface failed.
     Bus(String),
+    /// The EtherCAT mailbox failed (datagram lost, working counter wrong, mailbox error).
+    Mailbox(String),
+}
+
+impl From<String> for SdoError {
+    /// A failure of the EtherCAT mailbox under the transfer.
+    fn from(why: String) -> Self {
+        Self::Mailbox(why)
+    }
 }
 
 impl fmt::Display for SdoError {
@@ -30,6 +39,7 @@ impl fmt::Display for SdoError {
             Self::Timeout => write!(f, "no SDO answer (timeout)"),
             Self::Protocol(why) => write!(f, "SDO protocol error: {why}"),
             Self::Bus(why) => write!(f, "CAN interface: {why}"),
+            Self::Mailbox(why) => write!(f, "EtherCAT mailbox: {why}"),
         }
     }
 }

@@ -3,8 +3,8 @@
 //! (veth pair `ecm0`/`ecs0`, the simulator in lock-step on `ecs0`, this master on `ecm0`), or by hand:
 //!
 //! ```text
-//! ethercrab_master --iface NAME <scenario> [--cycle-us N] [--sync free|sm|dc] [--deadline-s S]
-//! scenarios: identity | objects | parameters | remap | csp | watchdog
+//! ethercrab_master --iface NAME <scenario> [--cycle-us N] [--sync free|sm|dc] [--deadline-s S] [--slaves N]
+//! scenarios: identity | objects | parameters | remap | csp | watchdog | line
 //! ```
 //!
 //! It prints one `key=value` line per figure and as its last line `verdict=pass` or `verdict=fail <reason>`;
@@ -24,6 +24,8 @@ use ethercrab::{
     Timeouts,
 };
 
+#[path = "ethercrab_master/line.rs"]
+mod line;
 #[path = "ethercrab_master/motion.rs"]
 mod motion;
 #[path = "ethercrab_master/objects.rs"]
@@ -92,11 +94,19 @@ pub struct Args {
     sync: Sync,
     /// Whole-run deadline, s.
     deadline_s: u64,
+    /// SubDevices on the bus (`--slaves`, default 1; scenario `line` brings them all up).
+    slaves: usize,
 }
 
 fn parse_args() -> Result<Args, String> {
-    let mut args =
-        Args { iface: String::new(), scenario: String::new(), cycle_us: 1_000, sync: Sync::Sm, deadline_s: 200 };
+    let mut args = Args {
+        iface: String::new(),
+        scenario: String::new(),
+        cycle_us: 1_000,
+        sync: Sync::Sm,
+        deadline_s: 200,
+        slaves: 1,
+    };
     let mut it = std::env::args().skip(1);
     while let Some(a) = it.next() {
         let mut value = |name: &str| it.next().ok_or_else(|| format!("{name} needs a value"));
@@ -106,6 +116,7 @@ fn parse_args() -> Result<Args, String> {
             "--deadline-s" => {
                 args.deadline_s = value("--deadline-s")?.parse().map_err(|e| format!("--deadline-s: {e}"))?
             }
+            "--slaves" => args.slaves = value("--slaves")?.parse().map_err(|e| format!("--slaves: {e}"))?,
             "--sync" => {
                 args.sync = match value("--sync")?.as_str() {
                     "free" => Sync::FreeRun,
@@ -119,8 +130,8 @@ fn parse_args() -> Result<Args, String> {
         }
     }
     if args.iface.is_empty() || args.scenario.is_empty() {
-        return Err("usage: ethercrab_master --iface NAME <identity|objects|parameters|remap|csp|watchdog> \
-                    [--cycle-us N] [--sync free|sm|dc] [--deadline-s S]"
+        return Err("usage: ethercrab_master --iface NAME <identity|objects|parameters|remap|csp|watchdog|line> \
+                    [--cycle-us N] [--sync free|sm|dc] [--deadline-s S] [--slaves N]"
             .to_owned());
     }
     if args.cycle_us == 0 || args.cycle_us > 100_000 {
@@ -220,11 +231,12 @@ fn arm_deadline(seconds: u64) {
 
 /// Waits until the SubDevice answers a broadcast read (the simulator may still be starting: the namespace script
 /// gives it 0.3 s, which a loaded machine can exceed), at most 50 tries of one PDU timeout each.
-async fn wait_for_bus(master: &'static Master) -> Outcome {
+async fn wait_for_bus(master: &'static Master, slaves: usize) -> Outcome {
+    let slaves = u16::try_from(slaves).map_err(|_| "--slaves too large")?;
     let mut last = String::new();
     for attempt in 1..=50u32 {
-        // ESC type register (0x0000), answered with working counter 1 by the one SubDevice.
-        match ethercrab::Command::brd(0x0000).with_wkc(1).receive::<u8>(master).await {
+        // ESC type register (0x0000): every SubDevice adds 1 to the working counter.
+        match ethercrab::Command::brd(0x0000).with_wkc(slaves).receive::<u8>(master).await {
             Ok(_) => {
                 emit("bus_attempts", attempt);
                 return Ok(());
@@ -241,7 +253,7 @@ fn run(args: &Args) -> Outcome {
     let dc_iterations = if args.sync == Sync::Dc { 10_000 } else { 0 };
     let master: &'static Master = Box::leak(Box::new(start_master(&args.iface, dc_iterations)?));
     async_io::block_on(async {
-        wait_for_bus(master).await?;
+        wait_for_bus(master, args.slaves).await?;
         match args.scenario.as_str() {
             "identity" => objects::identity(master).await,
             "objects" => objects::read_all(master).await,
@@ -249,6 +261,7 @@ fn run(args: &Args) -> Outcome {
             "remap" => motion::remap_csv(master, args).await,
             "csp" => motion::csp(master, args).await,
             "watchdog" => motion::watchdog(master, args).await,
+            "line" => line::line(master, args).await,
             other => Err(format!("unknown scenario {other}")),
         }
     })

@@ -143,12 +143,17 @@ impl RunOutput {
 /// itself) against `drive-sim ethercat --iface ecs0 <sim_args>` in a fresh namespace. `name` keeps the temporary
 /// directories of tests that run at the same time (same process) apart.
 pub fn run_in_namespace(name: &str, sim_args: &str, master_command: &str) -> RunOutput {
-    let drive_sim = build_drive_sim();
+    run_in_namespace_with(&build_drive_sim(), name, sim_args, master_command)
+}
+
+/// [`run_in_namespace`] with the `drive-sim` executable at `drive_sim` (e.g. a release build for a real-time
+/// measurement).
+pub fn run_in_namespace_with(drive_sim: &Path, name: &str, sim_args: &str, master_command: &str) -> RunOutput {
     let _one_at_a_time = one_run_at_a_time();
     let dir = std::env::temp_dir().join(format!("ecat-real-masters-{}-{name}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("temp dir");
     let sim_log = dir.join("drive-sim.log");
-    let script = namespace_script(&drive_sim, &sim_log, sim_args, master_command);
+    let script = namespace_script(drive_sim, &sim_log, sim_args, master_command);
     let out = Command::new("unshare").args(["-Urn", "sh", "-c", &script]).output().expect("run unshare");
     let text = String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
     let _ = std::fs::remove_dir_all(&dir);

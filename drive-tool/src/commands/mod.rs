@@ -8,5 +8,8 @@ pub mod motion;
 pub mod nmt;
 pub mod object;
 pub mod params;
+pub mod record;
 pub mod scan;
 pub mod update;
+#[cfg(target_os = "linux")]
+pub mod update_foe;

@@ -1,5 +1,6 @@
 //! `scan` and `info`: the drives on the bus and what they are (identity 0x1018, device type 0x1000, names and
-//! versions 0x1008/0x1009/0x100A, NMT state from the heartbeat, CiA 402 state from 0x6041).
+//! versions 0x1008/0x1009/0x100A, NMT state from the heartbeat or EtherCAT AL state with station address, alias
+//! and SII name, CiA 402 state from 0x6041).
 
 use std::time::Duration;
 
@@ -51,11 +52,13 @@ fn report(cx: &mut Context, node: u8, details: bool) -> Report {
             Err(e) => (name, Json::Null, format!("({e})")),
         });
     }
+    let key = cx.link.comm_state_key();
     fields.push(match cx.link.comm_state(node) {
-        Some(s) => ("nmt", json!(s), s),
+        Some(s) => (key, json!(s), s),
         // A node that answers SDO is pre-operational or operational (CiA 301 Table 62: no SDO when stopped).
-        None => ("nmt", Json::Null, "pre-operational or operational (no heartbeat seen)".into()),
+        None => (key, Json::Null, "pre-operational or operational (no heartbeat seen)".into()),
     });
+    fields.extend(cx.link.describe(node));
     match cx.link.upload(node, 0x6041, 0).map_err(|e| e.to_string()).and_then(|b| decode(0x0006, &b)) {
         Ok(Value::Int(sw)) => {
             let sw = sw as u16;
@@ -130,14 +133,15 @@ fn print_text(r: &Report) {
     }
 }
 
-/// `scan`: every node-ID 1..=127 asked for 0x1018:01 at once; the ones that answer are described.
+/// `scan`: the drives the link finds (CANopen: every node-ID 1..=127 asked for 0x1018:01 at once; EtherCAT: the
+/// SubDevices of the segment, by position) are described.
 pub fn scan(cx: &mut Context, wait: Duration) -> Result<(), String> {
     let nodes = cx.link.scan(wait)?;
     let reports: Vec<Report> = nodes.iter().map(|&n| report(cx, n, false)).collect();
     if cx.json {
         cx.print_json(&Json::Array(reports.iter().map(to_json).collect()));
     } else if reports.is_empty() {
-        say!("no drive answered (node-IDs 1..127)");
+        say!("no drive answered");
     } else {
         for r in &reports {
             print_text(r);

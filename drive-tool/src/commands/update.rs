@@ -1,4 +1,5 @@
-//! `update IMAGE`: a signed firmware image into the drive by program control (IDX 0x1F50..0x1F57, the sequence
+//! `update IMAGE`: a signed firmware image into the drive; over EtherCAT by FoE (`update_foe`), over CANopen by
+//! program control (IDX 0x1F50..0x1F57, the sequence
 //! of the EPOS4 application notes; `firmware::boot::program`):
 //!
 //! 1. 0x1F51:01 = 0 (stop program; refused while the power stage is on) and = 3 (clear program);
@@ -34,15 +35,17 @@ const STOP: u8 = 0;
 const START: u8 = 1;
 const CLEAR: u8 = 3;
 /// Longest wait for the boot-up after the start: the bootloader verifies and swaps the image first.
-const BOOT_UP_TIMEOUT: Duration = Duration::from_secs(30);
+pub const BOOT_UP_TIMEOUT: Duration = Duration::from_secs(30);
 
 /// What the drive runs: 0x1F56:01 and 0x100A.
-struct Running {
-    software_id: u32,
-    version: String,
+pub struct Running {
+    /// 0x1F56:01.
+    pub software_id: u32,
+    /// 0x100A.
+    pub version: String,
 }
 
-fn read_u32(cx: &mut Context, index: u16, sub: u8) -> Result<u32, String> {
+pub fn read_u32(cx: &mut Context, index: u16, sub: u8) -> Result<u32, String> {
     let node = cx.node;
     let bytes = cx.link.upload(node, index, sub).map_err(|e| format!("node {node} 0x{index:04X}:{sub:02X}: {e}"))?;
     let mut word = [0u8; 4];
@@ -52,7 +55,7 @@ fn read_u32(cx: &mut Context, index: u16, sub: u8) -> Result<u32, String> {
     Ok(u32::from_le_bytes(word))
 }
 
-fn running(cx: &mut Context) -> Result<Running, String> {
+pub fn running(cx: &mut Context) -> Result<Running, String> {
     let node = cx.node;
     let version =
         cx.link.upload(node, SOFTWARE_VERSION, 0).map_err(|e| format!("node {node} 0x100A (software version): {e}"))?;
@@ -61,7 +64,7 @@ fn running(cx: &mut Context) -> Result<Running, String> {
 }
 
 /// The flash status 0x1F57:01 as the drive explains it: code (bits 7..1) and text.
-fn flash_status(cx: &mut Context) -> String {
+pub fn flash_status(cx: &mut Context) -> String {
     match read_u32(cx, FLASH_STATUS, 1) {
         Ok(word) => {
             let code = ((word >> 1) & 0x7F) as u8;
@@ -87,26 +90,47 @@ fn control(cx: &mut Context, command: u8, what: &str) -> Result<(), String> {
     })
 }
 
-/// `update IMAGE [--no-start]`.
-pub fn update(cx: &mut Context, path: &Path, start: bool) -> Result<(), String> {
+/// The signed image in `path` and the version its header names; a file that is no image is refused before the
+/// bus is touched.
+pub fn read_image(path: &Path) -> Result<(Vec<u8>, String), String> {
     let image = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
     let header = ImageHeader::parse(&image)
         .map_err(|e| format!("{}: not a signed drive image ({e:?}); `drive-image pack` makes one", path.display()))?;
-    let new_version = String::from_utf8_lossy(header.version_str()).into_owned();
+    let version = String::from_utf8_lossy(header.version_str()).into_owned();
+    Ok((image, version))
+}
+
+/// A progress bar of `len` bytes on a terminal (none for `--json` or when stderr is not a terminal).
+pub fn progress_bar(cx: &Context, len: usize) -> Option<indicatif::ProgressBar> {
+    (!cx.json && std::io::stderr().is_terminal()).then(|| {
+        let bar = indicatif::ProgressBar::new(len as u64);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template("{bytes}/{total_bytes} {wide_bar} {bytes_per_sec} {eta}")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        bar
+    })
+}
+
+/// `update IMAGE [--no-start]`.
+pub fn update(cx: &mut Context, path: &Path, start: bool) -> Result<(), String> {
+    let (image, new_version) = read_image(path)?;
+    #[cfg(target_os = "linux")]
+    if cx.link.ecat().is_some() {
+        if !start {
+            return Err("--no-start: over EtherCAT the drive activates a verified image when it leaves BOOT; \
+                        program control's separate start is CANopen's"
+                .into());
+        }
+        return crate::commands::update_foe::update(cx, path, &image, &new_version);
+    }
     let node = cx.node;
     let before = running(cx)?;
     control(cx, STOP, "stop program")?;
     control(cx, CLEAR, "clear program")?;
 
     let started = Instant::now();
-    let bar = (!cx.json && std::io::stderr().is_terminal()).then(|| {
-        let bar = indicatif::ProgressBar::new(image.len() as u64);
-        bar.set_style(
-            indicatif::ProgressStyle::with_template("{bytes}/{total_bytes} {wide_bar} {bytes_per_sec} {eta}")
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        );
-        bar
-    });
+    let bar = progress_bar(cx, image.len());
     let mut progress = |done: usize| {
         if let Some(bar) = &bar {
             bar.set_position(done as u64);

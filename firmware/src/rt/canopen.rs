@@ -30,6 +30,7 @@ use crate::canopen::{ids, CanopenNode, NodeEvent};
 use crate::drive::objects::DriveObjects;
 use crate::drive::Drive;
 use crate::od::access::{ApplicationObjects, NoApplicationObjects};
+use crate::recorder::objects::RecorderObjects;
 
 /// The node and its controller, owned by tier 3.
 pub(crate) struct Canopen {
@@ -101,7 +102,18 @@ pub(crate) fn poll(
                 &mut none
             }
         };
-        let event = can.node.poll(&mut can.bus, drive, objects, now_us);
+        // The data recorder in front of them (0x3300..0x3302), under the same lock.
+        let event = super::tier2::RECORDER.with_or_none(|recorder| {
+            let mut recorder_objects;
+            let objects: &mut dyn ApplicationObjects = match recorder {
+                Some(recorder) => {
+                    recorder_objects = RecorderObjects::new(recorder, objects);
+                    &mut recorder_objects
+                }
+                None => objects,
+            };
+            can.node.poll(&mut can.bus, drive, objects, now_us)
+        });
         let reset = program.is_some_and(|program| super::program::follow(program, drive));
         (event, reset)
     });
@@ -118,6 +130,11 @@ pub(crate) fn poll(
             // (0x2000/0x2001 included), as after a power cycle.
             crate::board::safe_state();
             cortex_m::peripheral::SCB::sys_reset()
+        }
+        Some(NodeEvent::BitRateSwitched(rate)) if rate != can.bus.bit_rate() => {
+            // LSS activate bit timing: the node is silent now and stays so for the switch delay after this.
+            let _refused = can.bus.set_bit_rate(rate).is_err();
+            crate::rt_info!("CAN: LSS bit rate {=u32}, refused {=bool}", rate.bits_per_second(), _refused);
         }
         Some(NodeEvent::Reset { bit_rate: Some(rate), .. }) if rate != can.bus.bit_rate() => {
             // A refused rate (800 kbit/s) keeps the controller as it was.

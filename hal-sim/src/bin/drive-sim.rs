@@ -38,6 +38,7 @@ use hal_sim::scenarios::regeneration::{self, ChopperRating};
 use hal_sim::scenarios::{self, PlantScale, Setup, SpinConfig, SpinStepFigures, SWEEP_FREQUENCIES_HZ};
 use hal_sim::scenarios::{duty_cycle, faults, homing};
 use hal_sim::sim::ethercat::{ClockMode, EthercatConfig, EthercatRunner};
+use hal_sim::sim::ethercat_line::EthercatLine;
 use hal_sim::sim::plot::{Plot, Series};
 use hal_sim::sim::trace::Trace;
 
@@ -643,6 +644,9 @@ fn bench(seconds: f64, drives: usize) -> Result<(), String> {
 /// `drive-sim ethercat`: the drive as an EtherCAT slave on a network interface until `--seconds` (wall clock)
 /// pass, the master falls silent for `--idle-exit-ms` after its first frame, or the process is stopped.
 fn ethercat(e: &EthercatArgs) -> Result<(), String> {
+    if e.slaves > 1 || !e.plant_for.is_empty() {
+        return ethercat_line(e);
+    }
     let iface = e.iface.as_str();
     let cycle_us = e.cycle_us;
     let config = EthercatConfig {
@@ -792,6 +796,156 @@ fn ethercat(e: &EthercatArgs) -> Result<(), String> {
         "sync0_cycle_ns={}",
         u32::from_le_bytes([0x09A0u16, 0x09A1, 0x09A2, 0x09A3].map(|a| runner.esc.register(a)))
     );
+    Ok(())
+}
+
+/// `drive-sim ethercat --slaves N` (N > 1): N drives in a line on the interface (hal_sim::sim::ethercat_line), until
+/// `--seconds` pass or the master falls silent for `--idle-exit-ms`. Prints the line's figures and each slave's
+/// (`slaveK_...`).
+fn ethercat_line(e: &EthercatArgs) -> Result<(), String> {
+    let iface = e.iface.as_str();
+    let n = usize::from(e.slaves);
+    let config = EthercatConfig {
+        clock: if e.lock_step { ClockMode::LockStep } else { ClockMode::RealTime },
+        cycle_ns: e.cycle_us.saturating_mul(1_000),
+        clock_error_ppb: (e.clock_error_ppm * 1_000.0).round() as i64,
+        seed: e.common.seed,
+        idle_cycle: e.idle_cycle,
+        drive_clock_error_ppb: (e.drive_clock_error_ppm * 1_000.0).round() as i64,
+    };
+    if cfg!(debug_assertions) {
+        println!("note: a debug build; real masters' timeouts want `cargo run --release`");
+    }
+    let mut plants = vec![scenarios::scenario_plant(); n];
+    for (k, file) in &e.plant_for {
+        let slot = plants
+            .get_mut(usize::from(*k))
+            .ok_or_else(|| format!("--plant-for {k}: there are only {n} slaves (0..={})", n - 1))?;
+        *slot = file.params.clone();
+        println!("  slave {k}: plant {}", file.path.display());
+    }
+    let spread_ppb = (e.clock_spread_ppm * 1_000.0).round() as i64;
+    let mut line = EthercatLine::new(config, &plants, spread_ppb)?;
+    if e.sto_open {
+        for s in &mut line.slaves {
+            s.node.sim.plant.set_sto_inputs(firmware::hal::sto::StoInputs::DEMANDED);
+        }
+        println!("  STO-IN1 and STO-IN2 de-energised on every drive");
+    }
+    match config.clock {
+        ClockMode::LockStep => println!(
+            "ethercat: serving {n} simulated drives in a line on {iface}, lock-step: {} us of simulated time per \
+             cyclic frame (LRW/LRD/LWR)",
+            e.cycle_us
+        ),
+        ClockMode::RealTime => println!("ethercat: serving {n} simulated drives in a line on {iface}, real time"),
+    }
+    println!(
+        "  ESC clocks {:+} ppm, spread +-{} ppm over the slaves; port-to-port delays {}..{} ns",
+        e.clock_error_ppm,
+        e.clock_spread_ppm,
+        (0..n).map(|k| line.hop(k)).min().unwrap_or(0),
+        (0..n).map(|k| line.hop(k)).max().unwrap_or(0)
+    );
+    let start = std::time::Instant::now();
+    let limit = e.seconds.map(std::time::Duration::from_secs_f64);
+    let idle_exit = e.idle_exit_ms.map(std::time::Duration::from_millis);
+    let mut last_frames = 0;
+    let mut last_frame_at = start;
+    let mut pcap = match &e.pcap {
+        Some(path) => {
+            let file = std::fs::File::create(path).map_err(|err| format!("--pcap {}: {err}", path.display()))?;
+            Some(PcapWriter::new(std::io::BufWriter::new(file)).map_err(|err| format!("--pcap: {err}"))?)
+        }
+        None => None,
+    };
+    let tap = |_: Direction, frame: &[u8]| match pcap.as_mut() {
+        Some(w) => {
+            let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default();
+            w.write_frame(now, frame)
+        }
+        None => Ok(()),
+    };
+    line.serve_tapped(iface, std::time::Duration::from_millis(1), tap, |stats| {
+        let now = std::time::Instant::now();
+        if stats.frames != last_frames {
+            last_frames = stats.frames;
+            last_frame_at = now;
+        }
+        let timed_out = limit.is_some_and(|l| now.duration_since(start) >= l);
+        let silent = idle_exit.is_some_and(|d| stats.frames > 0 && now.duration_since(last_frame_at) >= d);
+        timed_out || silent
+    })
+    .map_err(|err| err.to_string())?;
+    if let Some(w) = pcap {
+        println!("pcap_packets={}", w.packets());
+        w.into_inner().map_err(|err| format!("--pcap: {err}"))?;
+    }
+    let wall = start.elapsed().as_secs_f64();
+    let ls = line.stats();
+    let all = line.slave_stats();
+    let simulated_s = line.slaves.first().map_or(0.0, |s| s.simulated_ns() as f64 * 1e-9);
+    println!(
+        "  {} frames ({} cyclic, {} dropped) in {wall:.2} s wall-clock, {simulated_s:.3} s simulated",
+        ls.frames, ls.cyclic_frames, ls.dropped
+    );
+    println!();
+    println!("slaves={n}");
+    println!("frames={}", ls.frames);
+    println!("cyclic_frames={}", ls.cyclic_frames);
+    println!("dropped_frames={}", ls.dropped);
+    println!("idle_polls={}", ls.idle);
+    println!("wall_s={wall:.3}");
+    println!("simulated_s={simulated_s:.6}");
+    let lowest = all.iter().map(|s| s.highest_al_state).min().unwrap_or(0);
+    println!("state_reached_all={}", al_state_name(lowest));
+    println!("sm_event_missed_total={}", line.slaves.iter().map(|s| u64::from(s.sm_event_missed())).sum::<u64>());
+    println!("sync0_missed_total={}", all.iter().map(|s| s.sync0_missed).sum::<u64>());
+    println!("lag_events_total={}", all.iter().map(|s| s.lag_events).sum::<u64>());
+    println!("cycles_min={}", all.iter().map(|s| s.cycles).min().unwrap_or(0));
+    println!("cycles_max={}", all.iter().map(|s| s.cycles).max().unwrap_or(0));
+    println!("sync0_pulses_min={}", all.iter().map(|s| s.sync0_pulses).min().unwrap_or(0));
+    println!("sync0_samples={}", ls.sync0_samples);
+    println!("sync0_spread_max_ns={}", ls.sync0_spread_max_ns);
+    println!("system_time_spread_ns={}", line.system_time_spread_ns());
+    println!(
+        "operation_enabled_all={}",
+        u8::from(line.slaves.iter().all(|s| s.node.sim.cia402_state() == firmware::cia402::State::OperationEnabled))
+    );
+    for (k, s) in line.slaves.iter().enumerate() {
+        let st = &all[k];
+        let reg32 = |a: u16| u32::from_le_bytes([a, a + 1, a + 2, a + 3].map(|x| s.esc.register(x)));
+        println!(
+            "slave{k}: serial={} clock_error_ppm={:+.3} hop_ns={} state_reached={} state_final={:?} cycles={} \
+             sync0_pulses={} sync0_missed={} sm_event_missed={} lag_events={} cia402_state_final={:?} \
+             dc_activation=0x{:02x} sync0_cycle_ns={} system_time_delay_ns={} pll_state={:?}",
+            {
+                let mut b = [0u8; 4];
+                let _ = s.node.sim.drive.dictionary().read(
+                    0x1018,
+                    4,
+                    0,
+                    &mut b,
+                    &mut firmware::od::access::NoApplicationObjects,
+                );
+                u32::from_le_bytes(b)
+            },
+            s.node.config().clock_error_ppb as f64 / 1_000.0,
+            line.hop(k),
+            al_state_name(st.highest_al_state),
+            s.state(),
+            st.cycles,
+            st.sync0_pulses,
+            st.sync0_missed,
+            s.sm_event_missed(),
+            st.lag_events,
+            s.node.sim.cia402_state(),
+            s.esc.register(0x0981),
+            reg32(0x09A0),
+            reg32(0x0928),
+            s.sync_pll().state,
+        );
+    }
     Ok(())
 }
 

@@ -378,6 +378,29 @@ impl Esc {
     /// A malformed frame is not processed: it is counted (frame stats and 0x0300, saturating) and the error
     /// returned; a frame that is not EtherCAT is ignored. Either way the caller must not send it back.
     pub fn process_frame(&mut self, frame: &mut [u8]) -> Result<FrameReport, FrameError> {
+        self.process_frame_at(frame, 0, None)
+    }
+
+    /// [`Esc::process_frame`] for an ESC in a line: the frame reaches this ESC's port 0 `arrival_ns` (ideal ns,
+    /// may be negative) from the ESC's current time and, with port 1 open, comes back through port 1 at
+    /// `return_ns`. The DC receive times latch the local clock at those instants, and reads of the system time
+    /// (0x0910) and the time control loop's writes see it at the arrival, so that a master measuring the
+    /// propagation delay finds the line's port-to-port delays (ESC datasheet section I, "Propagation delay
+    /// measurement"). `process_frame` is `process_frame_at(frame, 0, None)`.
+    pub fn process_frame_at(
+        &mut self,
+        frame: &mut [u8],
+        arrival_ns: i64,
+        return_ns: Option<i64>,
+    ) -> Result<FrameReport, FrameError> {
+        self.arrival_ns = arrival_ns;
+        let result = self.process_frame_inner(frame, return_ns);
+        self.arrival_ns = 0;
+        self.refresh();
+        result
+    }
+
+    fn process_frame_inner(&mut self, frame: &mut [u8], return_ns: Option<i64>) -> Result<FrameReport, FrameError> {
         let layout = match parse_layout(frame) {
             Ok(l) => l,
             Err(e) => {
@@ -391,7 +414,8 @@ impl Esc {
                 return Err(e);
             }
         };
-        self.rx_local = self.clock.local;
+        self.rx_local = self.clock.local.wrapping_add_signed(self.arrival_ns);
+        self.rx_local_port1 = return_ns.map(|r| self.clock.local.wrapping_add_signed(r));
         let mut report = FrameReport::default();
         for r in layout.datagrams {
             if let Some(d) = frame.get_mut(r) {

@@ -75,10 +75,12 @@ impl Clock {
     }
 
     /// The time control loop input: the master wrote `received` (the reference clock's system time) to
-    /// 0x0910. `bits32` = only the low 32 bits were written. Returns the 0x092C register value.
-    pub fn system_time_write(&mut self, received: u64, bits32: bool) -> u32 {
+    /// 0x0910. `bits32` = only the low 32 bits were written. `arrival_ns`: how far the instant the write
+    /// reached this ESC lies from the clock's current time (ideal ns; 0 for a single ESC, see
+    /// [`super::Esc::process_frame_at`]). Returns the 0x092C register value.
+    pub fn system_time_write(&mut self, received: u64, bits32: bool, arrival_ns: i64) -> u32 {
         let expected = received.wrapping_add(u64::from(self.delay));
-        let local = self.system_time();
+        let local = self.system_time().wrapping_add_signed(arrival_ns);
         let diff = if bits32 {
             i64::from((local as u32).wrapping_sub(expected as u32) as i32)
         } else {

@@ -76,6 +76,17 @@ pub struct Esc {
     touched: Vec<u16>,
     /// Local time at which the current frame arrived.
     rx_local: u64,
+    /// Local time at which the current frame came back through port 1 (an ESC in a line, port 1 open).
+    rx_local_port1: Option<u64>,
+    /// While a frame passes: how far (ideal ns) the instant it reaches this ESC lies from the ESC's current time.
+    /// In a line the frame reaches each ESC a little later than the one before it (the port-to-port delays), and
+    /// the simulation steps each ESC's time on its own: DC reads, latches and the time control loop see the
+    /// ESC's clock at the arrival instant. 0 outside a frame and for a single ESC.
+    arrival_ns: i64,
+    /// Port 1 open towards a following ESC (DL status link/loop/communication bits of port 1).
+    port1_open: bool,
+    /// Simulation (ideal) time of the latest SYNC0 pulse, ns.
+    last_sync0_elapsed: Option<u64>,
 }
 
 impl Esc {
@@ -96,6 +107,10 @@ impl Esc {
             stats: FrameStats::default(),
             touched: Vec::new(),
             rx_local: 0,
+            rx_local_port1: None,
+            arrival_ns: 0,
+            port1_open: false,
+            last_sync0_elapsed: None,
         };
         registers::reset_registers(&mut esc.regs);
         esc.load_config_area();
@@ -142,6 +157,26 @@ impl Esc {
         self.refresh();
     }
 
+    /// Opens port 1 towards a following ESC (an ESC inside a line) or closes it (the last one, or alone): DL
+    /// status 0x0110 shows link on port 1 (bit 5), its loop open (bit 10 clear) and communication on it
+    /// (bit 11), which is how masters find the topology (ESC datasheet section II, 0x0110).
+    pub fn set_port1_open(&mut self, open: bool) {
+        self.port1_open = open;
+        let mut dl = get_u16(&self.regs[..], reg::DL_STATUS);
+        let port1 = registers::DL_STATUS_PORT1_LINK | registers::DL_STATUS_PORT1_COMMUNICATION;
+        if open {
+            dl = (dl | port1) & !registers::DL_STATUS_PORT1_LOOP_CLOSED;
+        } else {
+            dl = (dl & !port1) | registers::DL_STATUS_PORT1_LOOP_CLOSED;
+        }
+        put_u16(&mut self.regs[..], reg::DL_STATUS, dl);
+    }
+
+    /// Whether port 1 is open towards a following ESC.
+    pub fn port1_open(&self) -> bool {
+        self.port1_open
+    }
+
     /// Sets the rate error of the local clock in parts per billion (+1000 = 1 ppm fast).
     pub fn set_clock_error_ppb(&mut self, ppb: i64) {
         self.clock.error_ppb = ppb;
@@ -178,6 +213,12 @@ impl Esc {
         self.clock.next_sync0().map(|t| t.saturating_sub(self.clock.system_time()))
     }
 
+    /// Simulation (ideal) time of the latest SYNC0 pulse, ns (its distance from now counted in local ns: the rate
+    /// error changes it by well under a nanosecond).
+    pub fn last_sync0_elapsed(&self) -> Option<u64> {
+        self.last_sync0_elapsed
+    }
+
     /// The SYNC0 cycle time (0x09A0 as armed), ns, if SYNC0 is armed and cyclic (not single shot).
     pub fn sync0_cycle(&self) -> Option<u32> {
         self.clock.sync0.map(|g| g.cycle).filter(|&c| c > 0)
@@ -186,6 +227,11 @@ impl Esc {
     fn note_sync0(&mut self, pulses: u32) {
         if pulses == 0 {
             return;
+        }
+        // The pulse fell between two advances: back from now by how far the system time has passed it.
+        if let Some(p) = self.clock.pending {
+            let ago = self.clock.system_time().wrapping_sub(p.system_time);
+            self.last_sync0_elapsed = Some(self.clock.elapsed.saturating_sub(ago));
         }
         self.regs[usize::from(reg::DC_SYNC0_STATUS)] |= 1;
         if self.regs[usize::from(reg::PDI_CONFIG) + 1] & 0x08 != 0 {
@@ -594,10 +640,14 @@ impl Esc {
             self.load_config_area();
         }
         if any(reg::DC_RECEIVE_TIME_PORT0, reg::DC_RECEIVE_TIME_PORT0 + 3) {
-            // Port 0 and the processing unit latch the arrival time; ports 1..3 are closed (DL status loop bits)
-            // so no frame passes them and their times keep their old values.
+            // Port 0 and the processing unit latch the arrival time; port 1, when open towards a following ESC,
+            // latches the time the frame comes back through it (ESC datasheet section I "Propagation delay
+            // measurement"). Closed ports (DL status loop bits) see no frame and keep their old values.
             put_u32(&mut self.regs[..], reg::DC_RECEIVE_TIME_PORT0, self.rx_local as u32);
             put_u64(&mut self.regs[..], reg::DC_RECEIVE_TIME_PU, self.rx_local);
+            if let (true, Some(t)) = (self.port1_open, self.rx_local_port1) {
+                put_u32(&mut self.regs[..], reg::DC_RECEIVE_TIME_PORT1, t as u32);
+            }
         }
         if any(reg::DC_SYSTEM_TIME_OFFSET, reg::DC_SYSTEM_TIME_OFFSET + 7) {
             self.clock.offset = get_u64(&self.regs[..], reg::DC_SYSTEM_TIME_OFFSET);
@@ -608,7 +658,7 @@ impl Esc {
         if any(reg::DC_SYSTEM_TIME, reg::DC_SYSTEM_TIME + 7) {
             let bits32 = !any(reg::DC_SYSTEM_TIME + 4, reg::DC_SYSTEM_TIME + 7);
             let received = get_u64(&self.regs[..], reg::DC_SYSTEM_TIME);
-            let diff = self.clock.system_time_write(received, bits32);
+            let diff = self.clock.system_time_write(received, bits32, self.arrival_ns);
             put_u32(&mut self.regs[..], reg::DC_SYSTEM_TIME_DIFF, diff);
         }
         if any(reg::DC_START_TIME, reg::DC_START_TIME + 7) {
@@ -628,7 +678,7 @@ impl Esc {
     /// Rewrites the registers that mirror internal state: system time, next SYNC0 pulse, watchdog status,
     /// DL status PDI-watchdog bit.
     pub(crate) fn refresh(&mut self) {
-        put_u64(&mut self.regs[..], reg::DC_SYSTEM_TIME, self.clock.system_time());
+        put_u64(&mut self.regs[..], reg::DC_SYSTEM_TIME, self.clock.system_time().wrapping_add_signed(self.arrival_ns));
         let next = self.clock.next_sync0().unwrap_or(self.dc_start);
         put_u64(&mut self.regs[..], reg::DC_START_TIME, next);
         self.regs[usize::from(reg::DC_ACTIVATION_STATUS)] = u8::from(self.clock.sync0.is_some());

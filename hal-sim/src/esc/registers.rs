@@ -211,6 +211,12 @@ pub const FEATURES: u16 = 0x000C;
 pub const DL_STATUS: u16 = 0x5613;
 /// DL status bit 1: PDI watchdog reloaded (0 = expired).
 pub const DL_STATUS_PDI_WATCHDOG: u16 = 0x0002;
+/// DL status 0x0110 bit 5: physical link on port 1.
+pub const DL_STATUS_PORT1_LINK: u16 = 0x0020;
+/// DL status 0x0110 bit 10: loop of port 1 closed.
+pub const DL_STATUS_PORT1_LOOP_CLOSED: u16 = 0x0400;
+/// DL status 0x0110 bit 11: communication established on port 1.
+pub const DL_STATUS_PORT1_COMMUNICATION: u16 = 0x0800;
 /// Watchdog divider reset value: 2498 = 100 us ticks ((2498 + 2) x 40 ns).
 pub const WATCHDOG_DIVIDER_RESET: u16 = 0x09C2;
 /// Watchdog time reset value (PDI and process data): 1000 ticks = 100 ms with the reset divider.

@@ -54,6 +54,7 @@ use firmware::drive::objects::DriveObjects;
 use firmware::hal::power::SLOW_TICK_DIVIDER;
 use firmware::od::generated::handles as h;
 use firmware::od::store::ParamStore;
+use firmware::recorder::objects::RecorderObjects;
 
 use super::ethercat::{MAX_CATCH_UP_PERIODS, PERIOD_NS};
 use super::update::{self, SimProgram};
@@ -193,6 +194,9 @@ pub struct CanDrive {
     fallback: Option<FallbackNode>,
     /// Frames this drive sends in the current PWM period, in order (they go onto the bus at its end).
     outbox: Vec<CanFrame>,
+    /// The simulator's own trace of tier 1's q current (`drive-sim canopen --trace FILE`): one CSV line every
+    /// current-loop period, the reference a recording of the drive's data recorder is checked against.
+    pub trace: Option<std::io::BufWriter<std::fs::File>>,
     /// Frames the fallback services answered or sent since power-on (boot-ups, answers, timeouts).
     fallback_frames: u64,
     /// What the drive's CAN controller reports (an injected error state): the node reads it before every slow
@@ -204,6 +208,9 @@ pub struct CanDrive {
     serial: u32,
     /// The drive's slot on the bus: its node-ID while its parameter store holds none (a board's switches).
     slot: u8,
+    /// The bit rate (bit/s) an LSS activate bit timing switched the drive's controller to (`None`: still the rate
+    /// it powered up with, the bus's). A drive whose rate differs from the bus's neither sends nor receives.
+    pub bit_rate: Option<u32>,
 }
 
 impl CanDrive {
@@ -229,10 +236,12 @@ impl CanDrive {
             powering_up: true,
             fallback: None,
             outbox: Vec::new(),
+            trace: None,
             fallback_frames: 0,
             controller: BusStatus::default(),
             serial: firmware::od::generated::SERIAL_NUMBER.wrapping_add(u32::from(slot).saturating_sub(1)),
             slot,
+            bit_rate: None,
         };
         d.apply_serial();
         d.enter_fallback_if_no_image(id);
@@ -356,8 +365,9 @@ impl CanDrive {
         }
         while let Some(frame) = self.inbox.pop_front() {
             let on = self.sim.drive.power_stage_enabled();
-            let mut app =
+            let mut drive_objects =
                 DriveObjects::new(&mut self.store, on).with_program_control(self.program.port(Interface::Canopen, on));
+            let mut app = RecorderObjects::new(&mut self.sim.recorder, &mut drive_objects);
             self.node.handle_frame(&frame, &mut self.sim.drive, &mut app, now_us);
             self.follow_program();
             if self.in_fallback() {
@@ -370,15 +380,36 @@ impl CanDrive {
             self.outbox.push(frame);
         }
         self.sim.step();
+        if let Some(trace) = self.trace.as_mut() {
+            use std::io::Write as _;
+            // What tier 1 measured and was asked for (rounded to mA as the recorder rounds them), and the plant's
+            // true q current at the sample; flushed every slow tick, so that a killed simulator leaves it whole.
+            let s = self.sim.tier1().signals();
+            let true_ma = self.sim.plant.state_at_sample().i_dq_a[1] * 1000.0;
+            let _ = writeln!(
+                trace,
+                "{},{},{},{true_ma:.1}",
+                self.sim.ticks(),
+                s.i_dq.q.to_milliamps(),
+                s.i_ref.q.to_milliamps()
+            );
+            if slow {
+                let _ = trace.flush();
+            }
+        }
         if !slow {
             return;
         }
         self.node.observe_bus(self.controller, &mut self.sim.drive);
         let on = self.sim.drive.power_stage_enabled();
-        let mut app =
+        let mut drive_objects =
             DriveObjects::new(&mut self.store, on).with_program_control(self.program.port(Interface::Canopen, on));
+        let mut app = RecorderObjects::new(&mut self.sim.recorder, &mut drive_objects);
         if let Some(event) = self.node.process(&mut self.sim.drive, &mut app, now_us) {
             self.events.push(event);
+            if let NodeEvent::BitRateSwitched(rate) = event {
+                self.bit_rate = Some(rate.bits_per_second());
+            }
             if event == NodeEvent::Booted {
                 self.powering_up = false;
                 // The node is up after a start: an image on trial confirms itself (issue 7).
@@ -421,6 +452,8 @@ pub struct CanRunnerStats {
     pub quiet_limit_hits: u64,
     /// Real-time catch-ups cut short.
     pub lag_events: u64,
+    /// Frames a drive sent at a bit rate other than the bus's (lost: nobody can receive them).
+    pub rate_mismatch_frames: u64,
 }
 
 /// Simulated drives on a CAN bus. See the module documentation.
@@ -460,6 +493,8 @@ impl CanopenRunner {
                 if *params != crate::plant::PlantParams::reference() {
                     sim.commission_motor_data(params);
                 }
+                // A master records through the data recorder (0x3300..0x3302) as on the board.
+                sim.attach_recorder();
                 // The factory image in slot A, or (`empty_slot_nodes`) nothing: the bootloader's fallback.
                 let program = if config.empty_slot(id) { update::blank_program() } else { update::factory_program() };
                 let mut drive = CanDrive::power_on(id, id, bus.attach(), sim, program);
@@ -585,9 +620,13 @@ impl CanopenRunner {
     fn step(&mut self, to_master: &mut Vec<Delivery>) {
         self.now_ns += PERIOD_NS;
         self.ticks += 1;
+        let bus_rate = self.bus.bit_rate();
         for delivery in self.bus.run_until(self.now_ns) {
             for d in &mut self.drives {
-                if d.port != delivery.from && delivery.lost_at != Some(d.port) {
+                if d.port != delivery.from
+                    && delivery.lost_at != Some(d.port)
+                    && d.bit_rate.unwrap_or(bus_rate) == bus_rate
+                {
                     d.inbox.push_back(delivery.frame);
                 }
             }
@@ -607,7 +646,19 @@ impl CanopenRunner {
                 d.application_period(now_us, slow);
             }
             for frame in d.outbox.drain(..) {
-                self.bus.send(d.port, self.now_ns, frame);
+                if d.bit_rate.unwrap_or(bus_rate) == bus_rate {
+                    self.bus.send(d.port, self.now_ns, frame);
+                } else {
+                    self.stats.rate_mismatch_frames += 1;
+                }
+            }
+        }
+        // CiA 305 §6.4.3: the master switches every node of the bus together and then its own adapter; the
+        // simulated master (socketcand clients have no bit rate) follows once every drive runs at one new rate.
+        let mut rates = self.drives.iter().map(|d| d.bit_rate.unwrap_or(bus_rate));
+        if let Some(first) = rates.next() {
+            if first != bus_rate && rates.all(|r| r == first) {
+                self.bus.set_bit_rate(first);
             }
         }
     }

@@ -43,25 +43,25 @@ impl Exchange for OpGroup<HasDc> {
 
 /// One mapped object in the process image.
 #[derive(Clone, Copy, Debug)]
-struct Mapped {
-    index: u16,
-    offset: usize,
-    bytes: usize,
-    signed: bool,
+pub(super) struct Mapped {
+    pub(super) index: u16,
+    pub(super) offset: usize,
+    pub(super) bytes: usize,
+    pub(super) signed: bool,
 }
 
 /// The process image as the drive's PDO assignment and mapping say, read over SDO (0x1C12/0x1C13, then each
 /// assigned PDO's entries: ETG.1000.6 §5.6.7.4, what ethercrab reads itself to size the image).
 #[derive(Clone, Debug, Default)]
-struct Layout {
-    outputs: Vec<Mapped>,
-    inputs: Vec<Mapped>,
-    output_bytes: usize,
-    input_bytes: usize,
+pub(super) struct Layout {
+    pub(super) outputs: Vec<Mapped>,
+    pub(super) inputs: Vec<Mapped>,
+    pub(super) output_bytes: usize,
+    pub(super) input_bytes: usize,
 }
 
 impl Layout {
-    async fn read<S>(sd: &SubDeviceRef<'_, S>) -> Result<Self, String>
+    pub(super) async fn read<S>(sd: &SubDeviceRef<'_, S>) -> Result<Self, String>
     where
         S: std::ops::Deref<Target = ethercrab::SubDevice>,
     {
@@ -448,7 +448,7 @@ fn interpolation_period(cycle_us: u64) -> (u8, i8) {
 
 /// Configures the synchronisation in PRE-OP (0x1C32:01 / 0x1C33:01, in free run also 0x1C32:02 = the cycle) and
 /// 0x60C2, returns the group in OP (requested; the cycles until OP follow).
-async fn sync_config<S>(sd: &SubDeviceRef<'_, S>, args: &Args) -> Outcome
+pub(super) async fn sync_config<S>(sd: &SubDeviceRef<'_, S>, args: &Args) -> Outcome
 where
     S: std::ops::Deref<Target = ethercrab::SubDevice>,
 {

@@ -250,6 +250,32 @@ pub struct EthercatArgs {
     /// Both Safe Torque Off inputs de-energised from power-up, for the whole run.
     #[arg(long)]
     pub sto_open: bool,
+    /// N drives in a line on the interface (1..=64), each with its own ESC, firmware and plant (issue 21).
+    #[arg(long, value_name = "N", default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=64))]
+    pub slaves: u16,
+    /// With --slaves above 1: each ESC's clock also runs its own deterministic share of +-X ppm (0..=500).
+    #[arg(long, value_name = "X", default_value_t = 100.0, value_parser = parse_spread_ppm)]
+    pub clock_spread_ppm: f64,
+    /// With --slaves: slave K (0 = next to the master) gets plant FILE instead of --plant's; repeatable.
+    #[arg(long, value_name = "K=FILE", value_parser = parse_plant_for)]
+    pub plant_for: Vec<(u16, PlantFile)>,
+}
+
+/// `--clock-spread-ppm`: 0..=500 ppm.
+fn parse_spread_ppm(text: &str) -> Result<f64, String> {
+    let v: f64 = text.parse().map_err(|e| format!("{e}"))?;
+    if v.is_finite() && (0.0..=500.0).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!("{text} is outside 0..=500 ppm"))
+    }
+}
+
+/// `--plant-for K=FILE`.
+fn parse_plant_for(text: &str) -> Result<(u16, PlantFile), String> {
+    let (k, file) = text.split_once('=').ok_or_else(|| format!("{text}: expected K=FILE"))?;
+    let k: u16 = k.trim().parse().map_err(|e| format!("slave {k}: {e}"))?;
+    Ok((k, parse_plant(file)?))
 }
 
 /// `--plant FILE`: reads and checks the plant file.
@@ -342,6 +368,7 @@ mod tests {
         ("README.md", "csp"),
         ("README.md", "csp --torque-feedforward"),
         ("tests/tests/canopen_real_master.rs LSS", "canopen --port 0 --lock-step --nodes 3 --unconfigured 1 --unconfigured 2 --unconfigured 3"),
+        ("drive-tool/tests/simulator.rs record", "canopen --port 0 --lock-step --seconds 600 --nodes 1 --trace out/trace.csv"),
         ("README.md", "csv-sweep"),
         ("README.md", "ppm"),
         ("README.md", "homing"),
@@ -374,6 +401,20 @@ mod tests {
         (
             "tests/tests/ecat_real_masters.rs soem-sto",
             "ethercat --iface ecs0 --lock-step --cycle-us 1000 --sto-open --seconds 280 --idle-exit-ms 1500",
+        ),
+        // tests/tests/ecat_multi_axis.rs: the lock-step line and the real-time measurement.
+        (
+            "tests/tests/ecat_multi_axis.rs line",
+            "ethercat --iface ecs0 --slaves 16 --lock-step --cycle-us 200 --seconds 280 --idle-exit-ms 1500",
+        ),
+        ("tests/tests/ecat_multi_axis.rs real time", "ethercat --iface ecs0 --slaves 4 --seconds 280 --idle-exit-ms 1500"),
+        (
+            "ethercat line every option",
+            concat!(
+                "ethercat --iface ecs0 --slaves 3 --clock-spread-ppm 50 --plant-for 2=",
+                env!("CARGO_MANIFEST_DIR"),
+                "/presets/small-gimbal.toml --seconds 1"
+            ),
         ),
         // tests/src/can_master.rs run: `canopen --port 0 --seconds 150 --idle-exit-ms 2000 {sim_args}`.
         ("tests/tests/canopen_real_master.rs bad_frames", "canopen --port 0 --seconds 150 --idle-exit-ms 2000"),
@@ -490,6 +531,10 @@ mod tests {
             ("ethercat --iface ecs0 --cycle-us 0", "--cycle-us"),
             ("ethercat --iface ecs0 --clock-error-ppm 1001", "--clock-error-ppm"),
             ("ethercat --iface ecs0 --drive-clock-error-ppm inf", "--drive-clock-error-ppm"),
+            ("ethercat --iface ecs0 --slaves 0", "--slaves"),
+            ("ethercat --iface ecs0 --slaves 65", "--slaves"),
+            ("ethercat --iface ecs0 --clock-spread-ppm 501", "--clock-spread-ppm"),
+            ("ethercat --iface ecs0 --plant-for 1", "--plant-for"),
             ("canopen --port 70000", "--port"),
             ("canopen --port 0 --nodes 0", "--nodes"),
             ("canopen --port 0 --nodes 128", "--nodes"),

@@ -1,0 +1,255 @@
+//! Scenario `line` (issue 21 item 2): `--slaves N` drives in a line (`drive-sim ethercat --slaves N --lock-step`)
+//! brought up together in DC mode: each one's identity and serial number, 0x1C32:01 = 0x1C33:01 = 2 and 0x60C2
+//! in PRE-OP, SYNC0 on every drive (ethercrab measures the propagation delays, writes the offsets and delays and
+//! runs its static drift compensation), OP, every drive enabled in CSP through its own controlword, then one
+//! minimum-jerk move (the motion issue's CSP case) on all drives at once, 10,000 cycles in all. Figures: the
+//! working counter of every cycle (3 per drive), per drive the following error 0x60F4 over the move (peak, RMS),
+//! statusword bit 13, the position error at the end, the DC registers of every drive read back (0x0990 next
+//! SYNC0 pulse, 0x0928 delay) and 0x1C32:0B over SDO.
+
+use std::collections::HashMap;
+use std::time::Duration;
+
+use ethercrab::std::ethercat_now;
+use ethercrab::subdevice_group::{DcConfiguration, HasDc, Op};
+use ethercrab::{DcSync, DefaultLock, SubDeviceGroup};
+use hal_sim::scenarios::motion::{JerkLimitedMove, INC_PER_REV};
+
+use super::motion::{sync_config, Layout};
+use super::{emit, err, Args, Master, Outcome};
+
+/// Most drives on the line.
+pub const LINE_MAX: usize = 16;
+/// The line's process image, bytes (16 drives' default images fit with room).
+pub const LINE_PDI: usize = 2048;
+
+type LineGroup = SubDeviceGroup<LINE_MAX, LINE_PDI, DefaultLock, Op, HasDc>;
+
+/// Controlword commands (CiA 402 §6.2.1): shutdown, switch on, enable operation.
+const CW_SHUTDOWN: u16 = 0x06;
+const CW_SWITCH_ON: u16 = 0x07;
+const CW_ENABLE: u16 = 0x0F;
+
+/// Writes drive `k`'s outputs.
+fn put(group: &LineGroup, master: &'static Master, k: usize, layout: &Layout, values: &HashMap<u16, i64>) -> Outcome {
+    let sd = group.subdevice(master, k).map_err(err("SubDevice"))?;
+    let mut o = sd.outputs_raw_mut();
+    for m in &layout.outputs {
+        let v = values.get(&m.index).copied().unwrap_or(0);
+        let bytes = v.to_le_bytes();
+        if let (Some(dst), Some(src)) = (o.get_mut(m.offset..m.offset + m.bytes), bytes.get(..m.bytes)) {
+            dst.copy_from_slice(src);
+        }
+    }
+    Ok(())
+}
+
+/// Reads drive `k`'s inputs.
+fn get(group: &LineGroup, master: &'static Master, k: usize, layout: &Layout) -> Result<HashMap<u16, i64>, String> {
+    let sd = group.subdevice(master, k).map_err(err("SubDevice"))?;
+    let i = sd.inputs_raw();
+    let mut values = HashMap::new();
+    for m in &layout.inputs {
+        let Some(src) = i.get(m.offset..m.offset + m.bytes) else { continue };
+        let mut b = [0u8; 8];
+        b[..m.bytes].copy_from_slice(src);
+        let mut v = i64::from_le_bytes(b);
+        if m.signed && m.bytes < 8 {
+            let shift = 64 - 8 * m.bytes as u32;
+            v = (v << shift) >> shift;
+        }
+        values.insert(m.index, v);
+    }
+    Ok(values)
+}
+
+/// Per-drive figures of the move.
+#[derive(Clone, Debug, Default)]
+struct Axis {
+    out: HashMap<u16, i64>,
+    inp: HashMap<u16, i64>,
+    start: i64,
+    fe_peak: i64,
+    fe_sq: f64,
+    bit13: u64,
+}
+
+/// The scenario (see the module documentation); `--sync dc` is implied.
+pub async fn line(master: &'static Master, args: &Args) -> Outcome {
+    let mut group = master.init_single_group::<LINE_MAX, LINE_PDI>(ethercat_now).await.map_err(err("init"))?;
+    let n = group.len();
+    emit("subdevices_found", n);
+    if n != args.slaves {
+        return Err(format!("{n} SubDevices found, expected {}", args.slaves));
+    }
+    let mut layouts = Vec::with_capacity(n);
+    let mut serials = Vec::with_capacity(n);
+    let mut identities = std::collections::BTreeSet::new();
+    for sd in group.iter(master) {
+        let id = sd.identity();
+        identities.insert((id.vendor_id, id.product_id, id.revision));
+        let serial: u32 = sd.sdo_read(0x1018, 4).await.map_err(err("0x1018:04"))?;
+        if serial != id.serial {
+            return Err(format!("serial number: SII {} but 0x1018:04 {serial}", id.serial));
+        }
+        serials.push(serial);
+        sync_config(&sd, args).await?;
+        layouts.push(Layout::read(&sd).await?);
+    }
+    emit("identities", identities.len());
+    emit("serials", serials.iter().map(u32::to_string).collect::<Vec<_>>().join(","));
+    let cycle = Duration::from_micros(args.cycle_us);
+    for mut sd in group.iter_mut(master) {
+        sd.set_dc_sync(DcSync::Sync0);
+    }
+    let group = group.into_pre_op_pdi(master).await.map_err(err("PDI"))?;
+    emit("pdi_bytes", layouts.iter().map(|l| l.output_bytes + l.input_bytes).sum::<usize>());
+    for _ in 0..100 {
+        group.tx_rx_sync_system_time(master).await.map_err(err("sync system time"))?;
+    }
+    let group = group
+        .configure_dc_sync(
+            master,
+            DcConfiguration { start_delay: cycle * 10, sync0_period: cycle, sync0_shift: Duration::ZERO },
+        )
+        .await
+        .map_err(err("configure DC sync"))?;
+    let group = group.into_safe_op(master).await.map_err(err("PRE-OP -> SAFE-OP (DC)"))?;
+    let group = group.request_into_op(master).await.map_err(err("SAFE-OP -> OP (DC)"))?;
+
+    let expected_wkc = u16::try_from(3 * n).map_err(|_| "too many drives")?;
+    emit("expected_wkc", expected_wkc);
+    let mut axes = vec![Axis::default(); n];
+    let mut wkc_errors = 0u64;
+    let mut first_bad = None;
+    let mut cycles = 0u64;
+    // Cycles until every drive reports OP.
+    let mut op_after = None;
+    for k in 0..5_000u64 {
+        let r = group.tx_rx_dc(master).await.map_err(err("tx/rx"))?;
+        cycles += 1;
+        if r.all_op() {
+            op_after = Some(k + 1);
+            break;
+        }
+    }
+    let op_after = op_after.ok_or("OP not reached on every drive in 5,000 cycles")?;
+    emit("cycles_to_op", op_after);
+
+    // The move (the motion issue's CSP case), from each drive's own position, all started in the same cycle.
+    let per_rpm = INC_PER_REV / 60.0;
+    let mv = JerkLimitedMove::new(0.0, 10.0 * INC_PER_REV, 3_000.0 * per_rpm, 20_000.0 * per_rpm);
+    let cycle_s = args.cycle_us as f64 * 1e-6;
+    let move_cycles = (mv.duration_s() / cycle_s).ceil() as u64;
+    emit("move_peak_rpm", format!("{:.0}", mv.peak_velocity / per_rpm));
+    emit("move_cycles", move_cycles);
+    const CYCLES: u64 = 10_000;
+    let mut enabled_at: Option<u64> = None;
+    let mut fe_n = 0u64;
+    for k in 0..CYCLES {
+        for (j, a) in axes.iter_mut().enumerate() {
+            let sw = a.inp.get(&0x6041).copied().unwrap_or(0) as u16;
+            if sw & 0x4F == 0x08 {
+                return Err(format!("drive {j} faulted at cycle {k}: statusword {sw:#06x}"));
+            }
+            let cw = match sw & 0x6F {
+                0x27 | 0x23 => CW_ENABLE,
+                0x21 => CW_SWITCH_ON,
+                _ => CW_SHUTDOWN,
+            };
+            a.out.insert(0x6040, i64::from(cw));
+            a.out.insert(0x6060, 8);
+        }
+        let all_enabled = axes.iter().all(|a| a.inp.get(&0x6041).copied().unwrap_or(0) & 0x6F == 0x27);
+        if enabled_at.is_none() && all_enabled {
+            enabled_at = Some(k);
+            for a in &mut axes {
+                a.start = a.inp.get(&0x6064).copied().unwrap_or(0);
+            }
+        }
+        for a in &mut axes {
+            let target = match enabled_at {
+                Some(e) => a.start + mv.position((k - e) as f64 * cycle_s).round() as i64,
+                None => a.inp.get(&0x6064).copied().unwrap_or(0),
+            };
+            a.out.insert(0x607A, target);
+        }
+        for (j, a) in axes.iter().enumerate() {
+            put(&group, master, j, &layouts[j], &a.out)?;
+        }
+        let r = group.tx_rx_dc(master).await.map_err(err("tx/rx"))?;
+        cycles += 1;
+        if r.working_counter != expected_wkc {
+            wkc_errors += 1;
+            first_bad.get_or_insert((k, r.working_counter));
+        }
+        let sample = enabled_at.is_some_and(|e| k > e && k - e <= move_cycles);
+        if sample {
+            fe_n += 1;
+        }
+        for (j, a) in axes.iter_mut().enumerate() {
+            a.inp = get(&group, master, j, &layouts[j])?;
+            if enabled_at.is_some() && a.inp.get(&0x6041).copied().unwrap_or(0) & (1 << 13) != 0 {
+                a.bit13 += 1;
+            }
+            if sample {
+                let fe = a.inp.get(&0x60F4).copied().unwrap_or(i64::MAX / 2);
+                a.fe_peak = a.fe_peak.max(fe.abs());
+                a.fe_sq += (fe * fe) as f64;
+            }
+        }
+    }
+    let enabled_end = axes.iter().filter(|a| a.inp.get(&0x6041).copied().unwrap_or(0) & 0x6F == 0x27).count();
+    let rms: Vec<f64> = axes.iter().map(|a| (a.fe_sq / fe_n.max(1) as f64).sqrt()).collect();
+    let end_errors: Vec<i64> = axes
+        .iter()
+        .map(|a| (a.inp.get(&0x6064).copied().unwrap_or(0) - (a.start + mv.distance.round() as i64)).abs())
+        .collect();
+    emit("cycles", cycles);
+    emit("enabled_at_cycle", enabled_at.map_or(-1, |e| e as i64));
+    emit("enabled_at_end", enabled_end);
+    emit("motion_wkc_errors", wkc_errors);
+    emit("first_bad_wkc", format!("{first_bad:?}"));
+    emit("fe_samples", fe_n);
+    emit("fe_peak_inc_each", axes.iter().map(|a| a.fe_peak.to_string()).collect::<Vec<_>>().join(","));
+    emit("fe_rms_inc_each", rms.iter().map(|r| format!("{r:.2}")).collect::<Vec<_>>().join(","));
+    emit("fe_peak_inc_max", axes.iter().map(|a| a.fe_peak).max().unwrap_or(0));
+    emit("fe_rms_inc_max", format!("{:.2}", rms.iter().cloned().fold(0.0, f64::max)));
+    emit("bit13_drives", axes.iter().filter(|a| a.bit13 > 0).count());
+    emit("end_error_inc_max", end_errors.iter().max().copied().unwrap_or(0));
+
+    // The DC registers of every drive: the next SYNC0 pulse (0x0990, system time), the delay 0x0928.
+    let mut starts = Vec::with_capacity(n);
+    let mut delays = Vec::with_capacity(n);
+    let mut missed = 0u32;
+    for sd in group.iter(master) {
+        starts.push(sd.register_read::<u64>(0x0990u16).await.map_err(err("0x0990"))?);
+        delays.push(sd.register_read::<u32>(0x0928u16).await.map_err(err("0x0928"))?);
+    }
+    for sd in group.iter(master) {
+        missed += u32::from(sd.sdo_read::<u16>(0x1C32, 0x0B).await.map_err(err("0x1C32:0B"))?);
+    }
+    let spread = starts.iter().max().copied().unwrap_or(0) - starts.iter().min().copied().unwrap_or(0);
+    emit("sync0_start_spread_ns", spread);
+    emit("system_delay_ns_each", delays.iter().map(u32::to_string).collect::<Vec<_>>().join(","));
+    emit("sdo_sm_event_missed_total", missed);
+    // Power down before leaving OP.
+    for (j, a) in axes.iter_mut().enumerate() {
+        a.out.insert(0x6040, i64::from(CW_SHUTDOWN));
+        put(&group, master, j, &layouts[j], &a.out)?;
+    }
+    for _ in 0..10 {
+        group.tx_rx_dc(master).await.map_err(err("tx/rx"))?;
+    }
+    if let Some((k, w)) = first_bad {
+        return Err(format!("{wkc_errors} cycles with a wrong working counter, first at {k}: {w}"));
+    }
+    if enabled_at.is_none() {
+        return Err("«Operation enabled» not reached on every drive".into());
+    }
+    let g = group.into_safe_op(master).await.map_err(err("OP -> SAFE-OP"))?;
+    let g = g.into_pre_op(master).await.map_err(err("SAFE-OP -> PRE-OP"))?;
+    g.into_init(master).await.map_err(err("PRE-OP -> INIT"))?;
+    emit("init_again", 1);
+    Ok(())
+}
