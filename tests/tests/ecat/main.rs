@@ -7,7 +7,6 @@ mod esm;
 mod fuzz;
 mod mailbox;
 mod process_data;
-mod recorder;
 mod slave;
 mod spi_pdi;
 mod sync_pll;
