@@ -16,10 +16,12 @@
 use core::sync::atomic::Ordering;
 
 use crate::board::flash::ParamFlash;
+use crate::drive::blocks::Settings;
 use crate::drive::objects::BootReport;
 use crate::drive::tier1::Tier1State;
 use crate::drive::{Drive, DriveConfig, FastTick};
 use crate::hal::power::Measurements;
+use crate::handoff::Words;
 use crate::od::abort::SdoAbort;
 use crate::od::access::AccessContext;
 use crate::od::store::ParamStore;
@@ -83,9 +85,13 @@ pub fn fast_tick(
     setpoint_epoch: &mut u32,
 ) -> FastTick {
     if super::tier1::SETTINGS.epoch() != *settings_epoch {
-        let settings = super::tier1::SETTINGS.read();
-        *settings_epoch = settings.epoch;
-        t1.apply_settings(&settings.block);
+        // The words loaded straight into the decoder's input: `Command::read` zeroes an array, loads the words in a
+        // loop and copies them again into its result, about 100 instructions more in the period that takes new
+        // settings, tier 1's longest (the room the data recorder's copy below takes).
+        let front = super::tier1::SETTINGS.front();
+        let words = front.block.each_ref().map(|cell| cell.load(Ordering::Relaxed));
+        *settings_epoch = front.epoch;
+        t1.apply_settings(&<Settings as Words<15>>::from_words(&words));
     }
     if super::tier1::SETPOINT.epoch() != *setpoint_epoch {
         let setpoint = super::tier1::SETPOINT.front();

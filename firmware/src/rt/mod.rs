@@ -20,6 +20,8 @@
 //! | `tier1::FAST_TICKS`         | `AtomicU32`                  | tier 1            | tier 3, QEMU bench      |
 //! | `tier1::OVERRUN`            | `AtomicBool`, latched        | tier 1            | tier 2, tier 3          |
 //! | `tier1::TIER1_LATENCY_MAX`, `tier1::TIER1_LATENCY_MIN`, `tier1::FAST_MISSED`, `tier1::LAST_UPDATE` | `AtomicU32` (QEMU image) | tier 1 (period timer); the bench before it starts the timer | QEMU bench |
+//! | `tier1::RECORDER_RING`      | `recorder::ring::SampleRing` (atomics, the count after each slot) | tier 1, every period inside the fast tick | tier 2 (the recorder's drain after the slow tick) |
+//! | `tier2::RECORDER` (`recorder::Recorder`, its sample memory [`RECORDER_BUFFER`]) | `tier2::Tier2Slot`, under the tier-2 lock | tier 2 (the drain: samples), tier 3 (SDO: configuration, arm), one at a time | tier 2, tier 3 (SDO upload) |
 //! | `tier2::SLOW_TICK`          | [`signal::TickSignal`]       | tier 1 (raise)    | tier-2 slow loop (wait) |
 //! | `tier2::SLOW_TICKS`         | `AtomicU32`                  | tier 2            | tier 3, QEMU bench      |
 //! | `tier2::SLOW_TICK_MAX`      | `AtomicU32`                  | tier 2            | tier 3, QEMU bench      |
@@ -72,6 +74,16 @@ use crate::board::{self, interrupt::Interrupt};
 pub const TIER1_PRIORITY: u8 = 0x00;
 /// NVIC priority of tier 2's executor interrupt: below tier 1, above thread mode.
 pub const TIER2_PRIORITY: u8 = 0x40;
+
+/// Half-words of the data recorder's sample memory: 64 KiB of the F405's 128 KiB SRAM. The image's other RAM is
+/// about 12 KiB (`.bss`, `.data`) and the stack, so more than 40 KiB remain. 64 KiB hold 2,048 samples of 8
+/// channels of 32 bits (82 ms at 25 kHz) or 32,768 of one 16-bit channel (1.3 s). Not in the CCM RAM: the linker
+/// script places nothing there, and the bootloader links the same memory map.
+pub const RECORDER_BUFFER_HALVES: usize = 32 * 1024;
+
+/// The data recorder's sample memory (`crate::recorder`), given to it at start-up.
+static RECORDER_BUFFER: [core::sync::atomic::AtomicU16; RECORDER_BUFFER_HALVES] =
+    [const { core::sync::atomic::AtomicU16::new(0) }; RECORDER_BUFFER_HALVES];
 
 /// Brings the board up and runs the three tiers forever. Called from the application's entry point.
 pub fn run() -> ! {
@@ -144,6 +156,9 @@ pub fn run() -> ! {
     // before tier 1 runs.
     let tier1_state = crate::drive::tier1::Tier1State::new(boot.drive.settings());
     tier2::place_drive(boot.drive);
+    let mut recorder = crate::recorder::Recorder::new();
+    recorder.attach(&RECORDER_BUFFER);
+    tier2::RECORDER.place(recorder);
     let _ = tier2::start();
     tier1::start(board.power, tier1_state);
     crate::rt_info!("tiers 1 and 2 running");

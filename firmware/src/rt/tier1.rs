@@ -26,6 +26,7 @@ use crate::drive::blocks::{SetPoint, Settings, Tier1Report, REPORT_WORDS, SETPOI
 #[cfg(not(feature = "qemu"))]
 use crate::hal::power::PWM_FREQUENCY_HZ;
 use crate::handoff::{Command, Report};
+use crate::recorder::ring::SampleRing;
 
 /// Cost budget of one fast tick in counter units: half the 6,720-cycle period at 168 MHz, the rest is left to
 /// the interrupt entry/exit and tiers 2 and 3.
@@ -54,6 +55,10 @@ pub static SLOW_TICK_RAISED_AT: AtomicU32 = AtomicU32::new(0);
 pub static PERIOD_SUPERVISED: AtomicBool = AtomicBool::new(false);
 /// Largest cost of publishing the report (after the PWM write, every tenth period; counter units). Writer: tier 1.
 pub static REPORT_MAX: AtomicU32 = AtomicU32::new(0);
+/// Tier 1's copies of its values for the data recorder (`crate::recorder::ring`), one every period after the PWM
+/// write while the recorder samples, counted in `FAST_TICK_MAX`. Writer: tier 1; reader: tier 3
+/// (`tier2::drain_recorder`).
+pub static RECORDER_RING: SampleRing = SampleRing::new();
 
 /// One current-loop period in counter units: cycles at 168 MHz on the board, the QEMU bench's instruction period.
 #[cfg(not(feature = "qemu"))]
@@ -168,7 +173,16 @@ pub unsafe extern "C" fn on_adc() {
         tick.pwm
     };
     t.power.write(&pwm);
-
+    // The data recorder's copy of what this period computed, while it samples (the same words whatever is
+    // recorded): after the PWM write, so that it delays no output, and counted in the fast tick's cost, so that
+    // `FAST_TICK_MAX` is tier 1's cost with the recorder; without it tier 1 pays one load here.
+    let cost = if RECORDER_RING.enabled() {
+        let before = counter::now();
+        RECORDER_RING.push(&t.fast, &pwm);
+        cost.saturating_add(counter::now().wrapping_sub(before))
+    } else {
+        cost
+    };
     record_max(&FAST_TICK_MAX, cost);
     // The periods, not the runs: a lost period still counts, so the PLL's period index (`rt::ethercat`) stays on
     // the timer's grid.

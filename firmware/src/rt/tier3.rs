@@ -115,6 +115,8 @@ async fn supervisor(params: &'static mut Option<app::Params>, program: &'static 
                 }
             }
         }
+        // The data recorder's samples of the slow periods since the last tick (tier 1's ring holds 12.8 of them).
+        super::tier2::drain_recorder();
         ticks_total = ticks_total.wrapping_add(u64::from(new));
         // The fieldbuses' tier-3 work, every tick, with the parameter store and program control.
         if let Some(can) = can.as_mut() {
