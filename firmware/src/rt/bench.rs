@@ -762,7 +762,7 @@ fn recorder_drain_cost(channels: &[u32]) -> Option<u32> {
     Some(least)
 }
 
-/// Tier 1's copy for the recorder alone ([`crate::recorder::ring::SampleRing::push`] into a ring of its own,
+/// Tier 1's copy for the recorder alone (`tier1::record` into a ring of its own,
 /// from a tier-1 state of the drive's settings), the least of a few runs less an empty measurement.
 fn recorder_copy_cost() -> u32 {
     use crate::hal::power::PwmCommand;
@@ -777,7 +777,7 @@ fn recorder_copy_cost() -> u32 {
         let start = counter::now();
         core::sync::atomic::compiler_fence(Ordering::SeqCst);
         if push {
-            RING.push(black_box(&t1), &pwm);
+            super::tier1::record(&RING, black_box(&t1), &pwm);
         }
         core::sync::atomic::compiler_fence(Ordering::SeqCst);
         counter::now().wrapping_sub(start)
