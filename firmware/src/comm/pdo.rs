@@ -257,7 +257,8 @@ pub fn compile_item<const N: usize>(
                     };
                     (Location::Value { offset, len }, op)
                 }
-                (Storage::Const(data), Direction::Tx) => {
+                (Storage::Const(constant), Direction::Tx) => {
+                    let data = constant.bytes();
                     if u16::try_from(data.len()).ok() != expected {
                         return Err(SdoAbort::InternalIncompatibility);
                     }
