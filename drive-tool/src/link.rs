@@ -25,6 +25,8 @@ pub trait DriveLink {
         data: &[u8],
         progress: &mut dyn FnMut(usize),
     ) -> Result<(), SdoError>;
+    /// Reads a large `index:sub` of `node` by the link's bulk transfer (CANopen: SDO block upload with CRC).
+    fn upload_bulk(&mut self, node: u8, index: u16, sub: u8) -> Result<Vec<u8>, SdoError>;
     /// One LSS request (CiA 305: 0x7E5 to the slaves) and the first answer (0x7E4) within `wait`, if any; an
     /// error on a link without LSS.
     fn lss(&mut self, request: [u8; 8], wait: Duration) -> Result<Vec<[u8; 8]>, String>;
@@ -164,6 +166,10 @@ impl DriveLink for CanopenLink {
         } else {
             client.download(node, index, sub, data)
         }
+    }
+
+    fn upload_bulk(&mut self, node: u8, index: u16, sub: u8) -> Result<Vec<u8>, SdoError> {
+        SdoClient::new(&mut self.bus, self.timeout).block_upload(node, index, sub)
     }
 
     fn download_bulk(

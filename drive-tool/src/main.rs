@@ -1,7 +1,8 @@
 //! `drive-tool`: the command-line tool a machine builder commissions a drive with over CANopen or EtherCAT: finds the drives
 //! (`scan`, `info`), reads and writes objects by index or name with their types (`get`, `set`), saves and
 //! loads parameter sets as CiA 306 DCF files (`params`), reads the error history (`faults`, `fault reset`) and
-//! makes a first move of an axis (`enable`, `disable`, `jog`, `move`).
+//! makes a first move of an axis (`enable`, `disable`, `jog`, `move`), and records traces with the drive's data
+//! recorder (`record`: CSV and SVG).
 //!
 //! Links: `--socketcand HOST:PORT` (the simulator, `drive-sim canopen`), `--can IFACE` (Linux SocketCAN) or
 //! `--ecat IFACE` (EtherCAT through a raw socket: `drive-sim ethercat` on one end of a veth pair, or a real
@@ -28,6 +29,11 @@ mod dcf;
 mod ecat;
 mod eds;
 mod link;
+/// The SVG line plots of `record`: hal-sim's dependency-free plot writer (`hal-sim/src/sim/plot.rs`), compiled
+/// into this tool from its one source rather than pulling the simulator in as a dependency.
+#[path = "../../hal-sim/src/sim/plot.rs"]
+#[allow(dead_code, reason = "the tool draws plain line plots: no markers, log axis or reference lines")]
+mod plot;
 mod project;
 mod sdo;
 #[cfg(target_os = "linux")]
@@ -209,6 +215,10 @@ enum Command {
     /// Layer setting services (CiA 305) for drives without a node-ID.
     #[command(subcommand)]
     Lss(LssCommand),
+    /// The data recorder (0x3300..0x3302): configure up to 8 channels, the sampling divider and the trigger with
+    /// its preceding samples, arm, wait for the recording, upload it by SDO block transfer and write a CSV file
+    /// and an SVG plot; `--no-wait` arms only, `--fetch` uploads a recording armed earlier.
+    Record(commands::record::RecordArgs),
     /// Install a signed firmware image and read the new version back after the restart. CANopen: program control
     /// (0x1F51 stop/clear, 0x1F50 block download with its CRC, start); a refusal shows the SDO abort and flash
     /// status 0x1F57. EtherCAT: FoE in BOOT (INIT, BOOT, FoE write, INIT); a refusal shows the FoE error code and
@@ -419,6 +429,7 @@ fn run(cli: Cli) -> Result<(), String> {
         Command::Lss(LssCommand::Assign { from, count, no_store, wait_ms }) => {
             commands::lss::assign(&mut cx, from, count, !no_store, Duration::from_millis(wait_ms))
         }
+        Command::Record(args) => commands::record::record(&mut cx, &args),
         Command::Update { image, no_start } => commands::update::update(&mut cx, &image, !no_start),
         Command::Move { target, relative, velocity, timeout_s, stay_enabled } => commands::motion::move_to(
             &mut cx,

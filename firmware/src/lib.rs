@@ -34,6 +34,7 @@ pub mod io;
 pub mod motion;
 pub mod od;
 pub mod power_state;
+pub mod recorder;
 #[cfg(target_os = "none")]
 pub mod rt;
 pub mod sensors;

@@ -13,6 +13,8 @@ use firmware::od::abort::SdoAbort;
 use firmware::od::access::{ApplicationObjects, Dictionary, ReadOutcome};
 use firmware::od::entry::Entry;
 use firmware::od::generated;
+use firmware::recorder::objects::RecorderObjects;
+use firmware::recorder::Recorder;
 use hal_sim::esc::datagram::{Command, Frame, FrameBuilder};
 use hal_sim::esc::Esc;
 
@@ -169,6 +171,8 @@ pub struct Bench {
     pub dict: Dictionary,
     /// Application objects.
     pub app: ProgramApp,
+    /// The data recorder in front of `app` (0x3300..0x3302), as the drive's runtime holds it.
+    pub recorder: Recorder,
     /// The FoE sink.
     pub sink: MemorySink,
     /// The firmware's millisecond clock.
@@ -201,6 +205,7 @@ impl Bench {
             mailbox: Mailbox::new(layout),
             dict: Dictionary::new(generated::DEFAULT_NODE_ID),
             app: ProgramApp::default(),
+            recorder: Recorder::new(),
             sink: MemorySink::default(),
             now_ms: 0,
             layout,
@@ -217,10 +222,11 @@ impl Bench {
         if let Some(t) = self.esm.poll(&mut self.esc, &self.dict, self.now_ms) {
             self.transitions.push(t);
         }
+        let mut app = RecorderObjects::new(&mut self.recorder, &mut self.app);
         let mut ctx = MailboxContext {
             state: self.esm.state(),
             dict: &mut self.dict,
-            app: &mut self.app,
+            app: &mut app,
             power_stage_enabled: false,
             foe_sink: &mut self.sink,
         };

@@ -64,9 +64,11 @@ const ECAT_CYCLE_BUDGET: u64 = 1_500;
 /// there, 22 with names, instead of 24), and the default values were kept sparse (-7,020, -5,396 and -5,408 for
 /// these three), less the sparse defaults' decoding by set bits and the communication reset's binary search of its
 /// area, which keep the CANopen node's boot as short for tier 2 as with the dense defaults (+60, +156 and +156).
-/// Measured at the last change: 195,504, 227,356 and 233,428; the CAN image is 9,296 bytes under its 200 KiB
-/// ceiling.
-const TEXT_BUDGETS: [(&str, u64); 3] = [("can", 192 * 1024), ("ethercat", 224 * 1024), ("ethercat_defmt", 229 * 1024)];
+/// Measured then: 195,504, 227,356 and 233,428. Raised by 4, 3 and 4 KiB for the data recorder (issue 22 item 2: its
+/// entries, tier 3's drain, the SDO serving behind the application-objects port, tier 1's copy and the stack's
+/// high-water mark; +3,684, +3,100 and +3,244 bytes of text): 199,188, 230,456 and 236,672 at the last change; the
+/// CAN image is 5,612 bytes under its 200 KiB ceiling.
+const TEXT_BUDGETS: [(&str, u64); 3] = [("can", 196 * 1024), ("ethercat", 227 * 1024), ("ethercat_defmt", 233 * 1024)];
 
 #[test]
 fn board_images_fit_their_text_budgets() {

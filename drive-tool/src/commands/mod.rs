@@ -8,6 +8,7 @@ pub mod motion;
 pub mod nmt;
 pub mod object;
 pub mod params;
+pub mod record;
 pub mod scan;
 pub mod update;
 #[cfg(target_os = "linux")]

@@ -407,6 +407,11 @@ impl DriveLink for EcatLink {
         self.with_mailbox(node, async |m| coe::download(m, index, sub, data, false, &mut |_| {}).await)
     }
 
+    /// CoE has no block transfer: a large object comes by the normal upload and its segments.
+    fn upload_bulk(&mut self, node: u8, index: u16, sub: u8) -> Result<Vec<u8>, SdoError> {
+        self.upload(node, index, sub)
+    }
+
     fn download_bulk(
         &mut self,
         node: u8,

@@ -158,7 +158,9 @@ pub struct FastTick {
 }
 
 /// What the last fast tick measured and commanded (for the slow tick, the simulation's traces and diagnostics).
+/// `repr(C)`: the data recorder's copy (`crate::recorder::ring`) takes the first ten words in this order.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[repr(C)]
 pub struct FastSignals {
     /// Calibrated phase currents.
     pub i_abc: Abc<Amps>,

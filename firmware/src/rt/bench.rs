@@ -257,12 +257,15 @@ impl Periods {
                     NVIC::pend(Interrupt::Adc);
                     cortex_m::asm::dsb();
                     cortex_m::asm::isb();
+                    // Tier 3's work: the data recorder's drain.
+                    tier2::drain_recorder();
                 }
             }
             Some(until) => {
                 let until = until.wrapping_add(n.wrapping_mul(PERIOD_INSTRUCTIONS));
                 // Wrapping counter: the difference stays below 2^31 for any wait of this bench.
                 while (until.wrapping_sub(counter::now()) as i32) > 0 {
+                    tier2::drain_recorder();
                     match self.load.as_mut() {
                         Some(load) => load.exchange(),
                         None => {
@@ -473,6 +476,10 @@ pub async fn bench() {
     print(format_args!("source.foc_step=control::current_loop::foc_step\n"));
     print(format_args!("insn.foc_step={foc}\n"));
 
+    // The data recorder records 8 channels at 25 kHz through the whole bench, both parts (a trigger that never
+    // fires keeps it sampling): fast_tick_max, slow_tick_max, tier2_total_max and the other figures are taken
+    // with it.
+    let recorder_armed = arm_recorder(&RECORDER_CHANNELS, 1);
     let fast_before = tier1::FAST_TICKS.load(Ordering::Relaxed);
     let mut periods = Periods::pended();
 
@@ -527,7 +534,8 @@ pub async fn bench() {
     let slow = tier2::SLOW_TICKS.load(Ordering::Relaxed);
     print(format_args!(
         "source.fast_tick=rt::app::fast_tick: the blocks taken from tier 2 when new, then \
-         drive::tier1::Tier1State::fast_tick\n"
+         drive::tier1::Tier1State::fast_tick, plus the data recorder's copy of its values after the PWM write \
+         (8 channels recorded at 25 kHz all along)\n"
     ));
     print(format_args!("insn.fast_tick_max={}\n", tier1::FAST_TICK_MAX.load(Ordering::Relaxed)));
     print(format_args!(
@@ -588,6 +596,17 @@ pub async fn bench() {
     let slow_missed = tier2::SLOW_MISSED.load(Ordering::Relaxed);
     let overrun = tier1::OVERRUN.load(Ordering::Relaxed);
     let timed = timed_phase();
+    let recording = tier2::RECORDER.with(|r| r.state());
+    let lost = tier2::RECORDER.with(|r| r.lost()).unwrap_or(u32::MAX);
+    // The recorder's drain of a slow period (ten snapshots) with one channel and with eight at 25 kHz, after the
+    // timed part: their difference over 7 channels x 10 samples is the cost of a channel per sample; tier 1's copy
+    // does not depend on the channels.
+    let drain_1 = recorder_drain_cost(RECORDER_CHANNELS.get(..1).unwrap_or_default());
+    let drain_8 = recorder_drain_cost(&RECORDER_CHANNELS);
+    let recorder_ok = recorder_armed && drain_1.is_some() && drain_8.is_some();
+    let (drain_1, drain_8) = (drain_1.unwrap_or(0), drain_8.unwrap_or(0));
+    let per_channel = drain_8.saturating_sub(drain_1).div_ceil(7 * SLOW_TICK_DIVIDER);
+    let copy = recorder_copy_cost();
     print(format_args!(
         "source.tier1_latency_max=tier 1 driven by SysTick every {PERIOD_INSTRUCTIONS} instructions through the CSP \
          move and the CSV, PVM, PPM and homing runs again, tier 3 serving SDO requests: from the period's start to \
@@ -619,6 +638,18 @@ pub async fn bench() {
          PWM write\n"
     ));
     print(format_args!("insn.report_publish_max={}\n", tier1::REPORT_MAX.load(Ordering::Relaxed)));
+    print(format_args!(
+        "source.recorder=recorder: tier 1's fixed copy of its values into the ring, inside the fast tick \
+         (recorder_tier1_copy, the same whatever is recorded, so 0 more per channel in tier 1), tier 3's drain of \
+         a slow period (10 samples at 25 kHz) with one channel and with eight (recorder_drain_1ch, \
+         recorder_drain_8ch, sections of 4 snapshots under the tier-2 lock), and their difference per channel and \
+         sample (recorder_per_channel); 8 channels (6 currents, bus voltage, 0x6064) recorded at 25 kHz through \
+         both parts of the bench, tier 3 draining\n"
+    ));
+    print(format_args!(
+        "insn.recorder_tier1_copy={copy}\ninsn.recorder_drain_1ch={drain_1}\ninsn.recorder_drain_8ch={drain_8}\n\
+         insn.recorder_per_channel={per_channel}\ncount.recorder_lost={lost}\n"
+    ));
     print(format_args!("count.timed_periods={}\ncount.timed_fast_ticks={}\n", timed.periods, timed.fast_ticks));
     print(format_args!("count.timed_tier3_sdo_exchanges={}\n", timed.sdo_exchanges));
     // After the timed part, so that its phase against the period timer stays what it was without this item.
@@ -628,6 +659,14 @@ pub async fn bench() {
          setup's step 7, mode -2, in the slow tick in place of the loops), every tick of a whole sweep on a rigid \
          shaft; and find_resonance on a two-mass response (the sweep's last tick runs it)\n\
          insn.resonance_step_max={resonance_step}\ninsn.resonance_estimate={resonance_estimate}\n"
+    ));
+    // Last, after every part: the deepest the stack has been since start-up (tier 3's bench task with tiers 2
+    // and 1 preempting it), against the room between `.bss` and the top of the SRAM.
+    let (stack_used, stack_size) = (super::stack::high_water(), super::stack::size());
+    print(format_args!(
+        "source.stack_used_max=rt::stack: the stack's high-water mark since start-up (the pattern painted at \
+         start-up, found untouched below it) and stack_size, the SRAM between the end of .bss and the stack's top\n\
+         bytes.stack_used_max={stack_used}\nbytes.stack_size={stack_size}\n"
     ));
 
     let mut ok = true;
@@ -660,12 +699,107 @@ pub async fn bench() {
         timed.tier3_booted && timed.sdo_exchanges > 1_000 && timed.sdo_wrong_answers == 0,
         "tier 3 served SDO requests through its CANopen node all along the timed part, each answered",
     );
+    check(recorder_ok, "the data recorder armed with 8 channels, then with 1 and 8 again");
+    check(
+        recording == Some(crate::recorder::RecorderState::Waiting) && lost == 0,
+        "the data recorder was still sampling (waiting for its trigger) after both parts, no snapshot lost",
+    );
+    check(
+        stack_used.saturating_add(STACK_HEADROOM) <= stack_size,
+        "the stack stayed STACK_HEADROOM (8 KiB) or more above the statics",
+    );
     check(ecat.is_some(), "the default PDO mapping compiles and the process-data cycle ran");
     check(
         can.is_some_and(|c| c.complete),
         "CANopen: the node booted, went operational, took every RPDO, and every SYNC queued 4 TPDOs",
     );
     exit(if ok { EXIT_OK } else { EXIT_CHECK_FAILED });
+}
+
+/// Room the stack must keep between its deepest point and `.bss` in the bench: the bench does not reach every
+/// path of the board image (the EtherCAT slave, a CANopen SDO block transfer), whose frames may go deeper.
+const STACK_HEADROOM: u32 = 8 * 1024;
+
+/// The recorder's channels in the bench: the six currents of 0x3303, the bus voltage, the position actual value.
+const RECORDER_CHANNELS: [u32; 8] =
+    [0x3303_0100, 0x3303_0200, 0x3303_0300, 0x3303_0400, 0x3303_0500, 0x3303_0600, 0x3303_0900, 0x6064_0000];
+
+/// Stops the recorder and arms it with `channels` every `period` current-loop periods (1: 25 kHz), as many
+/// samples as fit and a trigger that never fires (the first channel rising through i32::MAX), through the
+/// dictionary and the recorder's port as an SDO download would; whether every write was accepted.
+fn arm_recorder(channels: &[u32], period: u16) -> bool {
+    use crate::od::access::{AccessContext, CommState, NoApplicationObjects};
+    use crate::recorder::objects::RecorderObjects;
+    use crate::recorder::{sub, trigger, RECORDER, VARIABLES};
+    let ctx = AccessContext { comm_state: CommState::PreOperational, power_stage_enabled: false, max_pdo_bytes: 8 };
+    tier2::with_drive(|d| {
+        tier2::RECORDER.with(|recorder| {
+            let mut none = NoApplicationObjects;
+            let mut port = RecorderObjects::new(recorder, &mut none);
+            let dict = d.dictionary_mut();
+            let mut write = |index: u16, s: u8, data: &[u8]| dict.write(index, s, data, ctx, &mut port).is_ok();
+            let mut ok = write(RECORDER, sub::CONTROL, &[0]) && write(VARIABLES, 0, &[0]);
+            for (k, c) in channels.iter().enumerate() {
+                ok &= write(VARIABLES, (k as u8).wrapping_add(1), &c.to_le_bytes());
+            }
+            ok && write(VARIABLES, 0, &[channels.len() as u8])
+                && write(RECORDER, sub::PERIOD, &period.to_le_bytes())
+                && write(RECORDER, sub::SAMPLES, &0u32.to_le_bytes())
+                && write(RECORDER, sub::MODE, &[trigger::RISING])
+                && write(RECORDER, sub::TRIGGER_CHANNEL, &[1])
+                && write(RECORDER, sub::THRESHOLD, &i32::MAX.to_le_bytes())
+                && write(RECORDER, sub::CONTROL, &[1])
+        })
+    })
+    .flatten()
+    .unwrap_or(false)
+}
+
+/// The recorder armed with `channels` at 25 kHz, then the cost of draining ten fresh snapshots (one slow period)
+/// in tier 3's sections ([`tier2::drain_recorder`]), the least over three slow periods; `None` if the arm failed.
+fn recorder_drain_cost(channels: &[u32]) -> Option<u32> {
+    if !arm_recorder(channels, 1) {
+        return None;
+    }
+    // The first drain after arming switches tier 1's copy on.
+    tier2::drain_recorder();
+    let mut least = u32::MAX;
+    for _ in 0..3 {
+        // Ten periods pended without a drain between them (tier 1 copies, tier 2 takes the objects), then one.
+        for _ in 0..SLOW_TICK_DIVIDER {
+            NVIC::pend(Interrupt::Adc);
+            cortex_m::asm::dsb();
+            cortex_m::asm::isb();
+        }
+        let start = counter::now();
+        tier2::drain_recorder();
+        least = least.min(counter::now().wrapping_sub(start));
+    }
+    Some(least)
+}
+
+/// Tier 1's copy for the recorder alone (`tier1::record` into a ring of its own,
+/// from a tier-1 state of the drive's settings), the least of a few runs less an empty measurement.
+fn recorder_copy_cost() -> u32 {
+    use crate::hal::power::PwmCommand;
+    use crate::recorder::ring::SampleRing;
+    static RING: SampleRing = SampleRing::new();
+    let Some(t1) = tier2::with_drive(|d| crate::drive::tier1::Tier1State::new(d.settings())) else {
+        return u32::MAX;
+    };
+    let pwm = black_box(PwmCommand { duty: [1, 2, 3], enabled: true });
+    RING.set_enabled(true);
+    let measure = |push: bool| {
+        let start = counter::now();
+        core::sync::atomic::compiler_fence(Ordering::SeqCst);
+        if push {
+            super::tier1::record(&RING, black_box(&t1), &pwm);
+        }
+        core::sync::atomic::compiler_fence(Ordering::SeqCst);
+        counter::now().wrapping_sub(start)
+    };
+    let overhead = (0..4).map(|_| measure(false)).min().unwrap_or(0);
+    (0..4).map(|_| measure(true)).min().unwrap_or(0).saturating_sub(overhead)
 }
 
 /// What the timer-driven part measured.

@@ -30,6 +30,7 @@ use crate::canopen::{ids, CanopenNode, NodeEvent};
 use crate::drive::objects::DriveObjects;
 use crate::drive::Drive;
 use crate::od::access::{ApplicationObjects, NoApplicationObjects};
+use crate::recorder::objects::RecorderObjects;
 
 /// The node and its controller, owned by tier 3.
 pub(crate) struct Canopen {
@@ -101,7 +102,18 @@ pub(crate) fn poll(
                 &mut none
             }
         };
-        let event = can.node.poll(&mut can.bus, drive, objects, now_us);
+        // The data recorder in front of them (0x3300..0x3302), under the same lock.
+        let event = super::tier2::RECORDER.with_or_none(|recorder| {
+            let mut recorder_objects;
+            let objects: &mut dyn ApplicationObjects = match recorder {
+                Some(recorder) => {
+                    recorder_objects = RecorderObjects::new(recorder, objects);
+                    &mut recorder_objects
+                }
+                None => objects,
+            };
+            can.node.poll(&mut can.bus, drive, objects, now_us)
+        });
         let reset = program.is_some_and(|program| super::program::follow(program, drive));
         (event, reset)
     });

@@ -65,6 +65,7 @@ use crate::ecat::spi_pdi::{Addressing, SpiEsc};
 use crate::ecat::sync::SyncMode;
 use crate::ecat::sync_pll::{Sync0Capture, SyncPll, DITHER_LEN, NOMINAL_ARR};
 use crate::od::access::{ApplicationObjects, NoApplicationObjects};
+use crate::recorder::objects::RecorderObjects;
 
 /// AL event mask (u32): which AL event request bits drive SPI_IRQ (ESC datasheet section II, 0x0204).
 const AL_EVENT_MASK: u16 = 0x0204;
@@ -161,7 +162,18 @@ pub(crate) fn poll(params: &mut Option<app::Params>, program: Option<&RefCell<Bo
                 (&mut no_objects, &mut no_foe)
             }
         };
-        s.slave.poll_with_foe(&mut s.esc, drive, objects, foe, now_ms);
+        // The data recorder in front of them (0x3300..0x3302), under the same lock.
+        super::tier2::RECORDER.with_or_none(|recorder| {
+            let mut recorder_objects;
+            let objects: &mut dyn ApplicationObjects = match recorder {
+                Some(recorder) => {
+                    recorder_objects = RecorderObjects::new(recorder, objects);
+                    &mut recorder_objects
+                }
+                None => objects,
+            };
+            s.slave.poll_with_foe(&mut s.esc, drive, objects, foe, now_ms);
+        });
         if let Some(program) = program {
             // Leaving BOOT after an FoE download (E4 Table 4-29 step D) asks for the reset that activates it.
             if before == AlState::Boot && s.slave.state() != AlState::Boot {

@@ -20,6 +20,8 @@
 //! | `tier1::FAST_TICKS`         | `AtomicU32`                  | tier 1            | tier 3, QEMU bench      |
 //! | `tier1::OVERRUN`            | `AtomicBool`, latched        | tier 1            | tier 2, tier 3          |
 //! | `tier1::TIER1_LATENCY_MAX`, `tier1::TIER1_LATENCY_MIN`, `tier1::FAST_MISSED`, `tier1::LAST_UPDATE` | `AtomicU32` (QEMU image) | tier 1 (period timer); the bench before it starts the timer | QEMU bench |
+//! | `tier1::RECORDER_RING`      | `recorder::ring::SampleRing` (atomics, the count after each slot) | tier 1, every period inside the fast tick | tier 2 (the recorder's drain after the slow tick) |
+//! | `tier2::RECORDER` (`recorder::Recorder`, its sample memory [`RECORDER_BUFFER`]) | `tier2::Tier2Slot`, under the tier-2 lock | tier 2 (the drain: samples), tier 3 (SDO: configuration, arm), one at a time | tier 2, tier 3 (SDO upload) |
 //! | `tier2::SLOW_TICK`          | [`signal::TickSignal`]       | tier 1 (raise)    | tier-2 slow loop (wait) |
 //! | `tier2::SLOW_TICKS`         | `AtomicU32`                  | tier 2            | tier 3, QEMU bench      |
 //! | `tier2::SLOW_TICK_MAX`      | `AtomicU32`                  | tier 2            | tier 3, QEMU bench      |
@@ -56,6 +58,7 @@ pub mod log;
 mod panic;
 pub mod program;
 pub mod signal;
+pub mod stack;
 pub mod tier1;
 pub mod tier2;
 pub mod tier3;
@@ -73,8 +76,29 @@ pub const TIER1_PRIORITY: u8 = 0x00;
 /// NVIC priority of tier 2's executor interrupt: below tier 1, above thread mode.
 pub const TIER2_PRIORITY: u8 = 0x40;
 
+/// Half-words of the data recorder's sample memory: on the board the whole 64 KiB CCM RAM, which holds 2,048
+/// samples of 8 channels of 32 bits (82 ms at 25 kHz) or 32,768 of one 16-bit channel (1.3 s).
+///
+/// In the CCM, not the SRAM: the SRAM's top is the stack, which grows down towards `.bss` with nothing to stop it
+/// ([`stack`]); with a 64 KiB buffer in `.bss` the QEMU bench's stack ran into the statics below it. Only the core
+/// reads and writes the buffer (the CCM is not on the DMA's bus matrix, RM0090 section 2.3.1).
+#[cfg(not(feature = "qemu"))]
+pub const RECORDER_BUFFER_HALVES: usize = 32 * 1024;
+/// Half-words of the data recorder's sample memory in the QEMU image: 16 KiB in the SRAM, as QEMU's
+/// `netduinoplus2` has no CCM RAM (a store to 0x1000_0000 is a bus fault there). The recorder's code is the
+/// board's; only the number of samples a recording holds is smaller.
+#[cfg(feature = "qemu")]
+pub const RECORDER_BUFFER_HALVES: usize = 8 * 1024;
+
+/// The data recorder's sample memory (`crate::recorder`), given to it at start-up. On the board in `.ccmram`
+/// (`memory.x`), which start-up does not zero: [`run`] clears it before the recorder gets it.
+#[cfg_attr(not(feature = "qemu"), link_section = ".ccmram.recorder")]
+static RECORDER_BUFFER: [core::sync::atomic::AtomicU16; RECORDER_BUFFER_HALVES] =
+    [const { core::sync::atomic::AtomicU16::new(0) }; RECORDER_BUFFER_HALVES];
+
 /// Brings the board up and runs the three tiers forever. Called from the application's entry point.
 pub fn run() -> ! {
+    stack::paint();
     let board = match board::init() {
         Ok(board) => board,
         Err(_e) => {
@@ -144,6 +168,14 @@ pub fn run() -> ! {
     // before tier 1 runs.
     let tier1_state = crate::drive::tier1::Tier1State::new(boot.drive.settings());
     tier2::place_drive(boot.drive);
+    let mut recorder = crate::recorder::Recorder::new();
+    // The CCM's contents after a reset are whatever they were (`RECORDER_BUFFER`): the recorder starts on zeros.
+    // (In the QEMU image the buffer is in `.bss`, already zero.)
+    for half in &RECORDER_BUFFER {
+        half.store(0, core::sync::atomic::Ordering::Relaxed);
+    }
+    recorder.attach(&RECORDER_BUFFER);
+    tier2::RECORDER.place(recorder);
     let _ = tier2::start();
     tier1::start(board.power, tier1_state);
     crate::rt_info!("tiers 1 and 2 running");

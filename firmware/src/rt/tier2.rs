@@ -22,6 +22,7 @@ use super::signal::TickSignal;
 use crate::board::counter;
 use crate::board::interrupt::Interrupt;
 use crate::drive::Drive;
+use crate::recorder::Recorder;
 
 /// Raised by tier 1 every `SLOW_TICK_DIVIDER` fast ticks. Writer: tier 1; waiter: the slow loop task.
 pub static SLOW_TICK: TickSignal = TickSignal::new();
@@ -42,6 +43,11 @@ pub static TIER2_TOTAL_MAX: AtomicU32 = AtomicU32::new(0);
 /// from a fixed period (`crate::drive::blocks::LOOP_SETPOINT_DELAY_PERIODS`), the same on the host, so this must
 /// not exceed that delay (the QEMU test holds it to it). Writer: tier 2.
 pub static SETPOINT_PERIODS_LATE_MAX: AtomicU32 = AtomicU32::new(0);
+/// The data recorder (`crate::recorder`): tier 2 gives it the object channels' values after each slow tick, tier 3
+/// drains tier 1's ring into it ([`drain_recorder`]) and its SDO servers configure and upload it through the
+/// application-objects port, all under the tier-2 lock. Placed at start-up with its sample memory
+/// (`rt::RECORDER_BUFFER`).
+pub static RECORDER: Tier2Slot<Recorder> = Tier2Slot::new();
 /// Reports that could not be read whole ([`crate::handoff::Torn`]: tier 2 was held off for a whole slow period in
 /// the middle of its copy); the drive then keeps the previous one. Writer: tier 2.
 pub static REPORTS_TORN: AtomicU32 = AtomicU32::new(0);
@@ -86,14 +92,20 @@ impl<T> Tier2Slot<T> {
     /// Runs `f` on the value inside a critical section (the tier-2 ceiling once the tiers run). `None` before
     /// [`Self::place`], or when called from inside a section that already holds this slot.
     pub fn with<R>(&self, f: impl FnOnce(&mut T) -> R) -> Option<R> {
+        self.with_or_none(|value| value.map(f))
+    }
+
+    /// Runs `f` inside a critical section with the value, or with `None` before [`Self::place`] or when called
+    /// from inside a section that already holds this slot.
+    pub fn with_or_none<R>(&self, f: impl FnOnce(Option<&mut T>) -> R) -> R {
         critical_section::with(|_| {
             if !self.ready.load(Ordering::Relaxed) || self.busy.swap(true, Ordering::Relaxed) {
-                return None;
+                return f(None);
             }
             // SAFETY: see `Sync` above: inside the lock, placed, and not held by an enclosing section.
-            let result = f(unsafe { (*self.value.get()).assume_init_mut() });
+            let result = f(Some(unsafe { (*self.value.get()).assume_init_mut() }));
             self.busy.store(false, Ordering::Relaxed);
-            Some(result)
+            result
         })
     }
 }
@@ -142,6 +154,23 @@ fn take_report(drive: &mut Drive) {
         Ok(report) => drive.receive_report(&report.block),
         Err(_) => count(&REPORTS_TORN, 1),
     }
+}
+
+/// The recorder's object channels from the drive's dictionary (a few loads: the drain runs in tier 3).
+#[inline(never)]
+fn record_objects(drive: &mut Drive) {
+    let _ = RECORDER.with(|recorder| recorder.take_objects(drive.dictionary().values().bytes()));
+}
+
+/// Snapshots of tier 1's ring the recorder's drain takes per section: with 8 channels about 1,500 instructions
+/// (`insn.recorder_drain_8ch` is ten of them), the longest tier 3 holds tier 2 off for it.
+const DRAIN_SNAPSHOTS_PER_SECTION: u32 = 4;
+
+/// Tier 3: drains tier 1's ring (`tier1::RECORDER_RING`) into the recorder, [`DRAIN_SNAPSHOTS_PER_SECTION`] at a
+/// time under the tier-2 lock, until it is empty.
+pub fn drain_recorder() {
+    let ring = &super::tier1::RECORDER_RING;
+    while RECORDER.with(|recorder| recorder.drain(ring, DRAIN_SNAPSHOTS_PER_SECTION)) == Some(true) {}
 }
 
 /// [`with_drive`] timed in counter units (the section and the publications).
@@ -205,6 +234,8 @@ async fn slow_loop() {
             &SETPOINT_PERIODS_LATE_MAX,
             super::tier1::FAST_TICKS.load(Ordering::Relaxed).wrapping_sub(raised_at),
         );
+        // The data recorder's object channels of this slow period: after the set-point is published.
+        let _ = with_drive(record_objects);
         // The free-run process-data cycle (EtherCAT, feature `ethercat`): after the slow tick, as the other cycle
         // sources run between slow ticks.
         #[cfg(all(feature = "ethercat", not(feature = "qemu")))]

@@ -54,6 +54,7 @@ use firmware::drive::objects::DriveObjects;
 use firmware::hal::power::SLOW_TICK_DIVIDER;
 use firmware::od::generated::handles as h;
 use firmware::od::store::ParamStore;
+use firmware::recorder::objects::RecorderObjects;
 
 use super::ethercat::{MAX_CATCH_UP_PERIODS, PERIOD_NS};
 use super::update::{self, SimProgram};
@@ -193,6 +194,9 @@ pub struct CanDrive {
     fallback: Option<FallbackNode>,
     /// Frames this drive sends in the current PWM period, in order (they go onto the bus at its end).
     outbox: Vec<CanFrame>,
+    /// The simulator's own trace of tier 1's q current (`drive-sim canopen --trace FILE`): one CSV line every
+    /// current-loop period, the reference a recording of the drive's data recorder is checked against.
+    pub trace: Option<std::io::BufWriter<std::fs::File>>,
     /// Frames the fallback services answered or sent since power-on (boot-ups, answers, timeouts).
     fallback_frames: u64,
     /// What the drive's CAN controller reports (an injected error state): the node reads it before every slow
@@ -232,6 +236,7 @@ impl CanDrive {
             powering_up: true,
             fallback: None,
             outbox: Vec::new(),
+            trace: None,
             fallback_frames: 0,
             controller: BusStatus::default(),
             serial: firmware::od::generated::SERIAL_NUMBER.wrapping_add(u32::from(slot).saturating_sub(1)),
@@ -360,8 +365,9 @@ impl CanDrive {
         }
         while let Some(frame) = self.inbox.pop_front() {
             let on = self.sim.drive.power_stage_enabled();
-            let mut app =
+            let mut drive_objects =
                 DriveObjects::new(&mut self.store, on).with_program_control(self.program.port(Interface::Canopen, on));
+            let mut app = RecorderObjects::new(&mut self.sim.recorder, &mut drive_objects);
             self.node.handle_frame(&frame, &mut self.sim.drive, &mut app, now_us);
             self.follow_program();
             if self.in_fallback() {
@@ -374,13 +380,31 @@ impl CanDrive {
             self.outbox.push(frame);
         }
         self.sim.step();
+        if let Some(trace) = self.trace.as_mut() {
+            use std::io::Write as _;
+            // What tier 1 measured and was asked for (rounded to mA as the recorder rounds them), and the plant's
+            // true q current at the sample; flushed every slow tick, so that a killed simulator leaves it whole.
+            let s = self.sim.tier1().signals();
+            let true_ma = self.sim.plant.state_at_sample().i_dq_a[1] * 1000.0;
+            let _ = writeln!(
+                trace,
+                "{},{},{},{true_ma:.1}",
+                self.sim.ticks(),
+                s.i_dq.q.to_milliamps(),
+                s.i_ref.q.to_milliamps()
+            );
+            if slow {
+                let _ = trace.flush();
+            }
+        }
         if !slow {
             return;
         }
         self.node.observe_bus(self.controller, &mut self.sim.drive);
         let on = self.sim.drive.power_stage_enabled();
-        let mut app =
+        let mut drive_objects =
             DriveObjects::new(&mut self.store, on).with_program_control(self.program.port(Interface::Canopen, on));
+        let mut app = RecorderObjects::new(&mut self.sim.recorder, &mut drive_objects);
         if let Some(event) = self.node.process(&mut self.sim.drive, &mut app, now_us) {
             self.events.push(event);
             if let NodeEvent::BitRateSwitched(rate) = event {
@@ -469,6 +493,8 @@ impl CanopenRunner {
                 if *params != crate::plant::PlantParams::reference() {
                     sim.commission_motor_data(params);
                 }
+                // A master records through the data recorder (0x3300..0x3302) as on the board.
+                sim.attach_recorder();
                 // The factory image in slot A, or (`empty_slot_nodes`) nothing: the bootloader's fallback.
                 let program = if config.empty_slot(id) { update::blank_program() } else { update::factory_program() };
                 let mut drive = CanDrive::power_on(id, id, bus.attach(), sim, program);

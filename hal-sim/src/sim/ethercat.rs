@@ -54,6 +54,7 @@ use firmware::ecat::sync_pll::{PllStatus, Sync0Capture, SyncPll};
 use firmware::hal::power::{PWM_FREQUENCY_HZ, SLOW_TICK_DIVIDER};
 use firmware::od::generated::handles as h;
 use firmware::od::store::ParamStore;
+use firmware::recorder::objects::RecorderObjects;
 
 use super::update::{self, SimProgram};
 use super::Simulation;
@@ -212,6 +213,8 @@ impl EthercatRunner {
         let mut program = update::factory_program();
         let last_boot = update::reset(&mut program);
         let mut sim = Simulation::new(params.clone(), config.seed, firmware::drive::DriveConfig::DEFAULT);
+        // A master records through the data recorder (0x3300..0x3302) as on the board.
+        sim.attach_recorder();
         update::use_table(&mut sim.drive, update::table_for(program.mode()));
         if params != crate::plant::PlantParams::reference() {
             sim.commission_motor_data(&params);
@@ -395,11 +398,12 @@ impl SlaveNode {
         let now_ms = u32::try_from(esc.elapsed() / 1_000_000).unwrap_or(u32::MAX);
         let before = self.slave.state();
         let on = self.sim.drive.power_stage_enabled();
-        let mut app = DriveObjects::new(&mut self.store, on).with_program_control(SharedPort::new(
+        let mut drive_objects = DriveObjects::new(&mut self.store, on).with_program_control(SharedPort::new(
             &self.program,
             Interface::Ethercat,
             on,
         ));
+        let mut app = RecorderObjects::new(&mut self.sim.recorder, &mut drive_objects);
         let mut foe = SharedPort::new(&self.program, Interface::Ethercat, on);
         self.slave.poll_with_foe(esc, &mut self.sim.drive, &mut app, &mut foe, now_ms);
         self.follow_program(before);

@@ -25,6 +25,9 @@ use firmware::drive::{Drive, DriveConfig};
 use firmware::hal::power::{Measurements, PwmCommand, SLOW_TICK_DIVIDER};
 use firmware::od::generated::handles as h;
 use firmware::power_state::{CommutationStage, DriveError, PowerState};
+use firmware::recorder::ring::SampleRing;
+use firmware::recorder::Recorder;
+use std::sync::atomic::AtomicU16;
 
 use crate::plant::{Plant, PlantParams, PERIOD_S};
 
@@ -68,6 +71,14 @@ pub struct Simulation {
     ticks: u64,
     /// The plant whose motor data [`Self::commission_motor_data`] wrote, written again into a rebooted drive.
     motor_data: Option<PlantParams>,
+    /// The data recorder, owned beside the drive as the target's runtime owns it (`firmware::rt::tier2::RECORDER`):
+    /// the SDO servers reach it through `firmware::recorder::objects::RecorderObjects`. It records once
+    /// [`Self::attach_recorder`] gave it sample memory.
+    pub recorder: Recorder,
+    /// Tier 1's copies for the recorder, pushed every period after the fast tick as on the target.
+    recorder_ring: Box<SampleRing>,
+    /// The recorder's sample memory once [`Self::attach_recorder`] gave it one (kept across a reboot).
+    recorder_buffer: Option<&'static [AtomicU16]>,
 }
 
 impl Simulation {
@@ -88,7 +99,21 @@ impl Simulation {
             measurements: Measurements::default(),
             ticks: 0,
             motor_data: None,
+            recorder: Recorder::new(),
+            recorder_ring: Box::new(SampleRing::new()),
+            recorder_buffer: None,
         }
+    }
+
+    /// Gives the data recorder sample memory of the target's size (`firmware::rt`'s 64 KiB), allocated once for
+    /// this simulation and kept for its lifetime (leaked: the recorder holds a `'static` slice, as on the target).
+    /// Simulations that do not record go without one.
+    pub fn attach_recorder(&mut self) {
+        const HALVES: usize = 32 * 1024;
+        let buffer = *self
+            .recorder_buffer
+            .get_or_insert_with(|| Box::leak((0..HALVES).map(|_| AtomicU16::new(0)).collect::<Box<[AtomicU16]>>()));
+        self.recorder.attach(buffer);
     }
 
     /// The reference plant and the default drive.
@@ -112,12 +137,19 @@ impl Simulation {
             self.published = None;
         }
         let tick = self.tier1.fast_tick(&m);
+        if self.recorder_ring.enabled() {
+            self.recorder_ring.push(&self.tier1, &tick.pwm);
+        }
         if tick.slow_tick_due {
             self.drive.receive_report(&self.tier1.report());
             // Tier 2 reads the STO inputs at the start of its slow period, as `rt::tier2` does on the target.
             self.drive.set_sto_inputs(self.plant.sto_inputs());
             self.drive.background();
             self.drive.slow_tick();
+            // The object channels after the slow tick, as `rt::tier2` takes them; the drain at once (tier 3's on the
+            // target, within the ring's reach).
+            self.recorder.take_objects(self.drive.dictionary().values().bytes());
+            self.recorder.drain(&self.recorder_ring, u32::MAX);
             self.plant.set_digital_outputs(self.drive.output_pins());
             self.plant.set_chopper_gate(self.drive.chopper_gate());
         }
@@ -180,6 +212,11 @@ impl Simulation {
         self.tier1 = Tier1State::new(drive.settings());
         self.published = None;
         self.drive = drive;
+        // The microcontroller restarts: a new recorder over the same memory.
+        self.recorder = Recorder::new();
+        if let Some(buffer) = self.recorder_buffer {
+            self.recorder.attach(buffer);
+        }
         if let Some(params) = self.motor_data.take() {
             self.commission_motor_data(&params);
         }

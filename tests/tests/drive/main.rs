@@ -16,6 +16,7 @@ mod identification_robustness;
 mod io;
 mod mechanical_identification;
 mod parameters;
+mod recorder;
 mod regeneration;
 mod resonance_identification;
 mod sensor_configuration;

@@ -7,6 +7,7 @@ mod esm;
 mod fuzz;
 mod mailbox;
 mod process_data;
+mod recorder;
 mod slave;
 mod spi_pdi;
 mod sync_pll;

@@ -63,6 +63,11 @@ pub struct CanopenArgs {
     /// until an LSS master (CiA 305) gives it one (repeatable).
     #[arg(long, value_name = "SLOT", value_parser = clap::value_parser!(u8).range(1..=127))]
     pub unconfigured: Vec<u8>,
+    /// Write node 1's own trace to FILE: every current-loop period `period,iq_ma,iq_ref_ma,iq_plant_ma` (tier 1's
+    /// measured q current and its reference, rounded to mA, and the plant's true q current): the reference for a
+    /// recording of the drive's data recorder (`drive-tool record`).
+    #[arg(long, value_name = "FILE")]
+    pub trace: Option<std::path::PathBuf>,
 }
 
 impl CanopenArgs {
@@ -123,6 +128,12 @@ pub fn run(args: &CanopenArgs, config: CanopenConfig) -> Result<(), String> {
     let mut runner = CanopenRunner::with_plant(config, &plant);
     for d in runner.drives.iter().filter(|d| d.in_fallback()) {
         println!("  node {}: slot A holds no valid image ({:?}): bootloader fallback", d.node.node_id(), d.last_boot);
+    }
+    if let (Some(path), Some(d)) = (&args.trace, runner.drive_mut(1)) {
+        let file = std::fs::File::create(path).map_err(|e| format!("--trace {}: {e}", path.display()))?;
+        let mut trace = std::io::BufWriter::new(file);
+        let _ = std::io::Write::write_all(&mut trace, b"period,iq_ma,iq_ref_ma,iq_plant_ma\n");
+        d.trace = Some(trace);
     }
     for &id in &args.sto_open {
         if let Some(d) = runner.drive_mut(id) {

@@ -365,6 +365,7 @@ mod tests {
         ("README.md", "csp"),
         ("README.md", "csp --torque-feedforward"),
         ("tests/tests/canopen_real_master.rs LSS", "canopen --port 0 --lock-step --nodes 3 --unconfigured 1 --unconfigured 2 --unconfigured 3"),
+        ("drive-tool/tests/simulator.rs record", "canopen --port 0 --lock-step --seconds 600 --nodes 1 --trace out/trace.csv"),
         ("README.md", "csv-sweep"),
         ("README.md", "ppm"),
         ("README.md", "homing"),
