@@ -293,3 +293,99 @@ fn ecat_faults_show_the_code_and_text_of_a_following_error_and_fault_reset_clear
     assert_eq!(reset["cia402"], "Switch on disabled", "{reset}");
     assert_eq!(reset["error_code"], 0, "{reset}");
 }
+
+/// The rows of a CSV file after its header, as numbers.
+fn csv_rows(path: &Path) -> (String, Vec<Vec<f64>>) {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let mut lines = text.lines();
+    let header = lines.next().expect("a header").to_owned();
+    let rows = lines.map(|l| l.split(',').map(|v| v.parse().expect("a number")).collect()).collect();
+    (header, rows)
+}
+
+/// Proves issue 22's "`record` of a current step writes a CSV and an SVG whose trace matches the simulator's own
+/// within 1 %" over EtherCAT (the recording uploaded by CoE segmented transfer, ETG.1000.6 §5.6.2): in CST
+/// (0x6060 = 10, no interpolation 0x60C2:01 = 0) `record --no-wait` arms the data recorder (q current and its
+/// reference at 25 kHz, 200 samples, 20 before the trigger: the reference rising through 100 mA); ten reads of its
+/// state (each lets simulated time pass: `--idle-cycle`) show it waiting, 0x6071 = 600 makes the step, and `record
+/// --fetch` uploads the recording into the CSV and the SVG.
+///
+/// The reference is `drive-sim ethercat --trace`, the simulator's own values every current-loop period, outside
+/// the recorder's path. The recording's sample 20 is the trace's first period with the reference at 100 mA or
+/// above (the trigger), and every sample matches the trace period for period: the reference exactly, the q current
+/// within 1 % of the step (the same value rounded to the same mA, so a shift by one period or a lost sample would
+/// show as the step's slope, far above 1 %).
+#[test]
+fn ecat_record_of_a_current_step_matches_the_simulators_own_trace() {
+    let files = WorkDir::new("drive-tool-ecat-record-files");
+    let (trace, csv, svg) = (files.join("trace.csv"), files.join("step.csv"), files.join("step.svg"));
+    let path = |p: &Path| p.to_str().expect("utf-8").to_owned();
+    let mut steps = vec![
+        args(&["set", "0x60C2:01", "0"]),
+        args(&["set", "0x6071", "0"]),
+        args(&["set", "0x6060", "10"]),
+        args(&["enable"]),
+        args(&[
+            "record",
+            "--channel",
+            "iq",
+            "--channel",
+            "iq_ref",
+            "--samples",
+            "200",
+            "--pre",
+            "20",
+            "--trigger",
+            "rising",
+            "--trigger-channel",
+            "2",
+            "--level",
+            "100",
+            "--no-wait",
+            "--json",
+        ]),
+    ];
+    steps.extend((0..10).map(|_| args(&["get", "0x3300:02", "--json"])));
+    steps.push(args(&["set", "0x6071", "600"]));
+    steps.push(vec![
+        "record".into(),
+        "--fetch".into(),
+        "--csv".into(),
+        path(&csv),
+        "--svg".into(),
+        path(&svg),
+        "--json".into(),
+    ]);
+    steps.push(args(&["disable"]));
+    let Some(out) = session("record", &["--trace", &path(&trace)], &steps) else {
+        return;
+    };
+    assert_eq!(out[4].json()["armed"], true, "{:?}", out[4]);
+    for waiting in &out[5..15] {
+        assert_eq!(waiting.json()[0]["value"], 1, "0x3300:02 = 1 waiting for the trigger: {waiting:?}");
+    }
+    let fetched = out[16].json();
+    assert_eq!(fetched["samples"], 200, "{fetched}");
+    assert_eq!(fetched["channels"][0]["name"], "iq", "{fetched}");
+
+    let (header, recorded) = csv_rows(&csv);
+    assert_eq!(header, "time_s,iq_mA,iq_ref_mA");
+    assert_eq!(recorded.len(), 200);
+    assert!((recorded[1][0] - 40e-6).abs() < 1e-9, "25 kHz: {:?}", &recorded[..2]);
+    let svg_text = std::fs::read_to_string(&svg).expect("the SVG");
+    assert!(svg_text.starts_with("<svg") && svg_text.matches("<polyline").count() >= 2, "two panels with a trace");
+
+    let (_, own) = csv_rows(&trace);
+    let trigger = own.iter().position(|r| r[2] >= 100.0).expect("the simulator saw the reference step");
+    assert!(trigger >= 20, "20 periods before the step in the trace");
+    let window = &own[trigger - 20..trigger + 180];
+    let step_ma = window.iter().map(|t| t[2]).fold(0.0, f64::max);
+    assert!(step_ma > 1_000.0, "a step of {step_ma} mA");
+    let mut worst = 0.0f64;
+    for (k, (r, t)) in recorded.iter().zip(window).enumerate() {
+        assert_eq!(r[2], t[2], "sample {k}: reference {} mA recorded, {} mA in the simulator", r[2], t[2]);
+        worst = worst.max((r[1] - t[1]).abs());
+    }
+    eprintln!("recorded against the simulator's own trace: worst {worst} mA of a {step_ma} mA step");
+    assert!(worst <= 0.01 * step_ma, "recorded q current off the simulator's by {worst} mA (1 % of {step_ma})");
+}

@@ -678,6 +678,9 @@ fn ethercat(e: &EthercatArgs) -> Result<(), String> {
         println!("note: a debug build; real masters' timeouts want `cargo run --release`");
     }
     let mut runner = EthercatRunner::with_plant(config, scenarios::scenario_plant())?;
+    if let Some(path) = &e.trace {
+        runner.node.trace = Some(hal_sim::sim::current_trace::CurrentTrace::create(path)?);
+    }
     if e.sto_open {
         runner.node.sim.plant.set_sto_inputs(firmware::hal::sto::StoInputs::DEMANDED);
         println!("  STO-IN1 and STO-IN2 de-energised (Safe Torque Off active from power-up)");

@@ -196,7 +196,7 @@ pub struct CanDrive {
     outbox: Vec<CanFrame>,
     /// The simulator's own trace of tier 1's q current (`drive-sim canopen --trace FILE`): one CSV line every
     /// current-loop period, the reference a recording of the drive's data recorder is checked against.
-    pub trace: Option<std::io::BufWriter<std::fs::File>>,
+    pub trace: Option<super::current_trace::CurrentTrace>,
     /// Frames the fallback services answered or sent since power-on (boot-ups, answers, timeouts).
     fallback_frames: u64,
     /// What the drive's CAN controller reports (an injected error state): the node reads it before every slow
@@ -381,21 +381,7 @@ impl CanDrive {
         }
         self.sim.step();
         if let Some(trace) = self.trace.as_mut() {
-            use std::io::Write as _;
-            // What tier 1 measured and was asked for (rounded to mA as the recorder rounds them), and the plant's
-            // true q current at the sample; flushed every slow tick, so that a killed simulator leaves it whole.
-            let s = self.sim.tier1().signals();
-            let true_ma = self.sim.plant.state_at_sample().i_dq_a[1] * 1000.0;
-            let _ = writeln!(
-                trace,
-                "{},{},{},{true_ma:.1}",
-                self.sim.ticks(),
-                s.i_dq.q.to_milliamps(),
-                s.i_ref.q.to_milliamps()
-            );
-            if slow {
-                let _ = trace.flush();
-            }
+            trace.record(&self.sim, slow);
         }
         if !slow {
             return;

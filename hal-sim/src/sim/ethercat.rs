@@ -187,6 +187,8 @@ pub struct SlaveNode {
     /// Whether an image on trial confirms itself once the slave reaches PRE-OP after its start (default on; off
     /// for the test that an image that never confirms is reverted).
     pub auto_confirm: bool,
+    /// The simulator's own trace of tier 1's q current (`drive-sim ethercat --trace FILE`), one line a period.
+    pub trace: Option<super::current_trace::CurrentTrace>,
     stats: RunnerStats,
     /// Simulated time not yet run because it is less than one PWM period, ns.
     owed_ns: u64,
@@ -228,6 +230,7 @@ impl EthercatRunner {
             last_boot,
             resets: 0,
             auto_confirm: true,
+            trace: None,
             stats: RunnerStats::default(),
             owed_ns: 0,
             origin: None,
@@ -515,6 +518,9 @@ impl SlaveNode {
     /// starts.
     fn step(&mut self, esc: &mut Esc) {
         self.sim.step();
+        if let Some(trace) = self.trace.as_mut() {
+            trace.record(&self.sim, self.sim.ticks().is_multiple_of(u64::from(SLOW_TICK_DIVIDER)));
+        }
         let state = self.sim.cia402_state();
         let enabled = state == State::OperationEnabled;
         if self.stats.operation_enabled && !enabled {

@@ -12,6 +12,7 @@
 //! slow tick reads is the one of the period that raised it.
 
 pub mod canopen;
+pub mod current_trace;
 pub mod ethercat;
 pub mod ethercat_line;
 pub mod plot;

@@ -256,6 +256,11 @@ pub struct EthercatArgs {
     /// With --slaves: slave K (0 = next to the master) gets plant FILE instead of --plant's; repeatable.
     #[arg(long, value_name = "K=FILE", value_parser = parse_plant_for)]
     pub plant_for: Vec<(u16, PlantFile)>,
+    /// Write the drive's own trace to FILE (one drive only): every current-loop period
+    /// `period,iq_ma,iq_ref_ma,iq_plant_ma` (tier 1's measured q current and its reference, rounded to mA, and the
+    /// plant's true q current): the reference for a recording of the drive's data recorder (`drive-tool record`).
+    #[arg(long, value_name = "FILE", conflicts_with_all = ["slaves", "plant_for"])]
+    pub trace: Option<PathBuf>,
 }
 
 /// `--clock-spread-ppm`: 0..=500 ppm.
