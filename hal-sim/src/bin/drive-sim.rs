@@ -640,7 +640,8 @@ fn bench(seconds: f64) -> Result<(), String> {
 /// `drive-sim ethercat`: the drive as an EtherCAT slave on a network interface until `--seconds` (wall clock)
 /// pass, the master falls silent for `--idle-exit-ms` after its first frame, or the process is stopped.
 fn ethercat(e: &EthercatArgs) -> Result<(), String> {
-    if e.slaves > 1 || !e.plant_for.is_empty() {
+    // Real time runs the frame path apart from the drives (hal_sim::sim::ethercat_line, "Real time"), one drive too.
+    if e.slaves > 1 || !e.plant_for.is_empty() || !e.lock_step {
         return ethercat_line(e);
     }
     let iface = e.iface.as_str();
@@ -834,7 +835,11 @@ fn ethercat_line(e: &EthercatArgs) -> Result<(), String> {
              cyclic frame (LRW/LRD/LWR)",
             e.cycle_us
         ),
-        ClockMode::RealTime => println!("ethercat: serving {n} simulated drives in a line on {iface}, real time"),
+        ClockMode::RealTime => println!(
+            "ethercat: serving {n} simulated drives in a line on {iface}, real time: frames answered on their own \
+             thread, the drives on {} threads",
+            hal_sim::sim::ethercat_line::REAL_TIME_WORKERS.min(n)
+        ),
     }
     println!(
         "  ESC clocks {:+} ppm, spread +-{} ppm over the slaves; port-to-port delays {}..{} ns",
@@ -862,7 +867,7 @@ fn ethercat_line(e: &EthercatArgs) -> Result<(), String> {
         }
         None => Ok(()),
     };
-    line.serve_tapped(iface, std::time::Duration::from_millis(1), tap, |stats| {
+    let stop = |stats: &hal_sim::sim::ethercat_line::LineStats| {
         let now = std::time::Instant::now();
         if stats.frames != last_frames {
             last_frames = stats.frames;
@@ -871,7 +876,12 @@ fn ethercat_line(e: &EthercatArgs) -> Result<(), String> {
         let timed_out = limit.is_some_and(|l| now.duration_since(start) >= l);
         let silent = idle_exit.is_some_and(|d| stats.frames > 0 && now.duration_since(last_frame_at) >= d);
         timed_out || silent
-    })
+    };
+    let poll = std::time::Duration::from_millis(1);
+    match config.clock {
+        ClockMode::LockStep => line.serve_tapped(iface, poll, tap, stop),
+        ClockMode::RealTime => line.serve_real_time(iface, poll, tap, stop),
+    }
     .map_err(|err| err.to_string())?;
     if let Some(w) = pcap {
         println!("pcap_packets={}", w.packets());
@@ -901,6 +911,11 @@ fn ethercat_line(e: &EthercatArgs) -> Result<(), String> {
     println!("cycles_min={}", all.iter().map(|s| s.cycles).min().unwrap_or(0));
     println!("cycles_max={}", all.iter().map(|s| s.cycles).max().unwrap_or(0));
     println!("sync0_pulses_min={}", all.iter().map(|s| s.sync0_pulses).min().unwrap_or(0));
+    if config.clock == ClockMode::RealTime {
+        println!("answer_max_us={:.1}", ls.answer_max_ns as f64 / 1_000.0);
+        println!("answers_over_100us={}", ls.answers_over_100us);
+        println!("answers_over_1ms={}", ls.answers_over_1ms);
+    }
     println!("sync0_samples={}", ls.sync0_samples);
     println!("sync0_spread_max_ns={}", ls.sync0_spread_max_ns);
     println!("system_time_spread_ns={}", line.system_time_spread_ns());
@@ -913,7 +928,7 @@ fn ethercat_line(e: &EthercatArgs) -> Result<(), String> {
         let reg32 = |a: u16| u32::from_le_bytes([a, a + 1, a + 2, a + 3].map(|x| s.esc.register(x)));
         println!(
             "slave{k}: serial={} clock_error_ppm={:+.3} hop_ns={} state_reached={} state_final={:?} cycles={} \
-             sync0_pulses={} sync0_missed={} sm_event_missed={} lag_events={} cia402_state_final={:?} \
+             sync0_pulses={} sync0_missed={} sm_event_missed={} sm2_writes={} lag_events={} cia402_state_final={:?} \
              dc_activation=0x{:02x} sync0_cycle_ns={} system_time_delay_ns={} pll_state={:?}",
             {
                 let mut b = [0u8; 4];
@@ -934,6 +949,7 @@ fn ethercat_line(e: &EthercatArgs) -> Result<(), String> {
             st.sync0_pulses,
             st.sync0_missed,
             s.sm_event_missed(),
+            st.sm2_writes,
             st.lag_events,
             s.node.sim.cia402_state(),
             s.esc.register(0x0981),

@@ -490,6 +490,34 @@ impl SlaveNode {
 
     /// Real-time mode: runs the plant up to the wall clock (at most [`MAX_CATCH_UP_PERIODS`] at once).
     fn catch_up(&mut self, esc: &mut Esc) {
+        self.catch_up_at_most(esc, MAX_CATCH_UP_PERIODS);
+    }
+
+    /// The real-time line's frame path ([`super::ethercat_line::EthercatLine::serve_real_time`]): counts a frame
+    /// the ESC answered; the firmware sees its effects at the drive's next [`Self::service_real_time`].
+    pub(crate) fn count_frame(&mut self, report: &FrameReport) {
+        self.stats.frames = self.stats.frames.saturating_add(1);
+        if report.datagrams.iter().any(|(c, _)| matches!(c, Command::Lrw | Command::Lrd | Command::Lwr)) {
+            self.stats.cyclic_frames = self.stats.cyclic_frames.saturating_add(1);
+        }
+    }
+
+    /// The real-time line's drive side, called by a worker thread again and again (the ESC's PDI side): the
+    /// SM2 event of the frames since the last call (the SM-synchronous cycle), the firmware's poll (AL control,
+    /// mailbox, watchdog), then simulated time towards the wall clock, at most `chunk` PWM periods so that the
+    /// ESC is not held from the frame path for longer. Returns whether the drive is still behind the wall clock.
+    pub(crate) fn service_real_time(&mut self, esc: &mut Esc, chunk: u64) -> bool {
+        let sm2_written = self.take_sm2_write(esc);
+        self.poll(esc);
+        if sm2_written && self.sync_type() == sync_type::SM_SYNCHRONOUS {
+            self.cycle(esc);
+        }
+        self.catch_up_at_most(esc, chunk)
+    }
+
+    /// Runs the plant towards the wall clock, at most `limit` PWM periods now; a lag beyond
+    /// [`MAX_CATCH_UP_PERIODS`] is given up and counted. Returns whether periods remain to be run.
+    fn catch_up_at_most(&mut self, esc: &mut Esc, limit: u64) -> bool {
         let origin = *self.origin.get_or_insert_with(Instant::now);
         let wall_ns = u64::try_from(origin.elapsed().as_nanos()).unwrap_or(u64::MAX);
         let behind = wall_ns.saturating_sub(esc.elapsed().saturating_add(self.owed_ns));
@@ -502,9 +530,10 @@ impl SlaveNode {
             self.origin = Some(origin + Duration::from_nanos(skipped));
             periods = MAX_CATCH_UP_PERIODS;
         }
-        for _ in 0..periods {
+        for _ in 0..periods.min(limit) {
             self.step(esc);
         }
+        periods > limit
     }
 
     /// One PWM period: plant and drive, the ESC's time (SYNC0, watchdogs), and the cycle SYNC0 or free run
