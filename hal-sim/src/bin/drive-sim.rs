@@ -929,7 +929,8 @@ fn ethercat_line(e: &EthercatArgs) -> Result<(), String> {
         println!(
             "slave{k}: serial={} clock_error_ppm={:+.3} hop_ns={} state_reached={} state_final={:?} cycles={} \
              sync0_pulses={} sync0_missed={} sm_event_missed={} sm2_writes={} lag_events={} cia402_state_final={:?} \
-             dc_activation=0x{:02x} sync0_cycle_ns={} system_time_delay_ns={} pll_state={:?}",
+             dc_activation=0x{:02x} sync0_cycle_ns={} system_time_delay_ns={} pll_state={:?} al_status_code=0x{:04x} \
+             al_error_ns={} left_operation_enabled={:?}",
             {
                 let mut b = [0u8; 4];
                 let _ = s.node.sim.drive.dictionary().read(
@@ -956,6 +957,9 @@ fn ethercat_line(e: &EthercatArgs) -> Result<(), String> {
             reg32(0x09A0),
             reg32(0x0928),
             s.sync_pll().state,
+            s.esc.register_u16(0x0134),
+            st.al_error_ns.map_or(-1, |t| t as i64),
+            st.left_operation_enabled,
         );
     }
     Ok(())

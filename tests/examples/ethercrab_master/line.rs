@@ -246,8 +246,15 @@ pub async fn line(master: &'static Master, args: &Args) -> Outcome {
         )
         .await
         .map_err(err("configure DC sync"))?;
-    let group = group.into_safe_op(master).await.map_err(err("PRE-OP -> SAFE-OP (DC)"))?;
-    let group = group.request_into_op(master).await.map_err(err("SAFE-OP -> OP (DC)"))?;
+    let group = if args.realtime_s.is_some() {
+        // Real time, as ethercrab's own DC sequence: OP requested at once and the process data sent every cycle
+        // from then on (below), so the drives' SM event and watchdog supervision never see the master fall silent
+        // while SYNC0 runs.
+        group.request_into_op(master).await.map_err(err("PRE-OP -> OP (DC)"))?
+    } else {
+        let group = group.into_safe_op(master).await.map_err(err("PRE-OP -> SAFE-OP (DC)"))?;
+        group.request_into_op(master).await.map_err(err("SAFE-OP -> OP (DC)"))?
+    };
 
     let expected_wkc = u16::try_from(3 * n).map_err(|_| "too many drives")?;
     emit("expected_wkc", expected_wkc);
@@ -258,11 +265,15 @@ pub async fn line(master: &'static Master, args: &Args) -> Outcome {
     // Cycles until every drive reports OP.
     let mut op_after = None;
     for k in 0..5_000u64 {
+        let sent = std::time::Instant::now();
         let r = group.tx_rx_dc(master).await.map_err(err("tx/rx"))?;
         cycles += 1;
         if r.all_op() {
             op_after = Some(k + 1);
             break;
+        }
+        if args.realtime_s.is_some() {
+            std::thread::sleep((sent + r.extra.next_cycle_wait).saturating_duration_since(Instant::now()));
         }
     }
     let op_after = op_after.ok_or("OP not reached on every drive in 5,000 cycles")?;
