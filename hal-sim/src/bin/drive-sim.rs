@@ -915,6 +915,7 @@ fn ethercat_line(e: &EthercatArgs) -> Result<(), String> {
         println!("answer_max_us={:.1}", ls.answer_max_ns as f64 / 1_000.0);
         println!("answers_over_100us={}", ls.answers_over_100us);
         println!("answers_over_1ms={}", ls.answers_over_1ms);
+        println!("esc_wait_max_us={:.1}", ls.esc_wait_max_ns as f64 / 1_000.0);
     }
     println!("sync0_samples={}", ls.sync0_samples);
     println!("sync0_spread_max_ns={}", ls.sync0_spread_max_ns);

@@ -106,6 +106,8 @@ pub struct LineStats {
     pub answers_over_100us: u64,
     /// Real time: answers sent more than 1 ms after their frame arrived.
     pub answers_over_1ms: u64,
+    /// Real time: the longest wait of a frame for the ESCs (a worker's chunk in progress), ns.
+    pub esc_wait_max_ns: u64,
 }
 
 /// N simulated drives in a line. See the module documentation.
@@ -359,6 +361,8 @@ impl EthercatLine {
                     let reports = {
                         let mut guards: Vec<MutexGuard<'_, EthercatRunner>> = slaves.iter().map(lock).collect();
                         frame_waiting.store(false, Ordering::Release);
+                        let waited = u64::try_from(arrived.elapsed().as_nanos()).unwrap_or(u64::MAX);
+                        self.stats.esc_wait_max_ns = self.stats.esc_wait_max_ns.max(waited);
                         let mut runners: Vec<&mut EthercatRunner> = guards.iter_mut().map(|g| &mut **g).collect();
                         let reports = pass_through(&mut runners, &self.hops, frame);
                         for (s, r) in runners.iter_mut().zip(reports.iter().flatten()) {
