@@ -15,11 +15,6 @@ fn main() {
     // the target leaves them out (about 8 KB of strings); the host and the EtherCAT image keep them.
     let target = env::var("CARGO_CFG_TARGET_OS").as_deref() == Ok("none");
     let names = !target || env::var("CARGO_FEATURE_ETHERCAT").is_ok();
-    // Without names, `od::entry::Name` takes no bytes in the tables.
-    println!("cargo:rustc-check-cfg=cfg(od_no_names)");
-    if !names {
-        println!("cargo:rustc-cfg=od_no_names");
-    }
     if let Err(report) = od_gen::generate_all_with_names(&description, &out_dir, names) {
         // Every mistake in the description, with file, object and reason; the build stops here.
         for line in report.lines() {

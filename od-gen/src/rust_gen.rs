@@ -4,8 +4,7 @@
 //! - `ENTRIES`: one `Entry` per (index, sub-index), sorted, for binary search (architecture convention 7);
 //! - `OBJECTS`: one `Object` per index, sorted, pointing into `ENTRIES`;
 //! - `NAMES`: the text of every object's and entry's name, each `Name` a place in it;
-//! - `VALUE_BYTES` and `DEFAULT_VALUES`: the RAM value storage image with every default, little-endian
-//!   (`DEFAULT_NONZERO_MASK` and `DEFAULT_NONZERO`: the same, sparse, as the image keeps it);
+//! - `VALUE_BYTES` and `DEFAULT_VALUES`: the RAM value storage image with every default, little-endian;
 //! - `handles`: a typed `Handle<T>` per `handle` attribute, so that the control tiers never search;
 //! - the device constants (identity, CANopen defaults, PDO limits, sync-manager layout).
 
@@ -186,14 +185,14 @@ fn storage(s: &SubObject, slot: Option<RamSlot>) -> Result<String, String> {
             let slot = slot.ok_or("RAM entry without a slot")?;
             format!("Storage::Ram {{ offset: {}, len: {} }}", slot.offset, slot.len)
         }
-        // `Storage::Const` holds a thin reference to the bytes' slice (`entry.rs` `ConstRef`).
+        // `Storage::Const` holds a reference to the bytes' slice (`entry.rs`).
         StorageKind::Const => {
             let bytes = match (&s.default, s.data_type.fixed_size()) {
                 (Value::Text(t), _) => t.as_bytes().to_vec(),
                 (v, Some(n)) => value_bytes(v, n),
                 (_, None) => Vec::new(),
             };
-            format!("Storage::Const(ConstRef::new(&({} as &[u8])))", byte_string(&bytes))
+            format!("Storage::Const(&({} as &[u8]))", byte_string(&bytes))
         }
         StorageKind::Application => "Storage::Application".to_string(),
     })
@@ -330,36 +329,6 @@ pub fn rust_with_names(d: &Description, names: bool) -> Result<String, String> {
     for (row, chunk) in image.chunks(16).enumerate() {
         let bytes: Vec<String> = chunk.iter().map(|b| format!("0x{b:02X}")).collect();
         let _ = writeln!(w, "    {}, // {:#06x}", bytes.join(", "), row * 16);
-    }
-    let _ = writeln!(w, "];\n");
-
-    // The image keeps its defaults sparse: most of the storage is zero (unset limits, counters, mappings).
-    let mut mask = vec![0u8; image.len().div_ceil(8)];
-    let mut nonzero = Vec::new();
-    for (i, &b) in image.iter().enumerate() {
-        if b != 0 {
-            if let Some(m) = mask.get_mut(i / 8) {
-                *m |= 1 << (i % 8);
-            }
-            nonzero.push(b);
-        }
-    }
-    let _ = writeln!(
-        w,
-        "/// Which bytes of `DEFAULT_VALUES` are not zero: bit `i % 8` of byte `i / 8` for byte `i`. With\n\
-         /// `DEFAULT_NONZERO` the image's form of the defaults (`od::values::default_values`), a third of the size."
-    );
-    let _ = writeln!(w, "pub static DEFAULT_NONZERO_MASK: [u8; {}] = [", mask.len());
-    for (row, chunk) in mask.chunks(16).enumerate() {
-        let bytes: Vec<String> = chunk.iter().map(|b| format!("0x{b:02X}")).collect();
-        let _ = writeln!(w, "    {}, // {:#06x}", bytes.join(", "), row * 16 * 8);
-    }
-    let _ = writeln!(w, "];\n");
-    let _ = writeln!(w, "/// The bytes of `DEFAULT_VALUES` that are not zero, in order.");
-    let _ = writeln!(w, "pub static DEFAULT_NONZERO: [u8; {}] = [", nonzero.len());
-    for chunk in nonzero.chunks(16) {
-        let bytes: Vec<String> = chunk.iter().map(|b| format!("0x{b:02X}")).collect();
-        let _ = writeln!(w, "    {},", bytes.join(", "));
     }
     let _ = writeln!(w, "];\n");
 

@@ -11,8 +11,7 @@ use std::path::PathBuf;
 use od_gen::model::{DataType, Value};
 
 #[path = "../../firmware/src/od/entry.rs"]
-// `od_no_names` is the firmware's cfg (its build.rs): unset here, so names are kept as on the host.
-#[allow(dead_code, unexpected_cfgs)]
+#[allow(dead_code)]
 mod entry;
 
 #[allow(dead_code, missing_docs, clippy::all)]
@@ -22,7 +21,7 @@ mod generated {
 }
 
 use entry::{Limits, Storage};
-use generated::{handles, DEFAULT_NONZERO, DEFAULT_NONZERO_MASK, DEFAULT_VALUES, ENTRIES, NAMES, OBJECTS};
+use generated::{handles, DEFAULT_VALUES, ENTRIES, NAMES, OBJECTS};
 
 fn fixture(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures").join(name)
@@ -218,19 +217,4 @@ fn tables_without_names_differ_only_in_the_names() {
     let emptied = emptied.replace(&names_line, "pub static NAMES: &str = \"\";");
     assert_ne!(with, without, "the description has names");
     assert_eq!(emptied, without);
-}
-
-#[test]
-fn sparse_defaults_hold_every_non_zero_byte_in_order() {
-    // The image's defaults are the mask of the non-zero bytes and those bytes (firmware `od::values`).
-    let mut rebuilt = vec![0u8; DEFAULT_VALUES.len()];
-    let mut nonzero = DEFAULT_NONZERO.iter();
-    for (i, byte) in rebuilt.iter_mut().enumerate() {
-        if (DEFAULT_NONZERO_MASK[i / 8] >> (i % 8)) & 1 == 1 {
-            *byte = *nonzero.next().expect("a byte for every bit of the mask");
-        }
-    }
-    assert_eq!(rebuilt, DEFAULT_VALUES);
-    assert_eq!(nonzero.next(), None, "no byte without its bit");
-    assert_eq!(DEFAULT_NONZERO_MASK.len(), DEFAULT_VALUES.len().div_ceil(8));
 }

@@ -49,9 +49,28 @@ def run(args):
     emit("booted_after_reset", ",".join(str(n) for n in booted))
     if booted != NEW_IDS:
         raise Fail(f"node-IDs after reset node: {booted}")
+    identities = {}
     for new_id in NEW_IDS:
         node = network.add_node(new_id, args.eds)
-        emit(f"serial_{new_id}", f"{struct.unpack('<I', node.sdo.upload(0x1018, 4))[0]:08x}")
+        identities[new_id] = [struct.unpack("<I", node.sdo.upload(0x1018, sub))[0] for sub in (1, 2, 3, 4)]
+        emit(f"serial_{new_id}", f"{identities[new_id][3]:08x}")
+    # CiA 305 §6.4.3: each drive selected and given 250 kbit/s (table 0, index 3), then all switched to
+    # configuration and the rate activated together with a 5 ms switch delay.
+    for new_id in NEW_IDS:
+        lss.send_switch_state_selective(*identities[new_id])
+        lss.configure_bit_timing(3)
+        lss.send_switch_state_global(lss.WAITING_STATE)
+    lss.send_switch_state_global(lss.CONFIGURATION_STATE)
+    lss.activate_bit_timing(5)
+    lss.send_switch_state_global(lss.WAITING_STATE)
+    # In lock-step the simulated time runs only with the master's frames: the first request waits out the silent
+    # periods (answered with the value it found on arrival), a later one sees the rate in use.
+    for new_id in NEW_IDS:
+        for _ in range(20):
+            code = network[new_id].sdo.upload(0x200A, 0)[0]
+            if code == 3:
+                break
+        emit(f"bit_rate_code_{new_id}", code)
     network.disconnect()
 
 

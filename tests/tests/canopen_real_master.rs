@@ -593,7 +593,8 @@ fn canopen_with_sto_low_at_power_up_reaches_operational_and_enabling_is_refused(
 /// fastscan, each with the identity of device.toml and its own serial number (the factory value + slot - 1),
 /// configures node-IDs 5, 6 and 7 and stores them; each boots with its node-ID when switched back to waiting; a
 /// fourth fastscan finds nobody; after an NMT reset node to all, the three restart from their parameter stores and
-/// boot as 5, 6 and 7, and each answers SDO with its serial number.
+/// boot as 5, 6 and 7, and each answers SDO with its serial number; then (§6.4.3) each is given 250 kbit/s and
+/// the master activates it for all with a 5 ms switch delay: each answers SDO at the new rate with 0x200A = 3.
 #[test]
 fn pypi_canopen_lss_master_assigns_node_ids_5_6_7_to_three_unconfigured_drives() {
     skip_unless_runnable!("pypi_canopen_lss_master_assigns_node_ids_5_6_7_to_three_unconfigured_drives");
@@ -626,5 +627,10 @@ fn pypi_canopen_lss_master_assigns_node_ids_5_6_7_to_three_unconfigured_drives()
     assert_eq!(serials, [base, base + 1, base + 2], "the three drives' serial numbers");
     assert_eq!(out.master("fastscan_after"), "False");
     assert_eq!(out.master("booted_after_reset"), "5,6,7");
+    for node in [5, 6, 7] {
+        // CiA 305 §6.4.3: 250 kbit/s (0x200A code 3) in use after the activation, answered at that rate.
+        assert_eq!(out.master(&format!("bit_rate_code_{node}")), "3", "0x200A of node {node}");
+    }
+    assert_eq!(out.sim("bus_bit_rate"), "250000", "the simulated bus after every drive switched");
     println!("LSS: fastscan assigned 5, 6, 7 (serials {serials:08x?}); all three booted with them after reset node");
 }

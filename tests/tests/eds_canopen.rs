@@ -45,7 +45,7 @@ fn entries_json(node_id: u8) -> String {
                 let bytes = DEFAULT_VALUES.get(o..o + l).expect("RAM value inside DEFAULT_VALUES");
                 Some(bytes.iter().map(|b| format!("{b:02x}")).collect::<String>())
             }
-            Storage::Const(bytes) => Some(bytes.bytes().iter().map(|b| format!("{b:02x}")).collect()),
+            Storage::Const(bytes) => Some(bytes.iter().map(|b| format!("{b:02x}")).collect()),
             Storage::Application => None,
         };
         let access = match e.access {

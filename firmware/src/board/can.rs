@@ -26,7 +26,8 @@
 //! at tier 2 (`canopen` module documentation), the CAN1 RX0 interrupt (FMPIE0) takes the frames for which
 //! [`crate::canopen::CanopenNode::is_realtime`] holds to `handle_frame` and leaves the rest for tier 3 (the
 //! runtime keeps them in a small queue; tier 3 masks the interrupt around its calls). At a
-//! [`crate::canopen::NodeEvent::Reset`] with a bit rate, tier 3 calls [`BxCan::set_bit_rate`].
+//! [`crate::canopen::NodeEvent::Reset`] with a bit rate, and at [`crate::canopen::NodeEvent::BitRateSwitched`]
+//! (LSS activate bit timing), tier 3 calls [`BxCan::set_bit_rate`].
 
 use super::reg::{base, rcc, Gpio, Reg};
 use crate::canopen::frame::{BitRate, BusState, BusStatus, CanBus, CanFrame, TxBusy, MAX_ID};

@@ -14,7 +14,7 @@
 //! Both keep the generated entries' value offsets, so the drive's value storage is the same under either table.
 
 use crate::od::access::{Dictionary, Table};
-use crate::od::entry::{Access, ConstRef, Entry, Object, Storage};
+use crate::od::entry::{Access, Entry, Object, Storage};
 use crate::od::generated::{ENTRIES, OBJECTS};
 
 /// 0x1000 while the program is stopped: CiA 302 (0x012E) in the profile field (E4 L2199).
@@ -82,11 +82,11 @@ const fn bootloader_entries() -> [Entry; BOOT_ENTRY_COUNT] {
         let mut e = ENTRIES[i];
         if kept(e.index) {
             if e.index == 0x1000 {
-                e.storage = Storage::Const(ConstRef::new(&DEVICE_TYPE_BYTES));
+                e.storage = Storage::Const(&DEVICE_TYPE_BYTES);
                 e.access = Access::ReadOnly;
             } else if e.index == 0x1018 && e.sub == 3 {
                 // Revision: software version and application version both 0x0000 (E4 Table 4-33).
-                e.storage = Storage::Const(ConstRef::new(&ZERO_U32));
+                e.storage = Storage::Const(&ZERO_U32);
                 e.access = Access::ReadOnly;
             }
             out[n] = e;

@@ -68,12 +68,10 @@ pub const fn is_restricted(id: u16) -> bool {
 /// The unsigned value at `index:sub` when it is in RAM (or a constant up to 8 bytes).
 pub fn read<const N: usize>(d: &Dictionary<N>, index: u16, sub: u8) -> Option<u64> {
     let entry = d.find(index, sub).ok()?;
-    // A copy: the entry is packed (`od::entry::Entry`), and the guard borrows the binding.
-    let storage = entry.storage;
-    match storage {
-        Storage::Const(bytes) if bytes.bytes().len() <= 8 => {
+    match entry.storage {
+        Storage::Const(bytes) if bytes.len() <= 8 => {
             let mut wide = [0u8; 8];
-            for (w, b) in wide.iter_mut().zip(bytes.bytes().iter()) {
+            for (w, b) in wide.iter_mut().zip(bytes.iter()) {
                 *w = *b;
             }
             Some(u64::from_le_bytes(wide))

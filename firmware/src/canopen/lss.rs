@@ -10,15 +10,17 @@
 //! | 0x40..0x43 | switch state selective: vendor-ID, product code, revision, serial, in this order | 0x44 after the serial |
 //! | 0x11 | configure node-ID (1..127, or 0xFF: unconfigured), configuration state | 0x11, error 0 / 1 out of range |
 //! | 0x13 | configure bit timing (table 0, CiA 301 index), configuration state | 0x13, error 0 / 1 not supported |
+//! | 0x15 | activate bit timing (bytes 1..2: switch delay, ms), configuration state | none |
 //! | 0x17 | store configuration (node-ID and bit rate), configuration state | 0x17, error 0 / 2 storage failed |
 //! | 0x46..0x4B | identify remote slave: vendor, product, revision range, serial range | 0x4F when inside |
 //! | 0x4C | identify non-configured remote slave | 0x50 when unconfigured |
 //! | 0x51 | fastscan (unconfigured slaves in waiting state only) | 0x4F when the checked bits match |
 //! | 0x5A..0x5E | inquire vendor, product, revision, serial, node-ID, configuration state | same cs + value |
 //!
-//! Anything else (activate bit timing 0x15 included) gets no answer, as CiA 305 defines none for it; a
-//! configured bit rate takes effect at the next reset node, as 0x2001 written by SDO does
-//! ([`super::ids`]).
+//! Anything else gets no answer, as CiA 305 defines none for it. A configured bit rate takes effect at the next
+//! reset node, as 0x2001 written by SDO does ([`super::ids`]), or when the master activates it (0x15, CiA 305
+//! §6.4.3): the node stays silent for the switch delay, changes its bit rate, and stays silent for the delay again
+//! before it transmits at the new rate (the node carries it out, [`LssAction::ActivateBitTiming`]).
 //!
 //! Pure: the node passes the identity (0x1018:01..04) and whether it is unconfigured, and carries out what
 //! [`LssAction`] asks (write 0x2000/0x2001, store, leave the unconfigured state).
@@ -52,6 +54,11 @@ pub enum LssAction {
     ConfigureBitRate(u8),
     /// Store node-ID and bit rate in non-volatile memory.
     Store,
+    /// Switch to the configured bit rate (0x2001): silent for `switch_delay_ms`, switch, silent for it again.
+    ActivateBitTiming {
+        /// The switch delay, ms (CiA 305 §6.4.3: both silent periods last it).
+        switch_delay_ms: u16,
+    },
     /// The slave went back to waiting: an unconfigured node with a new node-ID finishes its initialisation.
     EnteredWaiting,
 }
@@ -126,6 +133,9 @@ impl LssSlave {
                 // Table selector 0: the CiA 301 bit timing table, whose index is the 0x2001 code.
                 let code = if data[1] == 0 { data[2] } else { u8::MAX };
                 (Some(answer(0x13, &[0, 0])), LssAction::ConfigureBitRate(code))
+            }
+            0x15 if configuring => {
+                (None, LssAction::ActivateBitTiming { switch_delay_ms: u16::from_le_bytes([data[1], data[2]]) })
             }
             0x17 if configuring => (Some(answer(0x17, &[0, 0])), LssAction::Store),
             cs @ 0x5A..=0x5D if configuring => {
@@ -230,10 +240,16 @@ mod tests {
         let mut s = LssSlave::default();
         assert_eq!(s.handle(&frame(0x11, &[5]), &ID, UNCONFIGURED), (None, LssAction::None));
         assert_eq!(s.handle(&frame(0x5E, &[]), &ID, UNCONFIGURED).0, None);
+        assert_eq!(s.handle(&frame(0x15, &[10, 0]), &ID, UNCONFIGURED), (None, LssAction::None));
         s.handle(&frame(0x04, &[1]), &ID, UNCONFIGURED);
         assert_eq!(s.handle(&frame(0x11, &[5]), &ID, UNCONFIGURED).1, LssAction::ConfigureNodeId(5));
         assert_eq!(s.handle(&frame(0x13, &[0, 2]), &ID, UNCONFIGURED).1, LssAction::ConfigureBitRate(2));
         assert_eq!(s.handle(&frame(0x13, &[1, 2]), &ID, UNCONFIGURED).1, LssAction::ConfigureBitRate(u8::MAX));
+        assert_eq!(
+            s.handle(&frame(0x15, &[0x34, 0x12]), &ID, UNCONFIGURED),
+            (None, LssAction::ActivateBitTiming { switch_delay_ms: 0x1234 }),
+            "activate bit timing: no answer, the delay little-endian"
+        );
         assert_eq!(s.handle(&frame(0x17, &[]), &ID, UNCONFIGURED).1, LssAction::Store);
         assert_eq!(s.handle(&frame(0x5D, &[]), &ID, UNCONFIGURED).0, Some(frame(0x5D, &ID[3].to_le_bytes())));
         assert_eq!(s.handle(&frame(0x5E, &[]), &ID, UNCONFIGURED).0, Some(frame(0x5E, &[0xFF])));

@@ -105,6 +105,20 @@ pub enum NodeEvent {
     },
     /// The boot-up message is queued; the node is pre-operational.
     Booted,
+    /// LSS activate bit timing (CiA 305 §6.4.3): the first silent period is over and the node now runs at this
+    /// bit rate (the runtime reprograms the controller); it stays silent for the switch delay again.
+    BitRateSwitched(BitRate),
+}
+
+/// An LSS bit-rate switch under way (CiA 305 §6.4.3): the node sends nothing until `resume_at_us`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct BitRateSwitch {
+    rate: BitRate,
+    /// End of the first silent period: the node switches.
+    switch_at_us: u64,
+    /// End of the second: the node transmits again.
+    resume_at_us: u64,
+    switched: bool,
 }
 
 /// The transmit queue.
@@ -163,6 +177,7 @@ pub struct CanopenNode {
     /// What the CAN controller reported last ([`CanopenNode::observe_bus`]).
     bus: BusStatus,
     lss: LssSlave,
+    bit_rate_switch: Option<BitRateSwitch>,
 }
 
 impl CanopenNode {
@@ -192,6 +207,7 @@ impl CanopenNode {
             powered_on: false,
             bus: BusStatus::default(),
             lss: LssSlave::default(),
+            bit_rate_switch: None,
         }
     }
 
@@ -236,8 +252,11 @@ impl CanopenNode {
         !frame.is_remote() && (frame.id() == self.sync.cob_id() || self.pdos.rpdo_for(frame.id()).is_some())
     }
 
-    /// The next frame to send, oldest first.
+    /// The next frame to send, oldest first; none while an LSS bit-rate switch keeps the node silent.
     pub fn transmit(&mut self) -> Option<CanFrame> {
+        if self.bit_rate_switch.is_some() {
+            return None;
+        }
         self.outbox.queue.pop_front()
     }
 
@@ -261,7 +280,7 @@ impl CanopenNode {
         if event == Some(NodeEvent::Booted) {
             ids::write(drive.dictionary_mut(), ids::BIT_RATE_DISPLAY, 0, u64::from(bus.bit_rate().code()));
         }
-        while let Some(frame) = self.outbox.queue.front() {
+        while let Some(frame) = self.outbox.queue.front().filter(|_| self.bit_rate_switch.is_none()) {
             if bus.send(frame).is_err() {
                 break;
             }
@@ -311,7 +330,7 @@ impl CanopenNode {
         let id = frame.id();
         if state == NmtState::Initialisation {
             // LSS serves an unconfigured node, which waits here (module documentation).
-            self.lss_or_ignore(frame, drive, app);
+            self.lss_or_ignore(frame, drive, app, now_us);
             return;
         }
         if id == ids::NMT {
@@ -360,7 +379,7 @@ impl CanopenNode {
             }
         }
         // Last: LSS frames are rare, and the SYNC path above must not pay for their check.
-        self.lss_or_ignore(frame, drive, app);
+        self.lss_or_ignore(frame, drive, app, now_us);
     }
 
     /// An LSS request (0x7E5, 8 bytes) to the LSS slave; any other frame is ignored.
@@ -369,9 +388,12 @@ impl CanopenNode {
         frame: &CanFrame,
         drive: &mut D,
         app: &mut A,
+        now_us: u64,
     ) {
         match <&[u8; 8]>::try_from(frame.data()) {
-            Ok(data) if frame.id() == lss::MASTER_TO_SLAVE && !frame.is_remote() => self.on_lss(data, drive, app),
+            Ok(data) if frame.id() == lss::MASTER_TO_SLAVE && !frame.is_remote() => {
+                self.on_lss(data, drive, app, now_us);
+            }
             _ => self.ignore(),
         }
     }
@@ -384,6 +406,20 @@ impl CanopenNode {
         app: &mut A,
         now_us: u64,
     ) -> Option<NodeEvent> {
+        if let Some(switch) = self.bit_rate_switch.as_mut() {
+            // CiA 305 §6.4.3: silent for the switch delay, the switch, silent for it again; the other services
+            // wait (what they queue is sent after the second period).
+            if !switch.switched && now_us >= switch.switch_at_us {
+                switch.switched = true;
+                let rate = switch.rate;
+                ids::write(drive.dictionary_mut(), ids::BIT_RATE_DISPLAY, 0, u64::from(rate.code()));
+                return Some(NodeEvent::BitRateSwitched(rate));
+            }
+            if now_us < switch.resume_at_us {
+                return None;
+            }
+            self.bit_rate_switch = None;
+        }
         let state = self.nmt.state();
         if state == NmtState::Initialisation {
             if let Some(kind) = self.nmt.pending_reset() {
@@ -440,12 +476,29 @@ impl CanopenNode {
         data: &[u8; 8],
         drive: &mut D,
         app: &mut A,
+        now_us: u64,
     ) {
         let d = drive.dictionary();
         let identity = [1, 2, 3, 4].map(|sub| ids::read_u32(d, 0x1018, sub));
         let (answer, action) = self.lss.handle(data, &identity, self.node_id);
         let error = match action {
             LssAction::None => None,
+            LssAction::ActivateBitTiming { switch_delay_ms } => {
+                // The rate configured by 0x13 (or written to 0x2001); a switch under way is not restarted.
+                let rate = ids::read(drive.dictionary(), ids::BIT_RATE_OBJECT, 0)
+                    .and_then(|code| u8::try_from(code).ok())
+                    .and_then(BitRate::from_code);
+                if let (Some(rate), None) = (rate, self.bit_rate_switch) {
+                    let delay_us = u64::from(switch_delay_ms).saturating_mul(1_000);
+                    self.bit_rate_switch = Some(BitRateSwitch {
+                        rate,
+                        switch_at_us: now_us.saturating_add(delay_us),
+                        resume_at_us: now_us.saturating_add(delay_us.saturating_mul(2)),
+                        switched: false,
+                    });
+                }
+                None
+            }
             LssAction::EnteredWaiting => {
                 if self.node_id == lss::UNCONFIGURED && ids::configured_node_id(drive.dictionary()).is_some() {
                     self.nmt.restart_communication();

@@ -257,8 +257,7 @@ pub fn compile_item<const N: usize>(
                     };
                     (Location::Value { offset, len }, op)
                 }
-                (Storage::Const(constant), Direction::Tx) => {
-                    let data = constant.bytes();
+                (Storage::Const(data), Direction::Tx) => {
                     if u16::try_from(data.len()).ok() != expected {
                         return Err(SdoAbort::InternalIncompatibility);
                     }

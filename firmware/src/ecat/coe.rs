@@ -168,7 +168,7 @@ fn bit_length(entry: &Entry) -> u16 {
     }
     let bytes = match entry.storage {
         Storage::Ram { len, .. } => usize::from(len),
-        Storage::Const(value) => value.bytes().len(),
+        Storage::Const(value) => value.len(),
         Storage::Application => 0,
     };
     u16::try_from(bytes.saturating_mul(8)).unwrap_or(u16::MAX)

@@ -248,7 +248,7 @@ fn compile_image<const N: usize>(d: &Dictionary<N>, direction: Direction) -> Res
 mod tests {
     use super::*;
     use crate::od::access::{AccessContext, NoApplicationObjects, Table};
-    use crate::od::entry::{Access, ConstRef, DataType, Entry, Limits, Name, PdoMapping, Storage, WriteCondition};
+    use crate::od::entry::{Access, DataType, Entry, Limits, Name, PdoMapping, Storage, WriteCondition};
     use crate::od::values::Values;
 
     const fn entry(index: u16, sub: u8, data_type: DataType, pdo: PdoMapping, storage: Storage) -> Entry {
@@ -293,8 +293,8 @@ mod tests {
         entry(0x2001, 0, DataType::Unsigned16, PdoMapping::Both, ram(41, 2)),
         entry(0x2002, 0, DataType::Boolean, PdoMapping::Both, ram(43, 1)),
         entry(0x2003, 0, DataType::Integer32, PdoMapping::Tx, ram(44, 4)),
-        entry(0x2004, 0, DataType::Unsigned8, PdoMapping::Tx, Storage::Const(ConstRef::new(&(b"\xA5" as &[u8])))),
-        entry(0x2005, 0, DataType::Unsigned8, PdoMapping::Rx, Storage::Const(ConstRef::new(&(b"\x5A" as &[u8])))),
+        entry(0x2004, 0, DataType::Unsigned8, PdoMapping::Tx, Storage::Const(&(b"\xA5" as &[u8]))),
+        entry(0x2005, 0, DataType::Unsigned8, PdoMapping::Rx, Storage::Const(&(b"\x5A" as &[u8]))),
     ];
 
     const PRE_OP: AccessContext =

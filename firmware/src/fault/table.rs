@@ -284,12 +284,9 @@ pub struct FaultInfo {
     pub tier: Tier,
     /// The measured value its EMCY carries in bytes 4..7.
     pub emcy_field: SnapshotField,
-    /// Short name (object reference, logs, tools). Host builds only: the image never reads it, and with
-    /// [`FaultInfo::source`] it was about 4 KB of every image's flash (pointers and text).
-    #[cfg(not(target_os = "none"))]
+    /// Short name (object reference, logs, tools).
     pub name: &'static str,
-    /// Where the code comes from (host builds only, as [`FaultInfo::name`]).
-    #[cfg(not(target_os = "none"))]
+    /// Where the code comes from.
     pub source: &'static str,
 }
 
@@ -395,23 +392,7 @@ const fn row(
     source: &'static str,
 ) -> FaultInfo {
     let latch = if reaction.is_fault() { LatchPolicy::Latching } else { LatchPolicy::SelfClearing };
-    // The image keeps no text of the table ([`FaultInfo::name`]).
-    #[cfg(target_os = "none")]
-    let _ = (name, source);
-    FaultInfo {
-        id,
-        code,
-        register,
-        reaction,
-        latch,
-        cause,
-        tier,
-        emcy_field,
-        #[cfg(not(target_os = "none"))]
-        name,
-        #[cfg(not(target_os = "none"))]
-        source,
-    }
+    FaultInfo { id, code, register, reaction, latch, cause, tier, emcy_field, name, source }
 }
 
 /// A warning row: no error-register bit, self-clearing.

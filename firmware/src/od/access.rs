@@ -421,7 +421,7 @@ impl<const N: usize> Dictionary<N> {
         }
         let value = match entry.storage {
             Storage::Application => return app.read(entry, offset, buf),
-            Storage::Const(bytes) => bytes.bytes(),
+            Storage::Const(bytes) => *bytes,
             Storage::Ram { .. } => self.values.raw(entry).ok_or(SdoAbort::InternalIncompatibility)?,
         };
         let value = if entry.data_type == DataType::VisibleString {
@@ -525,7 +525,7 @@ impl<const N: usize> Dictionary<N> {
         if result.is_err() || last {
             download.done = true;
         }
-        if result.is_err() && matches!(download.entry.storage, Storage::Application) {
+        if result.is_err() && download.entry.storage == Storage::Application {
             app.abort(download.entry);
         }
         result
@@ -593,7 +593,7 @@ impl<const N: usize> Dictionary<N> {
         download: &mut Download<S>,
         app: &mut A,
     ) {
-        if !download.done && matches!(download.entry.storage, Storage::Application) {
+        if !download.done && download.entry.storage == Storage::Application {
             app.abort(download.entry);
         }
         download.done = true;
@@ -603,7 +603,7 @@ impl<const N: usize> Dictionary<N> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::od::entry::{Access, ConstRef, Name, ObjectCode, PdoMapping};
+    use crate::od::entry::{Access, Name, ObjectCode, PdoMapping};
 
     const fn entry(index: u16, sub: u8, data_type: DataType, access: Access, storage: Storage) -> Entry {
         Entry {
@@ -647,7 +647,7 @@ mod tests {
     }
 
     static ENTRIES: [Entry; 12] = [
-        entry(0x1008, 0, DataType::VisibleString, Access::Const, Storage::Const(ConstRef::new(&(b"OSD\0x" as &[u8])))),
+        entry(0x1008, 0, DataType::VisibleString, Access::Const, Storage::Const(&(b"OSD\0x" as &[u8]))),
         entry(0x1010, 1, DataType::Unsigned32, Access::ReadWrite, Storage::Application),
         mapping(0x1600, 0, 0),
         mapping(0x1600, 1, 1),

@@ -43,8 +43,10 @@ pub enum Storage {
         /// Capacity in bytes (the type size, or the maximum length of a string).
         len: u16,
     },
-    /// A constant in flash (device name, version strings, constant identity fields), [`ConstRef`].
-    Const(ConstRef),
+    /// A constant in flash (device name, version strings, constant identity fields). A thin reference to the
+    /// bytes' slice: 4 bytes instead of the slice's 8, which makes `Storage` 8 bytes instead of 12 in each of the
+    /// several hundred entries, for 8 bytes of slice per constant.
+    Const(&'static &'static [u8]),
     /// Read and written by the application (program data 0x1F50, store/restore signatures 0x1010/0x1011):
     /// the access layer checks permissions and sizes, then hands the transfer to the application.
     Application,
@@ -55,77 +57,34 @@ impl Storage {
     #[must_use]
     pub const fn constant(self) -> Option<&'static [u8]> {
         match self {
-            Self::Const(bytes) => Some(bytes.bytes()),
+            Self::Const(bytes) => Some(*bytes),
             Self::Ram { .. } | Self::Application => None,
         }
     }
 }
 
-/// The bytes of a constant entry ([`Storage::Const`]). A thin reference to the bytes' slice: 4 bytes instead of the
-/// slice's 8, for 8 bytes of slice per constant; packed to 2 bytes, so that `Storage` is 6 bytes instead of 8 (12
-/// with the slice) in each of the several hundred entries. Read once per transfer or PDO mapping, never per cycle.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[repr(Rust, packed(2))]
-pub struct ConstRef(&'static &'static [u8]);
-
-impl ConstRef {
-    /// A constant holding `bytes`.
-    pub const fn new(bytes: &'static &'static [u8]) -> Self {
-        Self(bytes)
-    }
-
-    /// The constant's bytes.
-    #[must_use]
-    pub const fn bytes(self) -> &'static [u8] {
-        self.0
-    }
-}
-
 /// The name of an object or entry: its place in the generated text of every name, `NAMES` (od-gen writes each
 /// name once, and a name that is part of another one not at all). Three bytes instead of a `&str`'s eight in each
-/// entry and object. The CANopen image serves no names (build.rs sets `od_no_names`): there `NAMES` is empty
-/// and a name takes no bytes at all, which makes an object 8 bytes instead of 12 and, with the entry's packing
-/// of 2, an entry 22 bytes instead of 24.
+/// entry and object; the CANopen image, which serves no names, has an empty `NAMES` and every name empty.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg(not(od_no_names))]
 pub struct Name([u8; 3]);
-
-/// The name of an object or entry in an image that serves no names: always empty, no bytes.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg(od_no_names)]
-pub struct Name;
 
 impl Name {
     /// The empty name.
     pub const EMPTY: Self = Self::new(0, 0);
 
     /// The `len` bytes at `offset` in `NAMES`. Only generated code and tests create names.
-    #[cfg(not(od_no_names))]
     pub const fn new(offset: u16, len: u8) -> Self {
         let [lo, hi] = offset.to_le_bytes();
         Self([lo, hi, len])
     }
 
-    /// The empty name, whatever the place (the image has no `NAMES` to point into).
-    #[cfg(od_no_names)]
-    pub const fn new(_offset: u16, _len: u8) -> Self {
-        Self
-    }
-
     /// The text, empty when it lies outside `NAMES` (never for a generated name).
-    #[cfg(not(od_no_names))]
     #[must_use]
     pub fn as_str(self) -> &'static str {
         let [lo, hi, len] = self.0;
         let start = usize::from(u16::from_le_bytes([lo, hi]));
         super::generated::NAMES.get(start..start.saturating_add(usize::from(len))).unwrap_or("")
-    }
-
-    /// The text: always empty in an image without names.
-    #[cfg(od_no_names)]
-    #[must_use]
-    pub fn as_str(self) -> &'static str {
-        ""
     }
 }
 
@@ -135,12 +94,8 @@ impl core::fmt::Display for Name {
     }
 }
 
-/// One sub-object of the dictionary. The generated table holds one per (index, sub-index), sorted. Packed to 2
-/// bytes: of its 22 bytes (19 in an image without names, where the name takes none, [`Name`]) the alignment of the
-/// limits' reference would make 24; the access layer reads entries on no fast path, and the Cortex-M4 loads a word
-/// from any half-word address.
+/// One sub-object of the dictionary. The generated table holds one per (index, sub-index), sorted.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[repr(Rust, packed(2))]
 pub struct Entry {
     /// Object index.
     pub index: u16,
@@ -160,8 +115,7 @@ pub struct Entry {
     pub write_condition: WriteCondition,
     /// Range for writes. A reference: most entries share a few ranges, and a 4-byte pointer instead of the
     /// 24-byte enum in each of the several hundred entries saves about 8.5 KB of flash (56 to 36 bytes an entry;
-    /// the thin [`Storage::Const`], the three-byte [`Name`] and the object code left to [`Object`] then 24; the
-    /// 6-byte [`Storage`] and the packing then 22, 20 without names).
+    /// the thin [`Storage::Const`], the three-byte [`Name`] and the object code left to [`Object`] then 24).
     pub limits: &'static Limits,
     /// Where the value lives.
     pub storage: Storage,

@@ -6,7 +6,7 @@
 //! little-endian, the CiA 301 §7.1.3 transfer syntax, so the storage bytes are the SDO bytes.
 
 use super::entry::{Entry, Handle, Storage};
-use super::generated::{DEFAULT_NONZERO, DEFAULT_NONZERO_MASK, ENTRIES, VALUE_BYTES};
+use super::generated::{DEFAULT_VALUES, ENTRIES, VALUE_BYTES};
 
 /// A Rust type a typed [`Handle`] can point at: the CiA 301 basic types BOOLEAN, INTEGER8..64 and
 /// UNSIGNED8..64 (IDX 6.1.1, Table 6-56), stored little-endian.
@@ -117,28 +117,11 @@ pub struct Values<const N: usize = VALUE_BYTES> {
     bytes: [u8; N],
 }
 
-/// The generated dictionary's defaults, `generated::DEFAULT_VALUES`, built from their sparse form (the mask of
-/// the non-zero bytes and those bytes: a third of the flash; boot and resets only).
-pub fn default_values() -> [u8; VALUE_BYTES] {
-    let mut out = [0u8; VALUE_BYTES];
-    let mut nonzero = DEFAULT_NONZERO.iter();
-    for (chunk, &mask) in out.chunks_mut(8).zip(DEFAULT_NONZERO_MASK.iter()) {
-        let mut bits = mask;
-        for byte in chunk {
-            if bits & 1 != 0 {
-                *byte = nonzero.next().copied().unwrap_or(0);
-            }
-            bits >>= 1;
-        }
-    }
-    out
-}
-
 impl Values<VALUE_BYTES> {
-    /// The generated dictionary's defaults ([`default_values`]), with `node_id` added to the
+    /// The generated dictionary's defaults (`generated::DEFAULT_VALUES`), with `node_id` added to the
     /// node-ID-relative entries (CiA 301 `$NODEID+` defaults, e.g. PDO COB-IDs 0x200 + node-ID, IDX L2032-L2666).
     pub fn new(node_id: u8) -> Self {
-        Self::from_defaults(default_values(), &ENTRIES, node_id)
+        Self::from_defaults(DEFAULT_VALUES, &ENTRIES, node_id)
     }
 }
 
@@ -234,15 +217,6 @@ mod tests {
         ram(0x2000, DataType::Unsigned16, 4, 2, false),
         ram(0x2001, DataType::Unsigned8, 6, 1, true),
     ];
-
-    #[test]
-    fn sparse_defaults_rebuild_the_generated_storage_exactly() {
-        // The image builds its defaults from the mask and the non-zero bytes; every byte must match the table.
-        use crate::od::generated::DEFAULT_VALUES;
-        assert_eq!(default_values(), DEFAULT_VALUES);
-        assert!(DEFAULT_VALUES.iter().any(|&b| b != 0), "the table has non-zero defaults to rebuild");
-        assert_eq!(DEFAULT_NONZERO.len(), DEFAULT_VALUES.iter().filter(|&&b| b != 0).count());
-    }
 
     #[test]
     fn node_id_is_added_to_relative_defaults_only() {

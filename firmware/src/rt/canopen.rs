@@ -119,6 +119,11 @@ pub(crate) fn poll(
             crate::board::safe_state();
             cortex_m::peripheral::SCB::sys_reset()
         }
+        Some(NodeEvent::BitRateSwitched(rate)) if rate != can.bus.bit_rate() => {
+            // LSS activate bit timing: the node is silent now and stays so for the switch delay after this.
+            let _refused = can.bus.set_bit_rate(rate).is_err();
+            crate::rt_info!("CAN: LSS bit rate {=u32}, refused {=bool}", rate.bits_per_second(), _refused);
+        }
         Some(NodeEvent::Reset { bit_rate: Some(rate), .. }) if rate != can.bus.bit_rate() => {
             // A refused rate (800 kbit/s) keeps the controller as it was.
             let _refused = can.bus.set_bit_rate(rate).is_err();

@@ -140,7 +140,7 @@ const NO_LIMIT: Amps = Amps::from_bits(i32::MAX);
 fn read_i16(d: &Dictionary, sub: u8) -> Option<i16> {
     let entry = d.find(THERMAL_OBJECT, sub).ok()?;
     let bytes = match entry.storage {
-        Storage::Const(bytes) => bytes.bytes(),
+        Storage::Const(bytes) => *bytes,
         Storage::Ram { .. } => d.values().raw(entry)?,
         Storage::Application => return None,
     };

@@ -637,6 +637,27 @@ fn bench(seconds: f64) -> Result<(), String> {
     Ok(())
 }
 
+/// The `--pcap` capture of the EtherCAT servers, if one was asked for.
+type Capture = Option<PcapWriter<std::io::BufWriter<std::fs::File>>>;
+
+/// Opens the `--pcap` file of `drive-sim ethercat` (one drive or a line).
+fn open_pcap(path: Option<&Path>) -> Result<Capture, String> {
+    let Some(path) = path else { return Ok(None) };
+    let file = std::fs::File::create(path).map_err(|err| format!("--pcap {}: {err}", path.display()))?;
+    Ok(Some(PcapWriter::new(std::io::BufWriter::new(file)).map_err(|err| format!("--pcap: {err}"))?))
+}
+
+/// Writes `frame` to the capture, stamped with the wall clock, as a capture on the interface would be.
+fn capture(pcap: &mut Capture, frame: &[u8]) -> std::io::Result<()> {
+    match pcap.as_mut() {
+        Some(w) => {
+            let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default();
+            w.write_frame(now, frame)
+        }
+        None => Ok(()),
+    }
+}
+
 /// `drive-sim ethercat`: the drive as an EtherCAT slave on a network interface until `--seconds` (wall clock)
 /// pass, the master falls silent for `--idle-exit-ms` after its first frame, or the process is stopped.
 fn ethercat(e: &EthercatArgs) -> Result<(), String> {
@@ -686,21 +707,8 @@ fn ethercat(e: &EthercatArgs) -> Result<(), String> {
     let idle_exit = e.idle_exit_ms.map(std::time::Duration::from_millis);
     let mut last_frames = 0;
     let mut last_frame_at = start;
-    let mut pcap = match &e.pcap {
-        Some(path) => {
-            let file = std::fs::File::create(path).map_err(|err| format!("--pcap {}: {err}", path.display()))?;
-            Some(PcapWriter::new(std::io::BufWriter::new(file)).map_err(|err| format!("--pcap: {err}"))?)
-        }
-        None => None,
-    };
-    // Frames are stamped with the wall clock, as a capture on the interface would be.
-    let tap = |_: Direction, frame: &[u8]| match pcap.as_mut() {
-        Some(w) => {
-            let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default();
-            w.write_frame(now, frame)
-        }
-        None => Ok(()),
-    };
+    let mut pcap = open_pcap(e.pcap.as_deref())?;
+    let tap = |_: Direction, frame: &[u8]| capture(&mut pcap, frame);
     runner
         .serve_tapped(iface, std::time::Duration::from_millis(1), tap, |stats| {
             let now = std::time::Instant::now();
@@ -853,20 +861,8 @@ fn ethercat_line(e: &EthercatArgs) -> Result<(), String> {
     let idle_exit = e.idle_exit_ms.map(std::time::Duration::from_millis);
     let mut last_frames = 0;
     let mut last_frame_at = start;
-    let mut pcap = match &e.pcap {
-        Some(path) => {
-            let file = std::fs::File::create(path).map_err(|err| format!("--pcap {}: {err}", path.display()))?;
-            Some(PcapWriter::new(std::io::BufWriter::new(file)).map_err(|err| format!("--pcap: {err}"))?)
-        }
-        None => None,
-    };
-    let tap = |_: Direction, frame: &[u8]| match pcap.as_mut() {
-        Some(w) => {
-            let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default();
-            w.write_frame(now, frame)
-        }
-        None => Ok(()),
-    };
+    let mut pcap = open_pcap(e.pcap.as_deref())?;
+    let tap = |_: Direction, frame: &[u8]| capture(&mut pcap, frame);
     let stop = |stats: &hal_sim::sim::ethercat_line::LineStats| {
         let now = std::time::Instant::now();
         if stats.frames != last_frames {

@@ -123,6 +123,12 @@ impl CanBus {
         self.bit_rate
     }
 
+    /// Changes the bit rate (an LSS activate bit timing, CiA 305 §6.4.3): frames sent from now on take the new bit
+    /// times.
+    pub fn set_bit_rate(&mut self, bit_rate: u32) {
+        self.bit_rate = bit_rate.max(1);
+    }
+
     /// Connects a node; returns its index.
     pub fn attach(&mut self) -> NodeIndex {
         self.ports.push(Port::default());

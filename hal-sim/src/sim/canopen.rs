@@ -204,6 +204,9 @@ pub struct CanDrive {
     serial: u32,
     /// The drive's slot on the bus: its node-ID while its parameter store holds none (a board's switches).
     slot: u8,
+    /// The bit rate (bit/s) an LSS activate bit timing switched the drive's controller to (`None`: still the rate
+    /// it powered up with, the bus's). A drive whose rate differs from the bus's neither sends nor receives.
+    pub bit_rate: Option<u32>,
 }
 
 impl CanDrive {
@@ -233,6 +236,7 @@ impl CanDrive {
             controller: BusStatus::default(),
             serial: firmware::od::generated::SERIAL_NUMBER.wrapping_add(u32::from(slot).saturating_sub(1)),
             slot,
+            bit_rate: None,
         };
         d.apply_serial();
         d.enter_fallback_if_no_image(id);
@@ -379,6 +383,9 @@ impl CanDrive {
             DriveObjects::new(&mut self.store, on).with_program_control(self.program.port(Interface::Canopen, on));
         if let Some(event) = self.node.process(&mut self.sim.drive, &mut app, now_us) {
             self.events.push(event);
+            if let NodeEvent::BitRateSwitched(rate) = event {
+                self.bit_rate = Some(rate.bits_per_second());
+            }
             if event == NodeEvent::Booted {
                 self.powering_up = false;
                 // The node is up after a start: an image on trial confirms itself (issue 7).
@@ -421,6 +428,8 @@ pub struct CanRunnerStats {
     pub quiet_limit_hits: u64,
     /// Real-time catch-ups cut short.
     pub lag_events: u64,
+    /// Frames a drive sent at a bit rate other than the bus's (lost: nobody can receive them).
+    pub rate_mismatch_frames: u64,
 }
 
 /// Simulated drives on a CAN bus. See the module documentation.
@@ -585,9 +594,13 @@ impl CanopenRunner {
     fn step(&mut self, to_master: &mut Vec<Delivery>) {
         self.now_ns += PERIOD_NS;
         self.ticks += 1;
+        let bus_rate = self.bus.bit_rate();
         for delivery in self.bus.run_until(self.now_ns) {
             for d in &mut self.drives {
-                if d.port != delivery.from && delivery.lost_at != Some(d.port) {
+                if d.port != delivery.from
+                    && delivery.lost_at != Some(d.port)
+                    && d.bit_rate.unwrap_or(bus_rate) == bus_rate
+                {
                     d.inbox.push_back(delivery.frame);
                 }
             }
@@ -607,7 +620,19 @@ impl CanopenRunner {
                 d.application_period(now_us, slow);
             }
             for frame in d.outbox.drain(..) {
-                self.bus.send(d.port, self.now_ns, frame);
+                if d.bit_rate.unwrap_or(bus_rate) == bus_rate {
+                    self.bus.send(d.port, self.now_ns, frame);
+                } else {
+                    self.stats.rate_mismatch_frames += 1;
+                }
+            }
+        }
+        // CiA 305 §6.4.3: the master switches every node of the bus together and then its own adapter; the
+        // simulated master (socketcand clients have no bit rate) follows once every drive runs at one new rate.
+        let mut rates = self.drives.iter().map(|d| d.bit_rate.unwrap_or(bus_rate));
+        if let Some(first) = rates.next() {
+            if first != bus_rate && rates.all(|r| r == first) {
+                self.bus.set_bit_rate(first);
             }
         }
     }

@@ -985,6 +985,36 @@ fn lss_inquire_identity_and_bit_timing(_: &mut Bus) -> Outcome {
     expect_eq("0x2001 after the configuration", firmware::canopen::ids::read(d, 0x2001, 0), Some(2))
 }
 
+/// CiA 305 §6.4.3: activate bit timing is unanswered; the node sends nothing for twice the switch delay (its
+/// 10 ms heartbeat pauses), switches to the configured rate after the first delay, and transmits again after the
+/// second. The simulated bus takes the rate once every drive on it has switched (here the only one).
+fn lss_activate_bit_timing_silences_the_node_and_switches_the_rate(bus: &mut Bus) -> Outcome {
+    expect_eq("heartbeat 10 ms", bus.download(0x1017, 0, &10u16.to_le_bytes())?, Ok(()))?;
+    bus.lss(lss_frame(0x04, &[1]));
+    expect_eq("bit timing 500 kbit/s", bus.lss(lss_frame(0x13, &[0, 2])), vec![lss_frame(0x13, &[0])])?;
+    bus.run_ms(20);
+    let sent_ns = bus.now_ns();
+    expect_eq("answers to activate bit timing", bus.lss(lss_frame(0x15, &50u16.to_le_bytes())), vec![])?;
+    let frames = bus.run_ms_timed(150);
+    let silent_until = sent_ns + 100_000_000;
+    let early: Vec<_> = frames.iter().filter(|d| d.start_ns < silent_until).map(|d| d.frame).collect();
+    expect_eq("frames within the two 50 ms periods", early, vec![])?;
+    let heartbeat = frames.iter().find(|d| d.frame.id() == HEARTBEAT).ok_or("no heartbeat after the switch")?;
+    let resumed_ms = (heartbeat.start_ns - sent_ns) as f64 / 1e6;
+    // The second period ends 100 ms after the request (plus its ~0.1 ms on the bus); the overdue heartbeat goes
+    // at the next millisecond poll.
+    expect_that((100.0..=101.5).contains(&resumed_ms), || {
+        format!("first heartbeat {resumed_ms:.3} ms after the request")
+    })?;
+    // A 1-byte standard data frame is at least 52 bits (with stuffing more): at 500 kbit/s >= 104 us on the bus.
+    let on_bus_ns = heartbeat.end_ns - heartbeat.start_ns;
+    expect_that((104_000..130_000).contains(&on_bus_ns), || format!("heartbeat {on_bus_ns} ns on the bus"))?;
+    expect_eq("the bus's bit rate", bus.runner.bus.bit_rate(), 500_000)?;
+    let d = bus.drive().sim.drive.dictionary();
+    expect_eq("0x200A (bit rate in use)", firmware::canopen::ids::read(d, 0x200A, 0), Some(2))?;
+    expect_eq("0x1000 answered at the new rate", bus.upload(0x1000, 0)?.is_ok(), true)
+}
+
 /// One fastscan probe; whether a slave answered.
 fn probe(bus: &mut Bus, id: u32, bit: u8, part: u8, next: u8) -> bool {
     let mut f = lss_frame(0x51, &id.to_le_bytes());
@@ -1109,6 +1139,7 @@ pub fn cases() -> Vec<Case<Bus>> {
         case!("LSS-02", "CiA 305 §6.2, §6.3", "selective switch: 0x44; node-ID 0xFF; 128 refused (error 1), 5 taken; to waiting: boot-up 0x705", lss_selective_switch_configure_and_boot),
         case!("LSS-03", "CiA 305 §6.3, §6.4", "inquire 0x5A..0x5D = 0x1018; bit timing 500k taken, 100k and table 1 refused (error 1), 0x2001 = 2", lss_inquire_identity_and_bit_timing),
         case!("LSS-04", "CiA 305 §6.7, §6.3", "fastscan finds three drives one by one; node-IDs 5, 6, 7 stored; they boot with them after reset node", lss_fastscan_assigns_three_drives_that_keep_their_ids),
+        case!("LSS-06", "CiA 305 §6.4.3", "activate bit timing (delay 50 ms): no answer, no frame for 100 ms, then at 500 kbit/s; 0x200A = 2", lss_activate_bit_timing_silences_the_node_and_switches_the_rate),
         case!("LSS-05", "CiA 305 §6.3 (configured node)", "node-ID 9 configured on node 1: still 1 until reset communication, then boot-up 0x709", lss_configured_node_takes_its_new_id_at_reset_communication),
         case!("SR-02", "CiA 301 §7.5.2.13/14", "saved values after reset node; after \"load\" and reset node the EDS defaults", sr_saved_values_come_back_after_reset_node_and_restore_brings_the_defaults),
     ]

@@ -14,7 +14,7 @@ use firmware::od::pdo_map::{self, MapEntry, MapTarget};
 fn acceptable_value(dict: &firmware::od::access::Dictionary, entry: &'static Entry) -> Vec<u8> {
     match entry.storage {
         Storage::Ram { .. } => dict.values().raw(entry).expect("slot").to_vec(),
-        Storage::Const(bytes) => bytes.bytes().to_vec(),
+        Storage::Const(bytes) => bytes.to_vec(),
         Storage::Application => match entry.data_type.fixed_size() {
             Some(size) => {
                 let value = match *entry.limits {

@@ -160,6 +160,7 @@ fn report(runner: &CanopenRunner, server: &SocketcandServer) {
     println!("simulated_s={:.6}", runner.now_ns() as f64 * 1e-9);
     println!("bus_frames={}", bus.frames);
     println!("bus_load_pct={:.2}", runner.bus.load() * 100.0);
+    println!("bus_bit_rate={}", runner.bus.bit_rate());
     println!("bus_error_frames={}", bus.error_frames);
     println!("master_frames={}", s.master_frames);
     println!("master_syncs={}", s.master_syncs);

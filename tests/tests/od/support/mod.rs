@@ -76,7 +76,7 @@ impl ApplicationObjects for TestApp {
 /// The bytes a full read of `entry` must return (a VISIBLE_STRING up to its first NUL).
 pub fn expected_read<const N: usize>(dict: &Dictionary<N>, entry: &'static Entry) -> Vec<u8> {
     let value = match entry.storage {
-        Storage::Const(bytes) => bytes.bytes().to_vec(),
+        Storage::Const(bytes) => bytes.to_vec(),
         Storage::Ram { .. } => dict.values().raw(entry).expect("RAM entry has a slot").to_vec(),
         Storage::Application => {
             let mut value = vec![0u8; entry.data_type.fixed_size().unwrap_or(0)];
