@@ -912,6 +912,10 @@ fn ethercat_line(e: &EthercatArgs) -> Result<(), String> {
         println!("answers_over_100us={}", ls.answers_over_100us);
         println!("answers_over_1ms={}", ls.answers_over_1ms);
         println!("esc_wait_max_us={:.1}", ls.esc_wait_max_ns as f64 / 1_000.0);
+        // The output writes each ESC held until its drive's time reached their stamp.
+        println!("outputs_delivered_total={}", all.iter().map(|s| s.outputs_delivered).sum::<u64>());
+        println!("output_overflows_total={}", all.iter().map(|s| s.output_overflows).sum::<u64>());
+        println!("outputs_held_max={}", all.iter().map(|s| s.outputs_held_max).max().unwrap_or(0));
     }
     println!("sync0_samples={}", ls.sync0_samples);
     println!("sync0_spread_max_ns={}", ls.sync0_spread_max_ns);

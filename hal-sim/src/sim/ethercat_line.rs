@@ -38,7 +38,14 @@
 //! [`REAL_TIME_WORKERS`] worker threads (the machine's two cores) run the drives: each drive in turn takes the
 //! SM2 event of the frames since its last turn (the SM-synchronous cycle), runs the firmware's poll, and
 //! advances simulated time towards the wall clock (its SYNC0 pulses and DC cycles with it) by at most
-//! [`REAL_TIME_CHUNK_PERIODS`] PWM periods. Each slave sits behind its own lock, which the frame path takes
+//! [`REAL_TIME_CHUNK_PERIODS`] PWM periods. A drive's simulated time lags the wall clock by a varying amount
+//! (up to its worker's round over the drives), so the frame path does not hand the outputs it writes to the
+//! drive at once: each ESC stamps an SM2 write with its DC system time at the frame's arrival (the wall clock
+//! on the drive's time, plus the port delays before it) and holds it, with a copy of the buffer, in a queue of
+//! [`OUTPUT_QUEUE_DEPTH`] ([`crate::esc::Esc::hold_output_writes`]); the drive's stepping delivers each write
+//! (buffer, SM2 event) in the PWM period in which its simulated time passes the stamp, before or after that
+//! period's SYNC0 pulse as the stamp says. So every SYNC0 cycle sees the outputs of the frame that arrived in
+//! it, as a real ESC's PDI does, however late the drive is stepped (within the queue's depth). Each slave sits behind its own lock, which the frame path takes
 //! for the few microseconds of a frame and a drive's turn for one chunk, so a frame waits for at most one
 //! chunk of each of the two drives being stepped; a worker gives way while a frame waits.
 
@@ -60,6 +67,11 @@ pub const REAL_TIME_WORKERS: usize = 2;
 /// Most PWM periods a drive runs in real time before the frame path may have its ESC again (200 us of simulated
 /// time, some tens of microseconds of the host's).
 pub const REAL_TIME_CHUNK_PERIODS: u64 = 5;
+
+/// Output writes an ESC holds for its drive in real time ([`crate::esc::Esc::hold_output_writes`]): 16 frames,
+/// 16 ms at a 1 ms cycle, more than a drive lags unless the host stalls it (then the oldest are dropped and
+/// counted, [`RunnerStats::output_overflows`]).
+pub const OUTPUT_QUEUE_DEPTH: usize = 16;
 
 /// How long a real-time worker sleeps when all its drives have reached the wall clock.
 const REAL_TIME_IDLE_SLEEP: Duration = Duration::from_micros(100);
@@ -323,6 +335,9 @@ impl EthercatLine {
     ) -> io::Result<()> {
         let socket = RawSocket::bind(iface)?;
         socket.set_read_timeout(Some(poll.max(Duration::from_micros(1))))?;
+        for s in &mut self.slaves {
+            s.esc.hold_output_writes(OUTPUT_QUEUE_DEPTH);
+        }
         let slaves: Vec<Mutex<EthercatRunner>> = std::mem::take(&mut self.slaves).into_iter().map(Mutex::new).collect();
         let workers = REAL_TIME_WORKERS.min(slaves.len());
         let frame_waiting = AtomicBool::new(false);
@@ -364,7 +379,18 @@ impl EthercatLine {
                         let waited = u64::try_from(arrived.elapsed().as_nanos()).unwrap_or(u64::MAX);
                         self.stats.esc_wait_max_ns = self.stats.esc_wait_max_ns.max(waited);
                         let mut runners: Vec<&mut EthercatRunner> = guards.iter_mut().map(|g| &mut **g).collect();
+                        // Each ESC stamps the outputs the frame writes with its system time at the frame's
+                        // arrival there (the wall clock on its drive's time, plus the ports before it).
+                        let mut port_delay = 0;
+                        for (k, s) in runners.iter_mut().enumerate() {
+                            let stamp = s.node.write_stamp(&s.esc, arrived, port_delay);
+                            s.esc.set_write_stamp(Some(stamp));
+                            port_delay += self.hops.get(k).copied().unwrap_or(0);
+                        }
                         let reports = pass_through(&mut runners, &self.hops, frame);
+                        for s in runners.iter_mut() {
+                            s.esc.set_write_stamp(None);
+                        }
                         for (s, r) in runners.iter_mut().zip(reports.iter().flatten()) {
                             s.node.count_frame(r);
                         }
