@@ -40,8 +40,8 @@
 //! advances simulated time towards the wall clock (its SYNC0 pulses and DC cycles with it) by at most
 //! [`REAL_TIME_CHUNK_PERIODS`] PWM periods. A drive's simulated time lags the wall clock by a varying amount
 //! (up to its worker's round over the drives), so the frame path does not hand the outputs it writes to the
-//! drive at once: each ESC stamps an SM2 write with its DC system time at the frame's arrival (the wall clock
-//! on the drive's time, plus the port delays before it) and holds it, with a copy of the buffer, in a queue of
+//! drive at once: each ESC stamps an SM2 write with its DC system time at the frame's arrival (the kernel's
+//! receive time of the frame on the drive's time, plus the port delays before it) and holds it, with a copy of the buffer, in a queue of
 //! [`OUTPUT_QUEUE_DEPTH`] ([`crate::esc::Esc::hold_output_writes`]); the drive's stepping delivers each write
 //! (buffer, SM2 event) in the PWM period in which its simulated time passes the stamp, before or after that
 //! period's SYNC0 pulse as the stamp says. So every SYNC0 cycle sees the outputs of the frame that arrived in
@@ -370,6 +370,14 @@ impl EthercatLine {
                 None => self.stats.idle += 1,
                 Some(n) => {
                     let arrived = Instant::now();
+                    // The instant the frame reached the interface (the kernel's receive time), not when this
+                    // thread got to it: on a loaded host the two lie up to milliseconds apart, and a real ESC
+                    // processes the frame as it passes.
+                    let on_wire = socket.last_receive_time().and_then(|t| {
+                        let age = std::time::SystemTime::now().duration_since(t).ok()?;
+                        arrived.checked_sub(age.min(Duration::from_millis(100)))
+                    });
+                    let on_wire = on_wire.unwrap_or(arrived);
                     let frame = &mut buf[..n.min(MAX_FRAME)];
                     tap(Direction::Received, frame)?;
                     frame_waiting.store(true, Ordering::Release);
@@ -383,7 +391,7 @@ impl EthercatLine {
                         // arrival there (the wall clock on its drive's time, plus the ports before it).
                         let mut port_delay = 0;
                         for (k, s) in runners.iter_mut().enumerate() {
-                            let stamp = s.node.write_stamp(&s.esc, arrived, port_delay);
+                            let stamp = s.node.write_stamp(&s.esc, on_wire, port_delay);
                             s.esc.set_write_stamp(Some(stamp));
                             port_delay += self.hops.get(k).copied().unwrap_or(0);
                         }
