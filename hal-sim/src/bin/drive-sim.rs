@@ -637,8 +637,6 @@ fn bench(seconds: f64) -> Result<(), String> {
     Ok(())
 }
 
-/// `drive-sim ethercat`: the drive as an EtherCAT slave on a network interface until `--seconds` (wall clock)
-/// pass, the master falls silent for `--idle-exit-ms` after its first frame, or the process is stopped.
 /// The `--pcap` capture of the EtherCAT servers, if one was asked for.
 type Capture = Option<PcapWriter<std::io::BufWriter<std::fs::File>>>;
 
@@ -660,8 +658,11 @@ fn capture(pcap: &mut Capture, frame: &[u8]) -> std::io::Result<()> {
     }
 }
 
+/// `drive-sim ethercat`: the drive as an EtherCAT slave on a network interface until `--seconds` (wall clock)
+/// pass, the master falls silent for `--idle-exit-ms` after its first frame, or the process is stopped.
 fn ethercat(e: &EthercatArgs) -> Result<(), String> {
-    if e.slaves > 1 || !e.plant_for.is_empty() {
+    // Real time runs the frame path apart from the drives (hal_sim::sim::ethercat_line, "Real time"), one drive too.
+    if e.slaves > 1 || !e.plant_for.is_empty() || !e.lock_step {
         return ethercat_line(e);
     }
     let iface = e.iface.as_str();
@@ -845,7 +846,11 @@ fn ethercat_line(e: &EthercatArgs) -> Result<(), String> {
              cyclic frame (LRW/LRD/LWR)",
             e.cycle_us
         ),
-        ClockMode::RealTime => println!("ethercat: serving {n} simulated drives in a line on {iface}, real time"),
+        ClockMode::RealTime => println!(
+            "ethercat: serving {n} simulated drives in a line on {iface}, real time: frames answered on their own \
+             thread, the drives on {} threads",
+            hal_sim::sim::ethercat_line::REAL_TIME_WORKERS.min(n)
+        ),
     }
     println!(
         "  ESC clocks {:+} ppm, spread +-{} ppm over the slaves; port-to-port delays {}..{} ns",
@@ -861,7 +866,7 @@ fn ethercat_line(e: &EthercatArgs) -> Result<(), String> {
     let mut last_frame_at = start;
     let mut pcap = open_pcap(e.pcap.as_deref())?;
     let tap = |_: Direction, frame: &[u8]| capture(&mut pcap, frame);
-    line.serve_tapped(iface, std::time::Duration::from_millis(1), tap, |stats| {
+    let stop = |stats: &hal_sim::sim::ethercat_line::LineStats| {
         let now = std::time::Instant::now();
         if stats.frames != last_frames {
             last_frames = stats.frames;
@@ -870,7 +875,12 @@ fn ethercat_line(e: &EthercatArgs) -> Result<(), String> {
         let timed_out = limit.is_some_and(|l| now.duration_since(start) >= l);
         let silent = idle_exit.is_some_and(|d| stats.frames > 0 && now.duration_since(last_frame_at) >= d);
         timed_out || silent
-    })
+    };
+    let poll = std::time::Duration::from_millis(1);
+    match config.clock {
+        ClockMode::LockStep => line.serve_tapped(iface, poll, tap, stop),
+        ClockMode::RealTime => line.serve_real_time(iface, poll, tap, stop),
+    }
     .map_err(|err| err.to_string())?;
     if let Some(w) = pcap {
         println!("pcap_packets={}", w.packets());
@@ -900,6 +910,16 @@ fn ethercat_line(e: &EthercatArgs) -> Result<(), String> {
     println!("cycles_min={}", all.iter().map(|s| s.cycles).min().unwrap_or(0));
     println!("cycles_max={}", all.iter().map(|s| s.cycles).max().unwrap_or(0));
     println!("sync0_pulses_min={}", all.iter().map(|s| s.sync0_pulses).min().unwrap_or(0));
+    if config.clock == ClockMode::RealTime {
+        println!("answer_max_us={:.1}", ls.answer_max_ns as f64 / 1_000.0);
+        println!("answers_over_100us={}", ls.answers_over_100us);
+        println!("answers_over_1ms={}", ls.answers_over_1ms);
+        println!("esc_wait_max_us={:.1}", ls.esc_wait_max_ns as f64 / 1_000.0);
+        // The output writes each ESC held until its drive's time reached their stamp.
+        println!("outputs_delivered_total={}", all.iter().map(|s| s.outputs_delivered).sum::<u64>());
+        println!("output_overflows_total={}", all.iter().map(|s| s.output_overflows).sum::<u64>());
+        println!("outputs_held_max={}", all.iter().map(|s| s.outputs_held_max).max().unwrap_or(0));
+    }
     println!("sync0_samples={}", ls.sync0_samples);
     println!("sync0_spread_max_ns={}", ls.sync0_spread_max_ns);
     println!("system_time_spread_ns={}", line.system_time_spread_ns());
@@ -912,8 +932,9 @@ fn ethercat_line(e: &EthercatArgs) -> Result<(), String> {
         let reg32 = |a: u16| u32::from_le_bytes([a, a + 1, a + 2, a + 3].map(|x| s.esc.register(x)));
         println!(
             "slave{k}: serial={} clock_error_ppm={:+.3} hop_ns={} state_reached={} state_final={:?} cycles={} \
-             sync0_pulses={} sync0_missed={} sm_event_missed={} lag_events={} cia402_state_final={:?} \
-             dc_activation=0x{:02x} sync0_cycle_ns={} system_time_delay_ns={} pll_state={:?}",
+             sync0_pulses={} sync0_missed={} sm_event_missed={} sm2_writes={} lag_events={} cia402_state_final={:?} \
+             dc_activation=0x{:02x} sync0_cycle_ns={} system_time_delay_ns={} pll_state={:?} al_status_code=0x{:04x} \
+             al_error_ns={} left_operation_enabled={:?}",
             {
                 let mut b = [0u8; 4];
                 let _ = s.node.sim.drive.dictionary().read(
@@ -933,12 +954,16 @@ fn ethercat_line(e: &EthercatArgs) -> Result<(), String> {
             st.sync0_pulses,
             st.sync0_missed,
             s.sm_event_missed(),
+            st.sm2_writes,
             st.lag_events,
             s.node.sim.cia402_state(),
             s.esc.register(0x0981),
             reg32(0x09A0),
             reg32(0x0928),
             s.sync_pll().state,
+            s.esc.register_u16(0x0134),
+            st.al_error_ns.map_or(-1, |t| t as i64),
+            st.left_operation_enabled,
         );
     }
     Ok(())
