@@ -69,6 +69,12 @@ sleep 0.3
     );
     for (k, step) in steps.iter().enumerate() {
         let at = |ext: &str| quoted(&dir.join(&format!("{k}.{ext}")).display().to_string());
+        if let [pause, seconds] = step.as_slice() {
+            if pause == PAUSE {
+                script.push_str(&format!("sleep {}; echo 0 > {}\n", quoted(seconds), at("rc")));
+                continue;
+            }
+        }
         let args = step.iter().map(|a| quoted(a)).collect::<Vec<_>>().join(" ");
         script.push_str(&format!(
             "timeout 120 {} --ecat ecm0 {args} > {} 2> {}; echo $? > {}\n",
@@ -101,6 +107,11 @@ sleep 0.3
     );
     Some(outcome)
 }
+
+/// A step that runs no command but lets the simulator idle for the seconds that follow it: in lock-step with
+/// `--idle-cycle`, simulated time passes one cycle per idle poll, and a command that polls the mailbox without a
+/// pause of a millisecond leaves it none (on a real drive time passes on its own).
+const PAUSE: &str = "#pause";
 
 fn args(words: &[&str]) -> Vec<String> {
     words.iter().map(|w| (*w).to_owned()).collect()
@@ -307,8 +318,8 @@ fn csv_rows(path: &Path) -> (String, Vec<Vec<f64>>) {
 /// within 1 %" over EtherCAT (the recording uploaded by CoE segmented transfer, ETG.1000.6 §5.6.2): in CST
 /// (0x6060 = 10, no interpolation 0x60C2:01 = 0) `record --no-wait` arms the data recorder (q current and its
 /// reference at 25 kHz, 200 samples, 20 before the trigger: the reference rising through 100 mA); ten reads of its
-/// state (each lets simulated time pass: `--idle-cycle`) show it waiting, 0x6071 = 600 makes the step, and `record
-/// --fetch` uploads the recording into the CSV and the SVG.
+/// state (each lets simulated time pass: `--idle-cycle`) show it waiting, 0x6071 = 600 makes the step, half a
+/// second of idle lets the recording complete, and `record --fetch` uploads it into the CSV and the SVG.
 ///
 /// The reference is `drive-sim ethercat --trace`, the simulator's own values every current-loop period, outside
 /// the recorder's path. The recording's sample 20 is the trace's first period with the reference at 100 mA or
@@ -347,6 +358,9 @@ fn ecat_record_of_a_current_step_matches_the_simulators_own_trace() {
     ];
     steps.extend((0..10).map(|_| args(&["get", "0x3300:02", "--json"])));
     steps.push(args(&["set", "0x6071", "600"]));
+    // At least 7.2 ms of simulated time for the 180 samples after the trigger: `record --fetch` polls the
+    // recorder's state through the mailbox and leaves the simulator few idle polls.
+    steps.push(args(&[PAUSE, "0.5"]));
     steps.push(vec![
         "record".into(),
         "--fetch".into(),
@@ -364,7 +378,7 @@ fn ecat_record_of_a_current_step_matches_the_simulators_own_trace() {
     for waiting in &out[5..15] {
         assert_eq!(waiting.json()[0]["value"], 1, "0x3300:02 = 1 waiting for the trigger: {waiting:?}");
     }
-    let fetched = out[16].json();
+    let fetched = out[17].json();
     assert_eq!(fetched["samples"], 200, "{fetched}");
     assert_eq!(fetched["channels"][0]["name"], "iq", "{fetched}");
 
