@@ -6,7 +6,7 @@ Run by tests/tests/ecat_soem_sdo.rs in a private network namespace against `driv
 (issue 6). The Rust test computes every expectation from the firmware's dictionary and hands it over in a file;
 this script only does the transfers and prints what differs. One part per run (--part):
 
-- objects: each line of --expect is `IIII SS rule hex size name`: rule `exact` (the upload must equal hex),
+- objects: each line of --expect is `IIII SS rule hex size name` (hex `-`: no bytes): rule `exact` (the upload must equal hex),
   `len` (only its length: a measured value, see the Rust test) or `abort` (hex is the abort code expected).
   Prints the counts and one `mismatch_N` line per difference.
 - params: each line of --cases is `name IIII SS data expect`: expect `ok` (the download is accepted and reads
@@ -75,7 +75,7 @@ def part_objects(args, slave):
     longest = 0
     for fields in lines_of(args.expect):
         index, sub, rule, hexval, size = int(fields[0], 16), int(fields[1], 16), fields[2], fields[3], int(fields[4])
-        expected = bytes.fromhex(hexval) if rule != "abort" else int(hexval, 16)
+        expected = int(hexval, 16) if rule == "abort" else bytes.fromhex("" if hexval == "-" else hexval)
         got, code = read_any(slave, index, sub, max(size + 16, 16))
         counts[rule] += 1
         if rule == "abort":

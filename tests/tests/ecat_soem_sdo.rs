@@ -116,6 +116,9 @@ fn every_readable_object_uploads_through_soem_as_the_dictionary_says() {
         let expected = upload(&d, &mut objects, entry);
         let r = rule(entry, &expected);
         let (value, size) = match &expected {
+            // An empty value (the data recorder's buffer 0x3302 without a recording) as `-`, so that the line keeps
+            // its fields (soem_sdo.py reads `-` as no bytes).
+            Ok(v) if v.is_empty() => ("-".to_owned(), 0),
             Ok(v) => (hex(v), v.len()),
             Err(code) => (format!("{code:08x}"), 0),
         };
