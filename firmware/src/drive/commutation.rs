@@ -42,11 +42,24 @@ use crate::control::frames::Amps;
 use crate::hal::power::FeedbackSample;
 use crate::power_state::{CommutationError, CommutationStage};
 use crate::sensors::hall::HallSector;
+use crate::sensors::ssi::SsiFormat;
 
 /// The Hall commutation offset 0x301A:03 (1/65536 electrical turn) as an angle.
 #[must_use]
 pub const fn hall_offset_from_od(raw: u16) -> ElectricalAngle {
     ElectricalAngle((raw as u32) << 16)
+}
+
+/// The electrical angle of an SSI sensor's position at start-up (`feedback.encoder_count` is its 16-bit count):
+/// the single-turn count in the drive's direction plus the commutation offset 0x3012:0A (position increments,
+/// IDX L4326: the offset that brings the sensor's zero to the rotor's electrical zero, EPOS4 AN ch. 8.3), times
+/// the pole pairs, modulo one revolution. Exact: a revolution is a power of two counts.
+fn absolute_angle(ssi: &SsiFormat, encoder: &Encoder, feedback: &FeedbackSample) -> ElectricalAngle {
+    let turn = ssi.counts_per_rev().wrapping_sub(1);
+    let offset = ssi.commutation_offset.wrapping_shl(u32::from(ssi.align_bits));
+    let mechanical = ssi.single_turn(feedback.encoder_count).wrapping_add(offset) & turn;
+    let electrical = mechanical.wrapping_mul(u32::from(encoder.config().pole_pairs)) & turn;
+    ElectricalAngle(encoder.raw_angle(electrical))
 }
 
 /// Forced alignment (no Halls): d current, ramp and hold times.
@@ -87,6 +100,10 @@ pub enum CommutationMethod {
     Hall,
     /// Without Halls: forced alignment with a d current.
     ForcedAlignment(AlignmentConfig),
+    /// From the SSI absolute encoder alone (0x3000:03 = 0x20, IDX L3780): the single-turn position gives the angle
+    /// at once, exact to one count; the encoder counts are the sensor's position (tier 1 feeds its 16-bit count,
+    /// [`SsiFormat::count16`]).
+    Absolute(SsiFormat),
 }
 
 /// The forced alignment's current demand for one tick: the angle to use and the d current.
@@ -177,6 +194,11 @@ impl Commutation {
                 self.last_sector = Some(sector);
                 self.set_angle_at(self.encoder.electrical_count(), sector.centre_angle(self.hall_offset));
                 self.stage = CommutationStage::HallSector;
+            }
+            CommutationMethod::Absolute(ssi) => {
+                self.last_sector = None;
+                self.set_angle_at(self.encoder.electrical_count(), absolute_angle(&ssi, &self.encoder, feedback));
+                self.stage = CommutationStage::Indexed;
             }
             CommutationMethod::ForcedAlignment(cfg) => {
                 self.last_sector = None;
@@ -415,7 +437,7 @@ mod tests {
     }
 
     fn fb(count: u16, hall: u8, index: Option<u16>) -> FeedbackSample {
-        FeedbackSample { encoder_count: count, index_latch: index, hall, digital_inputs: 0 }
+        FeedbackSample { encoder_count: count, index_latch: index, hall, digital_inputs: 0, ssi_frame: 0 }
     }
 
     /// The drive's order: update with the sample, then start from it.
