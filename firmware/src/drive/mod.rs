@@ -996,7 +996,8 @@ impl Drive {
             encoder_present,
         };
         let position_from_encoder = encoder_present || matches!(method, CommutationMethod::Absolute(_));
-        if position_from_encoder != self.position_from_encoder || commutation.method != self.settings.commutation.method {
+        if position_from_encoder != self.position_from_encoder || commutation.method != self.settings.commutation.method
+        {
             self.axis.position_sensor_changed();
         }
         self.position_from_encoder = position_from_encoder;

@@ -120,7 +120,10 @@ mod tests {
         let mut p = SsiPosition::default();
         p.restart(5);
         assert_eq!(p.report(&f, f.encode(1000, 0), 0, 4, false), FrameVerdict::Ignored, "older settings");
-        assert_eq!(p.report(&f, f.encode(0x12_3456, 0), 7, 5, false), FrameVerdict::Established { base: 0x12_3456 - 7 });
+        assert_eq!(
+            p.report(&f, f.encode(0x12_3456, 0), 7, 5, false),
+            FrameVerdict::Established { base: 0x12_3456 - 7 }
+        );
         assert_eq!(p.report(&f, f.encode(0x12_3456 + 100, 0), 107, 5, false), FrameVerdict::Consistent);
         // Across the wrap of the 24-bit position: tracked keeps counting, the sensor starts again at 0.
         let tracked = 0x100_0000 - 0x12_3456 + 7 + 5;

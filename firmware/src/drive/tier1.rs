@@ -23,8 +23,8 @@ use crate::control::trig::sin_cos;
 use crate::control::velocity_estimate::PositionSum;
 use crate::hal::power::{FeedbackSample, Measurements, PwmCommand, SLOW_TICK_DIVIDER};
 use crate::power_state::{CommutationError, CommutationStage, DriveError, PowerState, Trip};
-use crate::sensors::ssi::{SsiError, SsiFormat};
 use crate::sensors::latch::PinLatches;
+use crate::sensors::ssi::{SsiError, SsiFormat};
 
 /// Increments an SSI position may differ from the motion's continuation in one period (the step to it against
 /// the step before): two for the quantisation of the two steps and one for acceleration, which no drive reaches in

@@ -268,12 +268,10 @@ pub enum FaultId {
     MissingMainSensor = 48,
     /// The configured commutation sensor never answered (no valid SSI frame since the start; IDX 0x7391).
     MissingCommutationSensor = 49,
-    /// The main sensor counts against the torque: polarity (0x3012:03 bit 4) or wiring wrong (IDX 0x7392).
-    MainSensorDirection = 50,
 }
 
 /// Number of rows in [`FAULT_TABLE`].
-pub const FAULT_COUNT: usize = 51;
+pub const FAULT_COUNT: usize = 50;
 
 /// One row of the fault table.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -356,7 +354,6 @@ impl FaultId {
         Self::SsiFrame,
         Self::MissingMainSensor,
         Self::MissingCommutationSensor,
-        Self::MainSensorDirection,
     ];
 
     /// The stable fault number (the table row; EMCY manufacturer byte 3).
@@ -960,7 +957,7 @@ pub static FAULT_TABLE: [FaultInfo; FAULT_COUNT] = [
         Tier::CurrentLoop,
         S::Position,
         "SSI sensor error",
-        "IDX L7276 (7.2.21)",
+        "IDX L7066, L7276 (7.2.21)",
     ),
     row(
         FaultId::SsiFrame,
@@ -971,7 +968,7 @@ pub static FAULT_TABLE: [FaultInfo; FAULT_COUNT] = [
         Tier::CurrentLoop,
         S::Position,
         "SSI sensor frame error",
-        "IDX L7284 (7.2.22)",
+        "IDX L7067, L7284 (7.2.22)",
     ),
     row(
         FaultId::MissingMainSensor,
@@ -982,7 +979,7 @@ pub static FAULT_TABLE: [FaultInfo; FAULT_COUNT] = [
         Tier::Supervision,
         S::Detail,
         "Missing main sensor error",
-        "IDX L7292 (7.2.23)",
+        "IDX L7068, L7292 (7.2.23)",
     ),
     row(
         FaultId::MissingCommutationSensor,
@@ -993,17 +990,6 @@ pub static FAULT_TABLE: [FaultInfo; FAULT_COUNT] = [
         Tier::CurrentLoop,
         S::Detail,
         "Missing commutation sensor error",
-        "IDX L7300 (7.2.24)",
-    ),
-    row(
-        FaultId::MainSensorDirection,
-        0x7392,
-        REG_GENERIC | REG_PROFILE,
-        D,
-        Event,
-        Tier::Supervision,
-        S::Velocity,
-        "Main sensor direction error",
-        "IDX L7308 (7.2.25)",
+        "IDX L7069, L7300 (7.2.24)",
     ),
 ];

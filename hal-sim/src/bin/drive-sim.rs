@@ -540,7 +540,10 @@ fn ssi(args: &SsiArgs) -> Result<(), String> {
     let seed = args.common.seed;
     let params = args.common.plant.as_ref().map_or_else(ssi::reference_ssi_plant, |f| f.params.clone());
     if params.ssi_single_turn_bits == 0 {
-        return Err("ssi: the plant has no SSI sensor (ssi_single_turn_bits = 0; see hal-sim/presets/reference-ssi.toml)".into());
+        return Err(
+            "ssi: the plant has no SSI sensor (ssi_single_turn_bits = 0; see hal-sim/presets/reference-ssi.toml)"
+                .into(),
+        );
     }
     if args.common.plant.is_none() {
         println!("plant: reference motor with an SSI sensor (hal-sim/presets/reference-ssi.toml)");

@@ -87,7 +87,9 @@ pub fn reference_ssi_plant() -> PlantParams {
 
 /// Writes `value` to `index:sub` over SDO in pre-operational with the power disabled.
 fn write(drive: &mut Drive, store: &mut ParamStore<SimFlash>, index: u16, sub: u8, value: &[u8]) -> Result<(), String> {
-    drive.sdo_write(index, sub, value, PRE_OP, store).map_err(|e: SdoAbort| format!("SDO write {index:#06x}:{sub}: {e:?}"))
+    drive
+        .sdo_write(index, sub, value, PRE_OP, store)
+        .map_err(|e: SdoAbort| format!("SDO write {index:#06x}:{sub}: {e:?}"))
 }
 
 /// Commissions the drive for the plant's SSI sensor as a user would over SDO: 0x3000:01 = SSI only, 0x3012:02
@@ -171,8 +173,7 @@ pub fn run(p: &PlantParams, seed: u64) -> Result<SsiFigures, String> {
     // The sensor's increments between the two shaft angles (each angle's count is the floor of its increments).
     let count = |theta: f64| (theta / TAU * f64::from(resolution)).floor() as i64;
     let turned_inc = count(theta + TURNED_WHILE_OFF_RAD) - count(theta);
-    let absolute_position_error_inc =
-        i64::from(position_after_inc) - (i64::from(position_before_inc) + turned_inc);
+    let absolute_position_error_inc = i64::from(position_after_inc) - (i64::from(position_before_inc) + turned_inc);
     // 5. The sensor faults.
     let (flipped_bit_code, stuck_clock_code, missing_sensor_code) = fault_codes(p, seed)?;
     Ok(SsiFigures {
