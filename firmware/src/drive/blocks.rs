@@ -395,10 +395,11 @@ impl Words<15> for Settings {
         });
         if let Some(f) = ssi {
             // The SSI format travels in the alignment's words, which the absolute method does not use.
+            let [first, second] = ssi_format_words(&f);
             a = AlignmentConfig {
-                current: Amps::from_bits(ssi_format_words(&f)[0].cast_signed()),
-                ramp_ticks: low_half(ssi_format_words(&f)[1]),
-                hold_ticks: high_half(ssi_format_words(&f)[1]),
+                current: Amps::from_bits(first.cast_signed()),
+                ramp_ticks: low_half(second),
+                hold_ticks: high_half(second),
                 damping_bits_per_count: f.commutation_offset.cast_signed(),
             };
         }

@@ -971,9 +971,7 @@ impl Drive {
                     CommutationMethod::Absolute(ssi)
                 }
                 None => {
-                    // IDX 0x7390 "missing main sensor: adapt the axis configuration": the configured sensor's
-                    // format cannot be read. The commutation in force stays (the fault keeps the power off).
-                    self.raise(FaultId::MissingMainSensor, d.get(h::SSI_DATA_BITS).cast_signed());
+                    self.ssi_format_unreadable();
                     return;
                 }
             }
@@ -996,20 +994,24 @@ impl Drive {
             encoder_present,
         };
         let position_from_encoder = encoder_present || matches!(method, CommutationMethod::Absolute(_));
-        if position_from_encoder != self.position_from_encoder || commutation.method != self.settings.commutation.method
-        {
+        if position_from_encoder != self.position_from_encoder {
             self.axis.position_sensor_changed();
         }
         self.position_from_encoder = position_from_encoder;
-        let rebuilt = commutation.method != self.settings.commutation.method
-            || commutation.encoder != self.settings.commutation.encoder
-            || commutation.encoder_present != self.settings.commutation.encoder_present;
         self.change_settings(|s| s.commutation = commutation);
-        if rebuilt || self.ssi_position.base().is_none() {
-            // Tier 1 builds its commutation again with these settings: its position restarts at 0.
-            self.ssi_position.restart(self.settings.version);
-        }
+        // Tier 1 may build its commutation again with these settings (its position restarting at 0): the SSI
+        // position's base is taken again from the first report of them (the same value when it did not).
+        self.ssi_position.restart(self.settings.version);
         self.sync_sensor_objects();
+    }
+
+    /// IDX 0x7390 "missing main sensor: adapt the axis configuration": the configured SSI sensor's format (0x3012)
+    /// cannot be read. The commutation in force stays (the fault keeps the power off).
+    #[cold]
+    #[inline(never)]
+    fn ssi_format_unreadable(&mut self) {
+        let detail = self.dictionary.get::<u32>(h::SSI_DATA_BITS).cast_signed();
+        self.raise(FaultId::MissingMainSensor, detail);
     }
 
     /// The SSI format of 0x3012, or `None` when it is not one the drive reads.
@@ -1046,10 +1048,11 @@ impl Drive {
         let frame = r.ssi_frame;
         let faulted = matches!(r.power, PowerState::Fault(_));
         let verdict = self.ssi_position.report(ssi, frame, r.encoder_position, r.settings_version, faulted);
-        if ssi.check(frame).is_ok() {
+        if verdict != ssi_position::FrameVerdict::Ignored {
             let d = &mut self.dictionary;
             d.set(h::SSI_POSITION_RAW, ssi.position(frame));
-            d.set(h::SSI_SPECIAL_BITS, u16::try_from(ssi.special(frame)).unwrap_or(u16::MAX));
+            // At most 16 special bits (`SsiFormat::from_od`): the conversion is exact.
+            d.set(h::SSI_SPECIAL_BITS, ssi.special(frame) as u16);
         }
         let saved: i32 = self.dictionary.get(h::SSI_POSITION_OFFSET);
         match verdict {
