@@ -914,6 +914,7 @@ mod tests {
             index_offset: Some(ElectricalAngle(12_345)),
             offsets: ShuntOffsets { q8: [524_288, -1, i32::MAX] },
             q_sums: [i32::MIN, 123_456],
+            ssi_frame: 0x0280_0001,
         });
         for stage in [
             CommutationStage::HallSector,
