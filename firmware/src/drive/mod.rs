@@ -916,8 +916,10 @@ impl Drive {
         self.request(|p| p.level = PowerLevel::Off, predicted);
     }
 
-    /// CiA 402 transition 15 "fault reset": back to [`PowerState::Off`].
+    /// CiA 402 transition 15 "fault reset": back to [`PowerState::Off`]. An SSI sensor's absolute position takes
+    /// its base again from the next report (tier 1's count may have jumped while the sensor was out).
     pub fn fault_reset(&mut self) {
+        self.ssi_position.restart(self.settings.version);
         let predicted = match self.state() {
             PowerState::Fault(_) => PowerState::Off,
             other => other,

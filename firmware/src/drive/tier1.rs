@@ -346,24 +346,26 @@ impl Tier1State {
     /// its constant-line test ([`SsiFormat::check`]), then the count must continue the motion within
     /// [`SSI_JUMP_TOLERANCE`] increments (a flipped data bit that passes the frame check moves the position by
     /// a jump no shaft makes in one period). A frame that fails is never used: the outputs go off, the frame is
-    /// kept for the report. In «Fault» a failing frame leaves the count where it was (the first cause stays).
+    /// kept for the report. In «Fault» (outputs off, the first cause kept) a frame that passes the frame check is
+    /// taken as it is, jump or not, so that the count follows the shaft again once the sensor is back (tier 2
+    /// takes the absolute position's base again at the fault reset); a failing one leaves the count where it was.
     #[inline(never)]
     fn ssi_count(&mut self, ssi: &SsiFormat, frame: u32) -> Result<u16, CommutationError> {
         self.ssi_frame = frame;
         let encoder = self.commutation.encoder();
         let count = ssi.count16(frame);
+        let checked = ssi.check(frame);
+        if matches!(self.state, PowerState::Fault(_)) {
+            return Ok(if checked.is_ok() { count } else { encoder.last_counter() });
+        }
         let tolerance = SSI_JUMP_TOLERANCE << ssi.align_bits;
-        let verdict = match ssi.check(frame) {
+        Err(match checked {
             Ok(()) if encoder.continues(count, tolerance) => return Ok(count),
             Ok(()) => CommutationError::SsiFrame,
             Err(_) if !encoder.synced() => CommutationError::SsiMissing,
             Err(SsiError::NoData) => CommutationError::SsiNoData,
             Err(SsiError::Frame) => CommutationError::SsiFrame,
-        };
-        if matches!(self.state, PowerState::Fault(_)) {
-            return Ok(encoder.last_counter());
-        }
-        Err(verdict)
+        })
     }
 
     /// Operation enabled: commutation start or alignment, reference, FOC step.
