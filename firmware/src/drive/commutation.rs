@@ -1,4 +1,5 @@
-//! Commutation: the rotor's electrical angle from the Hall sensors, the incremental encoder and its index.
+//! Commutation: the rotor's electrical angle from the Hall sensors, the incremental encoder and its index, or the
+//! SSI absolute encoder.
 //! The encoder's own counting (position and electrical count from the hardware counter) is [`super::encoder`].
 //!
 //! Sources: `shared/spec/control-and-protection.md` §2.6-2.9 (sensor objects, commutation, Hall and index errors
@@ -35,6 +36,9 @@
 //!   ramped and held; then the angle is zeroed at the encoder count reached. The index refines it as above.
 //! - Every index pulse re-applies the stored offset and records the correction made (for the supervision of the
 //!   fault issue: index processing and encoder resolution errors 0xFF02/0xFF03).
+//! - Start from the SSI absolute encoder alone (`CommutationMethod::Absolute`, 0x3000:03 = 0x20): the angle is the
+//!   single-turn position plus the commutation offset 0x3012:0A, times the pole pairs, from the first period
+//!   (exact to one sensor increment); the encoder counts are the sensor's 16-bit count (`crate::sensors::ssi`).
 
 use super::encoder::{Encoder, EncoderConfig};
 use crate::control::angle::{AngleDelta, ElectricalAngle};
