@@ -22,6 +22,7 @@
 //! | ESC SPI SEL/CLK/DO/DI       | PA4 (out), PA5..7 (AF5)| SPI1 (esc_spi, `ethercat`)     |
 //! | ESC SPI_IRQ (AL event)      | PB0 (input)            | EXTI0 (esc_spi, `ethercat`)    |
 //! | braking chopper gate        | PB1 (output)           | GPIOB BSRR (chopper)           |
+//! | SSI clock / data            | PB3, PB4 (AF6)         | SPI3 SCK/MISO, DMA1 S0 (ssi)   |
 //!
 //! With the `qemu` feature (QEMU's `netduinoplus2`, which models neither the RCC nor these peripherals) [`init`]
 //! only starts the cost counter, and [`PowerStage`] is fed by a small built-in motor model (`plant`, present only in that build).
@@ -41,6 +42,7 @@ pub mod flash;
 pub mod interrupt;
 pub mod pwm;
 pub mod reg;
+pub mod ssi;
 pub mod sto;
 pub mod sync_timer;
 pub mod watchdog;

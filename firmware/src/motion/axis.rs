@@ -287,6 +287,13 @@ impl Axis {
         self.offset
     }
 
+    /// Sets the position offset (position actual value minus the encoder position): an absolute sensor's offset
+    /// after a restart (`crate::drive::ssi_position`). The velocity estimate restarts from the next position.
+    pub fn set_position_offset(&mut self, offset: i32) {
+        self.offset = offset;
+        self.loops.restart_estimate();
+    }
+
     /// Slow ticks since start-up.
     #[must_use]
     pub const fn now(&self) -> Ticks {

@@ -142,6 +142,10 @@ pub fn run() -> ! {
     {
         crate::rt_info!("reset cause: {}", defmt::Debug2Format(&reset_cause));
         boot.drive.report_reset(reset_cause);
+        // The SSI port, when the stored configuration has an SSI sensor (the QEMU image runs on the encoder).
+        if let Some((frame_bits, rate_kbit)) = boot.drive.ssi_port() {
+            board::ssi::init(frame_bits, rate_kbit);
+        }
     }
     // Program control for the image that runs (0x1F5x, FoE; its confirmation runs in tier 3). The QEMU image
     // has no flash interface to drive it.

@@ -26,7 +26,9 @@ mod cli;
 mod progress;
 
 use clap::{CommandFactory, FromArgMatches};
-use cli::{Cli, Command, CspScenario, CurrentLoopScenario, EthercatArgs, FaultMatrixScenario, IdentifyArgs, Scenario};
+use cli::{
+    Cli, Command, CspScenario, CurrentLoopScenario, EthercatArgs, FaultMatrixScenario, IdentifyArgs, Scenario, SsiArgs,
+};
 use progress::Progress;
 
 use hal_sim::esc::pcap::PcapWriter;
@@ -532,6 +534,52 @@ fn duty_cycle(seed: u64, dir: &Path) -> Result<(), String> {
     Ok(())
 }
 
+/// `drive-sim ssi`: the SSI absolute encoder as the only sensor (`hal_sim::scenarios::ssi`).
+fn ssi(args: &SsiArgs) -> Result<(), String> {
+    use hal_sim::scenarios::ssi;
+    let seed = args.common.seed;
+    let params = args.common.plant.as_ref().map_or_else(ssi::reference_ssi_plant, |f| f.params.clone());
+    if params.ssi_single_turn_bits == 0 {
+        return Err(
+            "ssi: the plant has no SSI sensor (ssi_single_turn_bits = 0; see hal-sim/presets/reference-ssi.toml)"
+                .into(),
+        );
+    }
+    if args.common.plant.is_none() {
+        println!("plant: reference motor with an SSI sensor (hal-sim/presets/reference-ssi.toml)");
+    }
+    println!(
+        "ssi: plant (seed {seed}) with a {} + {}-bit SSI sensor ({}), Halls stuck at 000 and the encoder's lines broken: \
+         SSI only (0x3000:01 = 0x0000_0300)",
+        params.ssi_multi_turn_bits,
+        params.ssi_single_turn_bits,
+        if params.ssi_gray { "Gray" } else { "binary" }
+    );
+    let f = ssi::run(&params, seed)?;
+    println!("  start-up commutation in PPM at rest, shaft at {:.3} rad", ssi::START_ANGLE_RAD);
+    println!("  move of {} revolutions: |0x6064 - target| = {} inc", ssi::MOVE_REVOLUTIONS, f.move_error_inc);
+    println!(
+        "  homing method 37 with 0x607C = {}: 0x6064 = {}, 0x3012:0E = {} (saved with 0x1010)",
+        ssi::HOME_POSITION,
+        f.homed_position_inc,
+        f.saved_offset_inc
+    );
+    println!(
+        "  power cycle, shaft turned {:.1} revolutions by hand meanwhile: 0x6064 {} before, {} after, no homing",
+        ssi::TURNED_WHILE_OFF_RAD / core::f64::consts::TAU,
+        f.position_before_inc,
+        f.position_after_inc
+    );
+    println!();
+    println!("commutation_error_deg={:.3}", f.commutation_error_deg);
+    println!("move_error_inc={}", f.move_error_inc);
+    println!("absolute_position_error_inc={}", f.absolute_position_error_inc);
+    println!("flipped_bit_code={:#06x}", f.flipped_bit_code);
+    println!("stuck_clock_code={:#06x}", f.stuck_clock_code);
+    println!("missing_sensor_code={:#06x}", f.missing_sensor_code);
+    Ok(())
+}
+
 /// `drive-sim identify`: the motor identification run by a master over SDO, its results against the plant's truth.
 fn identify(args: &IdentifyArgs) -> Result<(), String> {
     let seed = args.common.seed;
@@ -1005,6 +1053,13 @@ fn main() -> ExitCode {
         Command::Identify(args) => {
             print_plant(args.common.plant.as_ref());
             scenarios::with_plant(plant(args.common.plant.as_ref()), || identify(args))
+        }
+        Command::Ssi(args) => {
+            // The default is the SSI preset's plant, not the reference: printed by `ssi` itself.
+            if args.common.plant.is_some() {
+                print_plant(args.common.plant.as_ref());
+            }
+            ssi(args)
         }
         Command::Ethercat(args) => {
             print_plant(args.common.plant.as_ref());

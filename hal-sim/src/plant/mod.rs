@@ -248,6 +248,9 @@ pub struct Plant {
     /// the counts missed while the A/B lines were broken ([`faults::PlantFaults`]). Zero for a healthy encoder.
     encoder_error: i64,
     pending_index: Option<u16>,
+    /// The SSI frame latched at the last sample: the drive reads it one period later (the board's transfer runs
+    /// during the period after the PWM centre that latched it).
+    ssi_latched: u32,
     period: u64,
     at_sample: PlantState,
     averages: PeriodAverages,
@@ -301,6 +304,7 @@ impl Plant {
             last_count: 0,
             encoder_error: 0,
             pending_index: None,
+            ssi_latched: 0,
             period: 0,
             at_sample: PlantState::default(),
             averages: PeriodAverages::default(),
@@ -313,6 +317,7 @@ impl Plant {
             params,
         };
         plant.last_count = plant.count_now();
+        plant.ssi_latched = plant.ssi_frame_now();
         plant.at_sample = plant.state();
         plant
     }
@@ -538,6 +543,7 @@ impl Plant {
         self.omega_m = omega_m_rad_s;
         self.follow_motor(self.params.gear_ratio);
         self.last_count = self.count_now();
+        self.ssi_latched = self.ssi_frame_now();
         self.pending_index = None;
     }
 

@@ -23,6 +23,7 @@ pub mod identification;
 pub mod motion;
 pub mod profile;
 pub mod regeneration;
+pub mod ssi;
 
 use core::f64::consts::PI;
 use std::cell::RefCell;

@@ -20,3 +20,4 @@ mod recorder;
 mod regeneration;
 mod resonance_identification;
 mod sensor_configuration;
+mod ssi;

@@ -79,6 +79,10 @@ pub enum Command {
     DutyCycle(Scenario),
     /// The motor identification (0x6060 = -2) run by a master over SDO, its results against the plant's truth.
     Identify(IdentifyArgs),
+    /// The SSI absolute encoder as the only sensor (default plant: the reference motor with a 12 + 12-bit
+    /// multi-turn SSI sensor in place of the encoder, no Halls): start-up commutation, a move, homing 37, a power
+    /// cycle; commutation_error_deg, absolute_position_error_inc, and the sensor faults' codes.
+    Ssi(SsiArgs),
     /// Host speed: simulated seconds of drive time per wall-clock second (build with --release).
     Bench(BenchArgs),
     /// The drive as an EtherCAT slave on a network interface, for a real master (needs CAP_NET_RAW), until
@@ -94,6 +98,15 @@ pub enum Command {
         #[arg(value_name = "SHELL")]
         shell: clap_complete::Shell,
     },
+}
+
+/// `drive-sim ssi`: the plant (default `hal-sim/presets/reference-ssi.toml`'s, which must have an SSI sensor) and
+/// the seed.
+#[derive(Debug, Args)]
+pub struct SsiArgs {
+    /// The plant and the seed.
+    #[command(flatten)]
+    pub common: Common,
 }
 
 /// A plant file given with `--plant`: its path (for the report) and the plant it describes.
