@@ -894,11 +894,17 @@ fn ethercat_line(e: &EthercatArgs) -> Result<(), String> {
              cyclic frame (LRW/LRD/LWR)",
             e.cycle_us
         ),
-        ClockMode::RealTime => println!(
-            "ethercat: serving {n} simulated drives in a line on {iface}, real time: frames answered on their own \
-             thread, the drives on {} threads",
-            hal_sim::sim::ethercat_line::REAL_TIME_WORKERS.min(n)
-        ),
+        ClockMode::RealTime => {
+            println!(
+                "ethercat: serving {n} simulated drives in a line on {iface}, real time: frames answered on their \
+                 own thread, the drives on {} threads",
+                hal_sim::sim::ethercat_line::REAL_TIME_WORKERS.min(n)
+            );
+            // The priority the line was started at (`chrt -f P`): the frame path's; the workers step one below.
+            let (policy, priority) = hal_sim::sim::host_priority::current();
+            println!("realtime_policy={policy}");
+            println!("realtime_priority={priority}");
+        }
     }
     println!(
         "  ESC clocks {:+} ppm, spread +-{} ppm over the slaves; port-to-port delays {}..{} ns",

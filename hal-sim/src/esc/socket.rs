@@ -5,8 +5,9 @@
 //! Opening the socket needs `CAP_NET_RAW`. Tests run it inside a private network namespace on one end of a
 //! veth pair (`unshare --net` as root; see the spec file, "What works here").
 //!
-//! The only `unsafe` code of the emulator lives in the private `sys` module: seven libc calls, each wrapped so
-//! that its pointer and length arguments come from a Rust slice or a local struct.
+//! The emulator's `unsafe` code lives in two private `sys` modules: this one, seven libc calls, each wrapped so
+//! that its pointer and length arguments come from a Rust slice or a local struct, and the scheduling calls of
+//! [`crate::sim::host_priority`].
 
 use std::io;
 use std::ops::ControlFlow;
@@ -174,7 +175,7 @@ impl AsRawFd for RawSocket {
     }
 }
 
-/// The socket FFI: the only `unsafe` in the emulator. Every call passes pointers to live locals or slices
+/// The socket FFI (see the module documentation). Every call passes pointers to live locals or slices
 /// with their true lengths, and checks the return value.
 #[allow(unsafe_code)]
 mod sys {

@@ -477,6 +477,8 @@ fn run_drives(
     frame_waiting: &AtomicBool,
     quit: &AtomicBool,
 ) {
+    // Below the frame path when the line runs at a real-time priority (`chrt`): a frame preempts the stepping.
+    super::host_priority::step_below_inherited();
     while !quit.load(Ordering::Relaxed) {
         let mut behind = false;
         for slave in slaves.iter().skip(first).step_by(step.max(1)) {

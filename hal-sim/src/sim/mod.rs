@@ -15,6 +15,7 @@ pub mod canopen;
 pub mod current_trace;
 pub mod ethercat;
 pub mod ethercat_line;
+pub mod host_priority;
 pub mod plot;
 pub mod trace;
 pub mod update;
