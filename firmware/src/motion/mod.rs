@@ -21,6 +21,7 @@ pub mod cyclic;
 pub mod homing;
 pub mod loops;
 pub mod monitor;
+pub mod gear;
 pub mod params;
 pub mod polarity;
 pub mod profile_position;

@@ -10,9 +10,13 @@
 //!   Inactive in homing (IDX L5971).
 //! - Standstill: |velocity| within 0x30E0:01 for 0x30E0:02; 0xFFFFFFFF switches the window off, so standstill is
 //!   the end of the stop trajectory (the CiA 402 machine applies the timeout 0x30E0:03).
-//! - Speed: velocity demands beyond 0x6080 (and 0x3000:06) are clamped, with bit 11.
+//! - Speed: velocity demands beyond 0x6080 (and, with a gear, the max gear input speed 0x3003:03, both motor rpm)
+//!   are clamped, with bit 11; 0x3000:06 shows the same limit at the load (IDX L3898-3939).
+//!
+//! Units: with a gear ([`super::gear`]) 0x6065, 0x607D and 0x30E0:01 are the load's (increments, rpm) and convert to
+//! the axis's motor increments here, when they change.
 
-use super::polarity::Polarity;
+use super::gear::{Gear, UserUnits};
 use crate::cia402::Ticks;
 use crate::control::trajectory::{MotionScale, Velocity};
 use crate::od::access::Dictionary;
@@ -35,9 +39,9 @@ struct MonitorObjects {
     limit_min: i32,
     limit_max: i32,
     max_motor_speed: u32,
-    max_system_speed: u32,
     inc_per_rev: u32,
     polarity: u8,
+    gear: Gear,
 }
 
 impl MonitorObjects {
@@ -50,9 +54,9 @@ impl MonitorObjects {
             limit_min: d.get(h::SOFTWARE_POSITION_LIMIT_MIN),
             limit_max: d.get(h::SOFTWARE_POSITION_LIMIT_MAX),
             max_motor_speed: d.get(h::MAX_MOTOR_SPEED),
-            max_system_speed: d.get(h::MAX_SYSTEM_SPEED),
             inc_per_rev: d.get(h::MAIN_SENSOR_RESOLUTION),
             polarity: d.get(h::POLARITY),
+            gear: Gear::in_effect(d),
         }
     }
 }
@@ -69,9 +73,9 @@ pub struct MonitorConfig {
     /// 0x30E0:02.
     pub standstill_time: Ticks,
     /// 0x607D (min, max) in the axis's coordinates (mirrored by the position polarity 0x607E bit 7:
-    /// [`Polarity::limits`]), `None` when both are 0.
+    /// [`super::polarity::Polarity::limits`], through the gear), `None` when both are 0.
     pub software_limits: Option<(i32, i32)>,
-    /// min(0x6080, 0x3000:06), magnitude.
+    /// min(0x6080, 0x3003:03 with a gear), motor speed, magnitude.
     pub max_speed: Velocity,
 }
 
@@ -97,28 +101,35 @@ impl Monitor {
     pub fn new(d: &Dictionary) -> Self {
         let mut m = Self::default();
         m.objects.inc_per_rev = u32::MAX;
-        m.refresh(d);
+        let _ = m.refresh(d);
+        // Converted once more by the axis's first refresh, which publishes 0x3000:06 from the stored parameters.
+        m.objects.inc_per_rev = u32::MAX;
         m
     }
 
-    /// Re-reads the objects and converts them when they changed.
-    pub fn refresh(&mut self, d: &Dictionary) {
+    /// Re-reads the objects and converts them when they changed; `Some(0x3000:06)` then (max system speed, load
+    /// rpm, for the caller to publish).
+    pub fn refresh(&mut self, d: &Dictionary) -> Option<u32> {
         let o = MonitorObjects::read(d);
         if o == self.objects {
-            return;
+            return None;
         }
-        let scale = MotionScale::new(o.inc_per_rev.max(1));
+        let motor = MotionScale::new(o.inc_per_rev.max(1));
+        let load = MotionScale::geared(o.inc_per_rev.max(1), o.gear.numerator, o.gear.denominator);
+        let units = UserUnits::new(&o.gear, o.polarity);
         self.config = MonitorConfig {
-            following_error_window: (o.following_error_window != u32::MAX).then_some(o.following_error_window),
+            following_error_window: (o.following_error_window != u32::MAX)
+                .then(|| units.distance_to_axis(o.following_error_window)),
             following_error_timeout: ticks_from_ms(u32::from(o.following_error_timeout)),
             standstill_window: (o.standstill_window != u32::MAX)
-                .then(|| scale.velocity_from_rpm(i64::from(o.standstill_window))),
+                .then(|| load.velocity_from_rpm(i64::from(o.standstill_window))),
             standstill_time: ticks_from_ms(u32::from(o.standstill_time)),
             software_limits: (o.limit_min != 0 || o.limit_max != 0)
-                .then(|| Polarity::from_0x607e(o.polarity).limits(o.limit_min, o.limit_max)),
-            max_speed: scale.velocity_from_rpm(i64::from(o.max_motor_speed.min(o.max_system_speed))),
+                .then(|| units.limits_to_axis(o.limit_min, o.limit_max)),
+            max_speed: motor.velocity_from_rpm(i64::from(o.max_motor_speed.min(o.gear.max_input_speed))),
         };
         self.objects = o;
+        Some(o.gear.max_system_speed(o.max_motor_speed))
     }
 
     /// The limits in force.
