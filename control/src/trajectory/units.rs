@@ -58,6 +58,17 @@ impl MotionScale {
     /// as 1.
     #[must_use]
     pub fn geared(increments_per_revolution: u32, numerator: u32, denominator: u32) -> Self {
+        if numerator == denominator {
+            // No gear: the constant divisors (the common case, and the cheap one at run time: a conversion at a
+            // master's start-up stays within tier 2's budget).
+            let n = u128::from(increments_per_revolution.max(1));
+            return Self {
+                increments_per_revolution: increments_per_revolution.max(1),
+                velocity_factor: div_round_u(n << 48, RPM_TICKS),
+                acceleration_factor: div_round_u(n << 56, RPM_PER_S_TICKS2),
+                rpm_factor: div_round_u(RPM_TICKS << 64, n),
+            };
+        }
         let (num, den) = (u128::from(numerator.max(1)), u128::from(denominator.max(1)));
         // Increments per load revolution as n num / den: n num < 2^64; n num 2^56 < 2^120, 150,000 den 2^64 < 2^114.
         let n = u128::from(increments_per_revolution.max(1)).saturating_mul(num);

@@ -33,6 +33,7 @@ impl GearRatioSeen {
 
     /// Makes 0x6091 and 0x3003 / bit 12 agree: a changed 0x6091 is carried into 0x3003 and bit 12, then 0x6091
     /// shows the ratio in effect.
+    #[inline(never)]
     pub fn reconcile(&mut self, d: &mut Dictionary) {
         let ratio = (d.get(h::GEAR_RATIO_MOTOR_REVOLUTIONS), d.get(h::GEAR_RATIO_SHAFT_REVOLUTIONS));
         let structure = d.get(h::CONTROL_STRUCTURE);

@@ -454,6 +454,7 @@ impl Axis {
     /// the step's set-point is out, in the same tier-2 period: the conversions (two exact multiplications each with
     /// a gear) are outside the step's time budget, and a process-data cycle after the period sees this step's
     /// values as before.
+    #[inline(never)]
     pub fn publish_master_values(&self, d: &mut Dictionary) {
         let (demand, position, velocity) = self.shown;
         let units = &self.params.units;
@@ -484,7 +485,7 @@ impl Axis {
     pub fn refresh(&mut self, d: &mut Dictionary) {
         self.params.refresh(d);
         self.loops.refresh(d);
-        if let Some(max_system_speed) = self.monitor.refresh(d) {
+        if let Some(max_system_speed) = self.monitor.refresh(d, &self.params.scale, &self.params.units) {
             // 0x3000:06 (read-only, the drive its single writer): the speed limit at the load.
             d.set(h::MAX_SYSTEM_SPEED, max_system_speed);
         }

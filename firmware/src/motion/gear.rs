@@ -168,6 +168,8 @@ pub struct UserUnits {
     pub polarity: Polarity,
     /// 0x607E alone: the sign of torques (bit 6, [`Polarity::torque`]).
     pub torque_polarity: Polarity,
+    /// The gear in effect.
+    pub gear: Gear,
     /// Load increments to motor increments: numerator / denominator.
     to_motor: Ratio,
     /// Motor increments to load increments: denominator / numerator.
@@ -183,7 +185,13 @@ impl Default for UserUnits {
 impl UserUnits {
     /// No polarity, no gear.
     pub const NONE: Self =
-        Self { polarity: Polarity::NONE, torque_polarity: Polarity::NONE, to_motor: Ratio::ONE, to_load: Ratio::ONE };
+        Self {
+            polarity: Polarity::NONE,
+            torque_polarity: Polarity::NONE,
+            gear: Gear::NONE,
+            to_motor: Ratio::ONE,
+            to_load: Ratio::ONE,
+        };
 
     /// The units of `gear` with polarity `polarity_0x607e` (divides: when either changes).
     #[must_use]
@@ -192,6 +200,7 @@ impl UserUnits {
         Self {
             polarity: Polarity::from_0x607e(polarity_0x607e ^ flip),
             torque_polarity: Polarity::from_0x607e(polarity_0x607e),
+            gear: *gear,
             to_motor: Ratio::new(gear.numerator, gear.denominator),
             to_load: Ratio::new(gear.denominator, gear.numerator),
         }
@@ -205,24 +214,28 @@ impl UserUnits {
 
     /// A master position (0x607A, 0x60B0, 0x607C + 0x30B0, 0x607D) in the axis's motor increments, saturating.
     #[must_use]
+    #[inline(never)]
     pub fn position_to_axis(&self, position: i32) -> i32 {
         self.to_motor.apply_i32(self.polarity.position(position))
     }
 
     /// An axis position (motor increments) as the master sees it (0x6064, 0x6062, 0x60F4, touch probes).
     #[must_use]
+    #[inline(never)]
     pub fn position_to_master(&self, position: i32) -> i32 {
         self.polarity.position(self.to_load.apply_i32(position))
     }
 
     /// A master distance or window (0x6065, 0x6067, homing distances) in motor increments (no sign).
     #[must_use]
+    #[inline(never)]
     pub fn distance_to_axis(&self, distance: u32) -> u32 {
         self.to_motor.apply_u32(distance)
     }
 
     /// A master signed distance without the polarity (homing moves keep the motor's direction, Gamma L1659).
     #[must_use]
+    #[inline(never)]
     pub fn offset_to_axis(&self, distance: i32) -> i32 {
         self.to_motor.apply_i32(distance)
     }
@@ -230,6 +243,7 @@ impl UserUnits {
     /// The software position limits 0x607D (min, max) in the axis's motor increments: mirrored by the position
     /// sign ([`Polarity::limits`], saturating), then through the gear (which keeps their order).
     #[must_use]
+    #[inline(never)]
     pub fn limits_to_axis(&self, min: i32, max: i32) -> (i32, i32) {
         let (min, max) = self.polarity.limits(min, max);
         (self.to_motor.apply_i32(min), self.to_motor.apply_i32(max))

@@ -45,7 +45,8 @@ struct MonitorObjects {
 }
 
 impl MonitorObjects {
-    fn read(d: &Dictionary) -> Self {
+    /// The objects of `d`, with the gear in effect as the motion parameters read it.
+    fn read(d: &Dictionary, gear: Gear) -> Self {
         Self {
             following_error_window: d.get(h::FOLLOWING_ERROR_WINDOW),
             following_error_timeout: d.get(h::FOLLOWING_ERROR_TIMEOUT),
@@ -56,7 +57,7 @@ impl MonitorObjects {
             max_motor_speed: d.get(h::MAX_MOTOR_SPEED),
             inc_per_rev: d.get(h::MAIN_SENSOR_RESOLUTION),
             polarity: d.get(h::POLARITY),
-            gear: Gear::in_effect(d),
+            gear,
         }
     }
 }
@@ -101,22 +102,22 @@ impl Monitor {
     pub fn new(d: &Dictionary) -> Self {
         let mut m = Self::default();
         m.objects.inc_per_rev = u32::MAX;
-        let _ = m.refresh(d);
-        // Converted once more by the axis's first refresh, which publishes 0x3000:06 from the stored parameters.
+        let _ = m.refresh(d, &MotionScale::new(4096), &UserUnits::NONE);
+        // Converted once more by the axis's first refresh, with the load's scale, which publishes 0x3000:06 from the
+        // stored parameters.
         m.objects.inc_per_rev = u32::MAX;
         m
     }
 
     /// Re-reads the objects and converts them when they changed; `Some(0x3000:06)` then (max system speed, load
-    /// rpm, for the caller to publish).
-    pub fn refresh(&mut self, d: &Dictionary) -> Option<u32> {
-        let o = MonitorObjects::read(d);
+    /// rpm, for the caller to publish). `load` and `units` are the motion parameters' conversions of the same
+    /// objects (`super::params::MotionParams`, refreshed first): the scale of the load's rpm and the positions'.
+    pub fn refresh(&mut self, d: &Dictionary, load: &MotionScale, units: &UserUnits) -> Option<u32> {
+        let o = MonitorObjects::read(d, units.gear);
         if o == self.objects {
             return None;
         }
         let motor = MotionScale::new(o.inc_per_rev.max(1));
-        let load = MotionScale::geared(o.inc_per_rev.max(1), o.gear.numerator, o.gear.denominator);
-        let units = UserUnits::new(&o.gear, o.polarity);
         self.config = MonitorConfig {
             following_error_window: (o.following_error_window != u32::MAX)
                 .then(|| units.distance_to_axis(o.following_error_window)),
@@ -224,6 +225,27 @@ impl Monitor {
 mod tests {
     use super::*;
 
+    /// With a 5:1 gear (0x3003 + 0x3000:02 bit 12) the following-error window 0x6065 and the software limits 0x607D
+    /// are load increments: 100 load inc = 500 motor inc; [-1000, 2000] = [-5000, 10000]; the speed limit is
+    /// min(0x6080, 0x3003:03) at the motor and 0x3000:06 = 1,000 / 5 = 200 load rpm.
+    #[test]
+    fn gear_scales_windows_limits_and_speed() {
+        let mut d = Dictionary::new(1);
+        d.set(h::GEAR_REDUCTION_NUMERATOR, 5);
+        d.set(h::MAX_GEAR_INPUT_SPEED, 1_000);
+        d.set(h::CONTROL_STRUCTURE, d.get(h::CONTROL_STRUCTURE) | crate::motion::gear::GEAR_MOUNTED);
+        d.set(h::FOLLOWING_ERROR_WINDOW, 100);
+        d.set(h::SOFTWARE_POSITION_LIMIT_MIN, -1000);
+        d.set(h::SOFTWARE_POSITION_LIMIT_MAX, 2000);
+        let mut m = Monitor::default();
+        let load = MotionScale::geared(4096, 5, 1);
+        let shown = m.refresh(&d, &load, &UserUnits::from_dictionary(&d));
+        assert_eq!(shown, Some(200));
+        assert_eq!(m.config().following_error_window, Some(500));
+        assert_eq!(m.config().software_limits, Some((-5000, 10_000)));
+        assert_eq!(m.config().max_speed, MotionScale::new(4096).velocity_from_rpm(1_000));
+    }
+
     #[test]
     fn ms_to_ticks_rounds_up() {
         assert_eq!(ticks_from_ms(0), Ticks(0));
@@ -244,7 +266,7 @@ mod tests {
         assert!(m.following_error(-101, true, Ticks(6)).exceeded);
         assert!(!m.following_error(-101, false, Ticks(7)).exceeded);
         d.set(h::FOLLOWING_ERROR_WINDOW, u32::MAX);
-        m.refresh(&d);
+        let _ = m.refresh(&d, &MotionScale::new(4096), &UserUnits::from_dictionary(&d));
         assert!(!m.following_error(i32::MIN, true, Ticks(100)).exceeded);
     }
 
@@ -255,7 +277,7 @@ mod tests {
         assert_eq!(m.clamp_position(i32::MAX), (i32::MAX, false));
         d.set(h::SOFTWARE_POSITION_LIMIT_MIN, -1000);
         d.set(h::SOFTWARE_POSITION_LIMIT_MAX, 5000);
-        m.refresh(&d);
+        let _ = m.refresh(&d, &MotionScale::new(4096), &UserUnits::from_dictionary(&d));
         assert_eq!(m.clamp_position(6000), (5000, true));
         assert_eq!(m.clamp_position(-1001), (-1000, true));
         assert_eq!(m.clamp_position(0), (0, false));

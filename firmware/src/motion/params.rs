@@ -188,6 +188,7 @@ impl MotionParams {
     /// above about 60,000 rpm at 4,096 inc/rev) or the resolution is too fine for the mantissa (above 2^24
     /// inc/rev).
     #[must_use]
+    #[inline(never)]
     pub fn rpm(&self, velocity: Velocity) -> i32 {
         let fast = if self.rpm_mantissa >= 1 << 10 { velocity.0.checked_mul(self.rpm_mantissa) } else { None };
         let rpm = match fast {
@@ -257,6 +258,16 @@ impl MotionParams {
         self.homing_zero_speed = scale.velocity_from_rpm(i64::from(raw.homing_speeds[1].min(max)));
         self.homing_acceleration =
             scale.acceleration_from_rpm_per_s(raw.homing_acceleration.min(raw.profile.max_acceleration));
+        if gear != Gear::NONE {
+            // IDX 0x3003:03: the gear input's speed bounds the profile moves and the homing (motor rpm; PVM and CSV
+            // are clamped by the monitor).
+            // In load rpm (rounded down: the bound stays at or below the gear's).
+            let cap = scale.velocity_from_rpm(i64::from(gear.max_system_speed(u32::MAX)));
+            self.profile.velocity = self.profile.velocity.min(cap);
+            self.profile.max_velocity = self.profile.max_velocity.min(cap);
+            self.homing_switch_speed = self.homing_switch_speed.min(cap);
+            self.homing_zero_speed = self.homing_zero_speed.min(cap);
+        }
         self.homing_profile = ProfileParams {
             profile_type: self.profile.profile_type,
             velocity: self.homing_switch_speed,
@@ -267,10 +278,13 @@ impl MotionParams {
         self.period = super::cyclic::period_of(raw.period.0, raw.period.1);
         // 1 inc/tick = 2,500 x 60 / N rpm (of the load: N num / den increments per load revolution); in Q32 and
         // with 16 more bits of precision for the mantissa.
-        let per_load_rev = u128::from(raw.inc_per_rev).saturating_mul(u128::from(gear.numerator));
-        let mantissa = (150_000_u128.saturating_mul(u128::from(gear.denominator)) << 16)
-            .checked_div(per_load_rev)
-            .unwrap_or(0);
+        let mantissa = if gear.numerator == gear.denominator {
+            u128::from((150_000_u64 << 16).checked_div(u64::from(raw.inc_per_rev)).unwrap_or(0))
+        } else {
+            let per_load_rev = u128::from(raw.inc_per_rev).saturating_mul(u128::from(gear.numerator));
+            let rpm = 150_000_u128.saturating_mul(u128::from(gear.denominator)) << 16;
+            crate::control::wide::div_rem(rpm, per_load_rev).map_or(0, |(q, _)| q)
+        };
         self.rpm_mantissa = i64::try_from(mantissa).unwrap_or(0);
         self.scale = scale;
         self.raw = Some(raw);

@@ -235,6 +235,33 @@ fn max_gear_input_speed_limits_the_motor() {
     assert!((speed - 2_000.0).abs() <= MOTOR_RPM_TOLERANCE, "no gear: the motor turns at {speed} rpm");
 }
 
+/// 0x3003:03 bounds the profile moves too: with 5:1 and 0x3003:03 = 1,000 rpm, a PPM move of 8,192 load inc at
+/// 0x6081 = 400 load rpm (2,000 motor rpm) peaks at 1,000 motor rpm (within 15), 200 load rpm.
+#[test]
+fn max_gear_input_speed_bounds_profile_moves() {
+    let cs = control_structure_with_gear();
+    let writes: [Write<'_>; 4] = [
+        (0x3003, 1, &5u32.to_le_bytes()),
+        (0x3003, 3, &1_000u32.to_le_bytes()),
+        (0x3000, 2, &cs),
+        (0x6081, 0, &400u32.to_le_bytes()),
+    ];
+    let mut sim = enabled_with(&writes, 1);
+    let target = get_i32(&sim, h::POSITION_ACTUAL_VALUE) + 8_192;
+    sim.drive.dictionary_mut().set(h::TARGET_POSITION, i32::try_from(target).expect("in range"));
+    sim.set_controlword(ENABLE_OPERATION | BIT4);
+    let mut peak: f64 = 0.0;
+    for _ in 0..5_000 {
+        sim.run_slow_ticks(1);
+        peak = peak.max(sim.plant.state().speed_rpm.abs());
+        if sim.statusword() & BIT12 != 0 {
+            sim.set_controlword(ENABLE_OPERATION);
+        }
+    }
+    assert!((peak - 1_000.0).abs() <= MOTOR_RPM_TOLERANCE, "peak motor speed {peak} rpm");
+    assert!((get_i32(&sim, h::POSITION_ACTUAL_VALUE) - target).abs() <= 2, "the move ends at the target");
+}
+
 /// The objects' rules: 0x3003:01/02/04 and 0x6091 are written only with the power stage off (0x0800_0022, as
 /// every `power-disabled` entry), 0x3003:03 also while enabled (IDX); a zero numerator or denominator is below
 /// the range 1..2^32-1 (0x0609_0032, value too low) and changes nothing; 0x3003:04 takes bit 0 only (0x0609_0030).
