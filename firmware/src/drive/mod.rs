@@ -413,7 +413,8 @@ impl Drive {
                 // CST: target torque and torque offset in the motor's direction (polarity 0x607E bit 6,
                 // `motion::polarity`).
                 let polarity = Polarity::from_0x607e(d.get(h::POLARITY));
-                let (target, offset) = (polarity.torque(d.get(h::TARGET_TORQUE)), polarity.torque(d.get(h::TORQUE_OFFSET)));
+                let (target, offset) =
+                    (polarity.torque(d.get(h::TARGET_TORQUE)), polarity.torque(d.get(h::TORQUE_OFFSET)));
                 let (permille, i_q) = self.scale.torque_to_current(target, offset);
                 self.torque_demand_permille = permille;
                 i_q

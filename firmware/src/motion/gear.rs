@@ -80,9 +80,8 @@ impl Ratio {
             return i64::from(x);
         }
         let x = i64::from(x);
-        let estimate = x
-            .wrapping_mul(self.whole)
-            .wrapping_add(x.wrapping_mul(self.fraction).wrapping_add(1 << 31) >> 32);
+        let estimate =
+            x.wrapping_mul(self.whole).wrapping_add(x.wrapping_mul(self.fraction).wrapping_add(1 << 31) >> 32);
         let q = i64::from(self.q);
         let remainder = x.wrapping_mul(i64::from(self.p)).wrapping_sub(estimate.wrapping_mul(q));
         let twice = remainder.wrapping_mul(2);
@@ -184,14 +183,13 @@ impl Default for UserUnits {
 
 impl UserUnits {
     /// No polarity, no gear.
-    pub const NONE: Self =
-        Self {
-            polarity: Polarity::NONE,
-            torque_polarity: Polarity::NONE,
-            gear: Gear::NONE,
-            to_motor: Ratio::ONE,
-            to_load: Ratio::ONE,
-        };
+    pub const NONE: Self = Self {
+        polarity: Polarity::NONE,
+        torque_polarity: Polarity::NONE,
+        gear: Gear::NONE,
+        to_motor: Ratio::ONE,
+        to_load: Ratio::ONE,
+    };
 
     /// The units of `gear` with polarity `polarity_0x607e` (divides: when either changes).
     #[must_use]

@@ -18,10 +18,10 @@
 
 pub mod axis;
 pub mod cyclic;
+pub mod gear;
 pub mod homing;
 pub mod loops;
 pub mod monitor;
-pub mod gear;
 pub mod params;
 pub mod polarity;
 pub mod profile_position;

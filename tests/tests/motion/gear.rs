@@ -107,7 +107,8 @@ fn rounded(x: i64, p: i64, q: i64) -> i64 {
 #[test]
 fn gear_through_0x3003_makes_0x607a_and_0x6064_count_load_increments() {
     let cs = control_structure_with_gear();
-    let mut sim = enabled_with(&[(0x3003, 1, &5u32.to_le_bytes()), (0x3000, 2, &cs), (0x6081, 0, &200u32.to_le_bytes())], 1);
+    let mut sim =
+        enabled_with(&[(0x3003, 1, &5u32.to_le_bytes()), (0x3000, 2, &cs), (0x6081, 0, &200u32.to_le_bytes())], 1);
     let d = sim.drive.dictionary();
     assert_eq!(
         (d.get(h::GEAR_RATIO_MOTOR_REVOLUTIONS), d.get(h::GEAR_RATIO_SHAFT_REVOLUTIONS), d.get(h::MAX_SYSTEM_SPEED)),
@@ -133,7 +134,11 @@ fn gear_through_0x6091_acts_in_pvm_with_load_rpm() {
     let mut sim = enabled_with(&[(0x6091, 1, &5u32.to_le_bytes())], 3);
     let d = sim.drive.dictionary();
     assert_eq!(
-        (d.get(h::GEAR_REDUCTION_NUMERATOR), d.get(h::GEAR_REDUCTION_DENOMINATOR), d.get(h::CONTROL_STRUCTURE) & GEAR_MOUNTED),
+        (
+            d.get(h::GEAR_REDUCTION_NUMERATOR),
+            d.get(h::GEAR_REDUCTION_DENOMINATOR),
+            d.get(h::CONTROL_STRUCTURE) & GEAR_MOUNTED
+        ),
         (5, 1, GEAR_MOUNTED)
     );
     let start = get_i32(&sim, h::POSITION_ACTUAL_VALUE);
