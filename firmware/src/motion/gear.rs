@@ -160,7 +160,8 @@ impl Gear {
 }
 
 /// The conversion of the master's positions (polarity 0x607E and the gear) to the axis's motor increments and
-/// back; velocities convert through the geared `MotionScale`, torques through [`Self::torque`].
+/// back; velocities convert through the geared `MotionScale`, torques through [`Polarity::torque`] of
+/// `torque_polarity`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct UserUnits {
     /// The signs of positions and velocities (0x607E combined with 0x3003:04 bit 0).
