@@ -67,8 +67,11 @@ const ECAT_CYCLE_BUDGET: u64 = 1_500;
 /// Measured then: 195,504, 227,356 and 233,428. Raised by 4, 3 and 4 KiB for the data recorder (issue 22 item 2: its
 /// entries, tier 3's drain, the SDO serving behind the application-objects port, tier 1's copy and the stack's
 /// high-water mark; +3,684, +3,100 and +3,244 bytes of text): 199,188, 230,456 and 236,672 at the last change; the
-/// CAN image is 5,612 bytes under its 200 KiB ceiling.
-const TEXT_BUDGETS: [(&str, u64); 3] = [("can", 196 * 1024), ("ethercat", 227 * 1024), ("ethercat_defmt", 233 * 1024)];
+/// CAN image is 5,612 bytes under its 200 KiB ceiling. Raised by 3 KiB each for the gear and its user units (issue
+/// 20 item 3: 0x3003 and 0x6091 in effect, the exact position conversions, the geared rpm scale, the targets
+/// converted before the slow tick and the master's values published after it, torque polarity; +3,072, +3,228 and
+/// +3,136 bytes of text): 202,260, 233,940 and 240,120; the CAN image is 2,540 bytes under its ceiling.
+const TEXT_BUDGETS: [(&str, u64); 3] = [("can", 199 * 1024), ("ethercat", 230 * 1024), ("ethercat_defmt", 236 * 1024)];
 
 #[test]
 fn board_images_fit_their_text_budgets() {
