@@ -126,6 +126,27 @@ fn gear_through_0x3003_makes_0x607a_and_0x6064_count_load_increments() {
     assert!((internal - 20_480).abs() <= 5 * POSITION_WINDOW_INC, "0x6063 moved {internal}");
 }
 
+/// The same gear in CSP without interpolation (0x60C2 = 0): the master moves 0x607A by +1 load inc per set-point
+/// (one per slow tick, 14.6 load rpm) for 1,024 set-points, then holds; the motor turns 5 x 1,024 = 5,120 inc
+/// (within the position window, 50 motor inc) and 0x6064 ends on the last target (within 2 load inc).
+#[test]
+fn gear_through_0x3003_in_csp() {
+    let cs = control_structure_with_gear();
+    let mut sim = enabled_with(&[(0x3003, 1, &5u32.to_le_bytes()), (0x3000, 2, &cs)], 8);
+    sim.drive.dictionary_mut().set(h::INTERPOLATION_TIME_PERIOD_VALUE, 0);
+    let start = get_i32(&sim, h::POSITION_ACTUAL_VALUE);
+    let start_count = sim.plant.true_encoder_count();
+    for k in 1..=1_274_i64 {
+        let target = start + k.min(1_024);
+        sim.drive.dictionary_mut().set(h::TARGET_POSITION, i32::try_from(target).expect("in range"));
+        sim.setpoint_received();
+        sim.run_slow_ticks(1);
+    }
+    assert!((get_i32(&sim, h::POSITION_ACTUAL_VALUE) - (start + 1_024)).abs() <= 2, "0x6064 on the last target");
+    let moved = sim.plant.true_encoder_count() - start_count;
+    assert!((moved - 5_120).abs() <= 5 * POSITION_WINDOW_INC, "the motor moved {moved} inc");
+}
+
 /// PD4-E 0x6091 written alone (5:1) sets 0x3003:01/02 and bit 12 and acts as the same gear: PVM at 0x60FF = 100
 /// load rpm turns the motor at 500 rpm; 0x606C and 0x606B read 100 rpm (within 3); 0x6064 advances by load
 /// increments (1 s at 100 rpm: 1/6 x 100 x 4,096 / 60 x 6 = 6,827 load inc, a fifth of the motor's 34,133).
