@@ -12,7 +12,7 @@
 //! only value the seeds give, but IDX 0x3000:06 states the axis's speed limit on the gear output, in the velocity
 //! unit, and PD4-E's factor group scales positions through 6091h to the shaft): the master's positions count
 //! load increments, the main sensor's resolution 0x3000:05 per LOAD revolution (0x607A, 0x6064, 0x6062, 0x60F4,
-//! 0x60B0, 0x607C, 0x30B0, 0x607D, 0x6065, 0x6067, 0x30B1, 0x30B2 (homing distances), 0x60BA..0x60BD); its
+//! 0x60B0, 0x607C, 0x30B0, 0x607D, 0x6065, 0x6067, the homing distances 0x30B1 and 0x30B3, 0x60BA..0x60BD); its
 //! velocities are load rpm and its accelerations load rpm/s (every rpm object but the motor's own limits 0x6080
 //! and 0x3003:03; `MotionScale::geared`); torques stay motor torque (per mille of the motor's rated torque).
 //! The axis, its loops and tier 1 keep motor increments: only the values exchanged with the master convert, each

@@ -1,4 +1,4 @@
-//! Polarity 0x607E: the sign of the position and velocity values the master exchanges with the drive.
+//! Polarity 0x607E: the sign of the position, velocity and torque values the master exchanges with the drive.
 //!
 //! Bit layout and meaning after Glentek Gamma (L1656-1672: "indicates if the position demand value shall be
 //! multiplied by 1 or by -1"; bit 7 position polarity, used in PPM and CSP; bit 6 velocity polarity, used in PVM
@@ -15,8 +15,7 @@
 //! - bit 6 (velocities): target velocity 0x60FF (PVM, CSV) and the actual values 0x606C, 0x606B, 0x6069, 0x30D3:01;
 //! - velocity offset 0x60B1 takes the bit of the cyclic mode it feeds: bit 7 in CSP (it is the position command's
 //!   feed-forward: Gamma "the position polarity bit is used for ... cyclic synchronous position mode"), bit 6 in
-//!   CSV.
-//!
+//!   CSV;
 //! - torques (0x6071 target torque, 0x60B2 torque offset, 0x6077 torque actual, 0x6074 torque demand) take bit 6,
 //!   the velocity bit: a torque is the rate of change of the velocity it drives, so a master that inverts its
 //!   velocities gets a positive target torque that accelerates in its positive velocity direction and reads the
