@@ -220,25 +220,16 @@ impl MotionParams {
         }
     }
 
-    /// The master's targets in the axis's units: each when it changed (a CSP master writes 0x607A every cycle:
-    /// only that one converts then), all when the units changed (`raw_targets` cleared).
+    /// The master's targets in the axis's units (when they or the units changed).
     fn convert_targets(&mut self, raw: RawTargets) {
-        let old = self.raw_targets;
-        let changed = |field: fn(&RawTargets) -> (i32, u32)| old.as_ref().map(field) != Some(field(&raw));
-        let u = self.units;
-        if changed(|r| (r.target_position, 0)) {
-            self.targets.position = u.position_to_axis(raw.target_position);
-        }
-        if changed(|r| (r.target_velocity, 0)) {
-            self.targets.velocity = self.scale.velocity_from_rpm(self.polarity.velocity_rpm(raw.target_velocity));
-        }
-        if changed(|r| (r.home_position, r.home_offset.cast_unsigned())) {
-            self.targets.home_position = u.position_to_axis(raw.home_position.wrapping_add(raw.home_offset));
-        }
-        if changed(|r| (r.home_offset_move_distance, r.search_distance_limit)) {
-            self.targets.home_offset_move_distance = u.offset_to_axis(raw.home_offset_move_distance);
-            self.targets.search_distance_limit = u.distance_to_axis(raw.search_distance_limit);
-        }
+        let u = &self.units;
+        self.targets = Targets {
+            position: u.position_to_axis(raw.target_position),
+            velocity: self.scale.velocity_from_rpm(self.polarity.velocity_rpm(raw.target_velocity)),
+            home_position: u.position_to_axis(raw.home_position.wrapping_add(raw.home_offset)),
+            home_offset_move_distance: u.offset_to_axis(raw.home_offset_move_distance),
+            search_distance_limit: u.distance_to_axis(raw.search_distance_limit),
+        };
         self.raw_targets = Some(raw);
     }
 
