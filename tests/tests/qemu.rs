@@ -69,9 +69,11 @@ const ECAT_CYCLE_BUDGET: u64 = 1_500;
 /// high-water mark; +3,684, +3,100 and +3,244 bytes of text): 199,188, 230,456 and 236,672 at the last change; the
 /// CAN image is 5,612 bytes under its 200 KiB ceiling. Raised by 3 KiB for the SSI absolute encoder (issue 20 item
 /// 1: 0x3012, the frame check and decoding in tier 1, tier 2's absolute position and frame check, the SPI3 board
-/// driver, four fault rows; +3,156, +3,252 and +3,260 bytes of text): 202,344, 233,708 and 239,932; the CAN image is
-/// 2,456 bytes under its 200 KiB ceiling.
-const TEXT_BUDGETS: [(&str, u64); 3] = [("can", 199 * 1024), ("ethercat", 230 * 1024), ("ethercat_defmt", 236 * 1024)];
+/// driver, four fault rows; +3,156, +3,252 and +3,260 bytes of text) and by 3 KiB for the gear and its user units
+/// (issue 20 item 3: 0x3003 and 0x6091 in effect, the exact position conversions, the geared rpm scale, the targets
+/// converted before the slow tick and the master's values published after it, torque polarity; +3,072, +3,228 and
+/// +3,136 bytes of text).
+const TEXT_BUDGETS: [(&str, u64); 3] = [("can", 202 * 1024), ("ethercat", 233 * 1024), ("ethercat_defmt", 239 * 1024)];
 
 #[test]
 fn board_images_fit_their_text_budgets() {

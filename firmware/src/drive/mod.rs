@@ -62,6 +62,7 @@ pub mod chopper;
 pub mod commutation;
 pub mod encoder;
 mod fieldbus;
+pub mod gear_ratio;
 pub mod hall_position;
 pub mod identification;
 pub mod mechanical_identification;
@@ -84,6 +85,7 @@ use crate::hal::power::PwmCommand;
 use crate::hal::reset::ResetCause;
 use crate::hal::sto::StoInputs;
 use crate::motion::axis::{Axis, AxisInputs, AxisOutputs, CurrentDemand};
+use crate::motion::polarity::Polarity;
 use crate::od::access::Dictionary;
 use crate::od::generated::handles as h;
 use crate::power_state::{CommutationError, CommutationStage, DriveError, PowerState};
@@ -263,6 +265,8 @@ pub struct Drive {
     sto_inputs: StoInputs,
     /// The motor identification procedure (0x6060 = -2).
     auto_setup: auto_setup::AutoSetup,
+    /// 0x6091 and 0x3003 as last reconciled ([`gear_ratio`]).
+    gear_ratio: gear_ratio::GearRatioSeen,
 }
 
 impl Drive {
@@ -321,8 +325,10 @@ impl Drive {
             event_warning_shown: false,
             sto_inputs: StoInputs::RELEASED,
             auto_setup: auto_setup::AutoSetup::default(),
+            gear_ratio: gear_ratio::GearRatioSeen::new(&dictionary),
             dictionary,
         };
+        drive.gear_ratio.reconcile(&mut drive.dictionary);
         drive.configure_commutation();
         // The first call converts the motor data, and with it the demand.
         drive.refresh_parameters();
@@ -412,7 +418,12 @@ impl Drive {
         let i_q = match self.source {
             DemandSource::TargetTorque => {
                 let d = &self.dictionary;
-                let (permille, i_q) = self.scale.torque_to_current(d.get(h::TARGET_TORQUE), d.get(h::TORQUE_OFFSET));
+                // CST: target torque and torque offset in the motor's direction (polarity 0x607E bit 6,
+                // `motion::polarity`).
+                let polarity = Polarity::from_0x607e(d.get(h::POLARITY));
+                let (target, offset) =
+                    (polarity.torque(d.get(h::TARGET_TORQUE)), polarity.torque(d.get(h::TORQUE_OFFSET)));
+                let (permille, i_q) = self.scale.torque_to_current(target, offset);
                 self.torque_demand_permille = permille;
                 i_q
             }
@@ -458,6 +469,7 @@ impl Drive {
         if let CommutationMethod::Absolute(ssi) = self.settings.commutation.method {
             self.ssi_background(&ssi);
         }
+        self.gear_ratio.reconcile(&mut self.dictionary);
         self.axis.refresh(&mut self.dictionary);
         self.axis.publish_velocity_actual_values(&mut self.dictionary);
         // 0x1015 EMCY inhibit time (CiA 301), taken over when it changes.
@@ -717,6 +729,14 @@ impl Drive {
         self.hold_loop_setpoint(before);
     }
 
+    /// Publishes the slow tick's positions and velocities in the master's units (0x6062, 0x6064, 0x60F4, 0x606B,
+    /// 0x606C, 0x60BA..0x60BD: polarity 0x607E and the gear, `motion::gear`). Tier 2 runs it right after
+    /// [`Self::slow_tick`], once the set-point is out (`rt::tier2`, the simulation likewise): the conversions stay
+    /// out of the slow tick's budget and a process-data cycle after the period sees the values of its slow tick.
+    pub fn publish_master_values(&mut self) {
+        self.axis.publish_master_values(&mut self.dictionary);
+    }
+
     /// Carries out the axis's requests on the power stage. Requests are acted on when they change; outside
     /// «Switch on disabled» (and «Not ready to switch on») the power-stage state is also held to the request
     /// every step, so a power stage driven directly through [`Self::switch_on`] and friends (commissioning
@@ -845,11 +865,14 @@ impl Drive {
             }
         }
         let d = &mut self.dictionary;
-        d.set(h::TORQUE_DEMAND_VALUE, self.shown_torque_demand);
+        // The torques as the master sees them (polarity 0x607E bit 6, `motion::polarity`); the currents keep the
+        // motor's sign.
+        let polarity = Polarity::from_0x607e(d.get(h::POLARITY));
+        d.set(h::TORQUE_DEMAND_VALUE, polarity.torque(self.shown_torque_demand));
         let permille = self.scale.current_to_permille(i_q);
         d.set(h::CURRENT_ACTUAL_VALUE_PER_MILLE, permille);
-        d.set(h::TORQUE_ACTUAL_VALUE, permille);
-        d.set(h::TORQUE_ACTUAL_VALUE_AVERAGED, self.scale.current_to_permille(avg));
+        d.set(h::TORQUE_ACTUAL_VALUE, polarity.torque(permille));
+        d.set(h::TORQUE_ACTUAL_VALUE_AVERAGED, polarity.torque(self.scale.current_to_permille(avg)));
         let mv = Volts::from_bits(self.v_bus_average).to_millivolts().max(0);
         d.set(h::DC_LINK_CIRCUIT_VOLTAGE, mv.unsigned_abs());
         d.set(h::POWER_SUPPLY_VOLTAGE, u16::try_from(mv / 100).unwrap_or(u16::MAX));

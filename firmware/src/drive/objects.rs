@@ -226,6 +226,8 @@ impl Drive {
         // 0x1011 restore / 0x1010 reload replacing them): they follow at once, so the velocity and acceleration
         // units of the next slow tick use the new resolution, not only after the next switch-on.
         self.sync_sensor_objects();
+        // 0x6091 and 0x3003 (and bit 12 of 0x3000:02) show one gear at once, not only after the next background step.
+        self.gear_ratio.reconcile(&mut self.dictionary);
         Ok(())
     }
 }

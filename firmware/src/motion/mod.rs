@@ -18,6 +18,7 @@
 
 pub mod axis;
 pub mod cyclic;
+pub mod gear;
 pub mod homing;
 pub mod loops;
 pub mod monitor;

@@ -234,6 +234,9 @@ async fn slow_loop() {
             &SETPOINT_PERIODS_LATE_MAX,
             super::tier1::FAST_TICKS.load(Ordering::Relaxed).wrapping_sub(raised_at),
         );
+        // The master's positions and velocities of this slow tick in its units (polarity, gear), once the set-point
+        // is out; before the recorder and the process data read them.
+        let _ = with_drive(crate::drive::Drive::publish_master_values);
         // The data recorder's object channels of this slow period: after the set-point is published.
         let _ = with_drive(record_objects);
         // The free-run process-data cycle (EtherCAT, feature `ethercat`): after the slow tick, as the other cycle

@@ -148,6 +148,7 @@ impl Simulation {
             self.drive.set_sto_inputs(self.plant.sto_inputs());
             self.drive.background();
             self.drive.slow_tick();
+            self.drive.publish_master_values();
             // The object channels after the slow tick, as `rt::tier2` takes them; the drain at once (tier 3's on the
             // target, within the ring's reach).
             self.recorder.take_objects(self.drive.dictionary().values().bytes());

@@ -4,6 +4,7 @@
 
 mod cyclic;
 mod encoder_resolution;
+mod gear;
 mod homing;
 mod observer;
 mod polarity;

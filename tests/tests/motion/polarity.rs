@@ -1,8 +1,8 @@
 //! Polarity 0x607E on the reference plant (issue 18 "0x607E (polarity) take effect"; Glentek Gamma L1656-1672,
 //! Nanotec PD4-E p.250 L627; `firmware::motion::polarity`): bit 7 multiplies the position values exchanged with
 //! the master by -1 (PPM, CSP, home offset, software limits, 0x6064/0x6062/0x60F4), bit 6 the velocity values
-//! (PVM, CSV, 0x606C/0x606B); the motor's own direction is the plant's true encoder count. Written over SDO as a
-//! master does, with the power stage off.
+//! (PVM, CSV, 0x606C/0x606B), and bit 6 the torques (CST, 0x6077; 0x60B2 takes bit 7 in CSP); the motor's own
+//! direction is the plant's true encoder count. Written over SDO as a master does, with the power stage off.
 //!
 //! Tolerances: the position window 0x6067 (10 inc) for positions after a move (measured 0 to 1 inc), and 15 rpm
 //! for velocities held by the velocity loop (half the velocity window 0x606D; measured within 0.5 rpm).
@@ -205,16 +205,16 @@ fn polarity_is_written_with_the_power_stage_off_and_saved() {
     assert_eq!(rebooted.dictionary().get(h::POLARITY), 0xC0, "restored at boot");
 }
 
-/// `firmware::motion::polarity`: torques are not inverted, the torque offset 0x60B2 neither where it is CSP's
-/// torque feedforward (issue 20 item 4; neither seed gives a torque bit). On the locked rotor holding its position
-/// in CSP (0x607A = 0x6064 every 1 ms, so the position error and the integral stay put), 0x60B2 = 200 per mille
-/// moves the q reference by +640 mA (200 per mille of 3.2 A, exact in I16F16 bits) in the motor's positive
-/// direction with 0x607E = 0 and with bit 7 set alike.
+/// `firmware::motion::polarity` (issue 20 item 3): the torque offset 0x60B2 takes bit 7 where it is CSP's torque
+/// feedforward, as the velocity offset 0x60B1 does there (the position command's acceleration feed-forward). On the
+/// locked rotor holding its position in CSP (0x607A = 0x6064 every 1 ms, so the position error and the integral
+/// stay put), 0x60B2 = 200 per mille moves the q reference by +640 mA (200 per mille of 3.2 A, exact in I16F16
+/// bits) with 0x607E = 0 and 0x40 (bit 6 is not CSP's bit), by -640 mA with 0x80 and 0xC0.
 #[test]
-fn torque_offset_in_csp_keeps_the_motor_direction() {
+fn torque_offset_in_csp_follows_bit_7() {
     use firmware::control::demand::DemandScale;
     let expected = DemandScale::reference().torque_to_current(200, 0).1.to_bits();
-    for polarity in [0x00u8, 0x80] {
+    for (polarity, sign) in [(0x00u8, 1), (0x40, 1), (0x80, -1), (0xC0, -1)] {
         let mut sim = enabled_with(polarity, 8);
         sim.plant.lock_rotor(true);
         let cycles = |sim: &mut Simulation, n: usize| {
@@ -230,6 +230,6 @@ fn torque_offset_in_csp_keeps_the_motor_direction() {
         sim.drive.dictionary_mut().set(h::TORQUE_OFFSET, 200i16);
         cycles(&mut sim, 5);
         let after = sim.tier1().signals().i_ref.q.to_bits();
-        assert_eq!(after - before, expected, "0x607E = {polarity:#04x}: +640 mA in the motor's direction");
+        assert_eq!(after - before, sign * expected, "0x607E = {polarity:#04x}: {} 640 mA", sign * 640);
     }
 }
