@@ -64,6 +64,9 @@ pub enum Command {
     Spinning(CurrentLoopScenario),
     /// CiA 402 CSP: a 10-revolution jerk-limited move with set-points every 1 ms; following error and settling.
     Csp(CspScenario),
+    /// The dual loop (EPOS4 AN ch. 10) on a plant with a load encoder: a CSP move of the load closed by the load
+    /// encoder; load_following_error_peak_inc, load_settle_error_inc, motor_load_deviation_peak_deg.
+    DualLoop(DualLoopScenario),
     /// CiA 402 CSV: a 100 rpm velocity step and a sine sweep of the velocity loop (velocity_bandwidth_hz).
     CsvSweep(Scenario),
     /// CiA 402 PPM: moves (target reached against the analytic profile, up to 5,000 rpm) and quick stops against
@@ -174,6 +177,21 @@ pub struct CspScenario {
     /// cycle, with 0x30A1:05 (the drive's own acceleration feedforward) = 0.
     #[arg(long)]
     pub torque_feedforward: bool,
+}
+
+/// dual-loop: a scenario, the main loop's gains and the comparison without the load encoder.
+#[derive(Debug, Args)]
+pub struct DualLoopScenario {
+    /// Plant (it needs a load encoder: load_encoder_counts_per_rev), seed, auto-tuning, output directory.
+    #[command(flatten)]
+    pub scenario: Scenario,
+    /// 0x30AE:01..03 set before the move: K_Low and K_High in 0.001/s, the scheduling weight H in 0.001.
+    #[arg(long, value_name = "K_LOW,K_HIGH,H", value_parser = parse_main_loop_gains)]
+    pub main_loop_gains: Option<[u32; 3]>,
+    /// The same move with the motor encoder alone closing the position loop (the default PID 0x30A1), for
+    /// comparison: the load encoder is only measured.
+    #[arg(long, conflicts_with = "main_loop_gains")]
+    pub motor_encoder_only: bool,
 }
 
 /// fault-matrix: a scenario and the choice of cases.
@@ -314,6 +332,15 @@ pub fn parse_resonance(text: &str) -> Result<(f64, f64), String> {
 /// `--position-gains P,I,D,FFV,FFA`: five unsigned integers (0x30A1:01..05).
 pub fn parse_position_gains(text: &str) -> Result<[u32; 5], String> {
     let what = "P,I,D,FFV,FFA: five unsigned integers (0x30A1:01..05)";
+    let values: Vec<u32> =
+        text.split(',').map(|x| x.trim().parse()).collect::<Result<_, _>>().map_err(|e| format!("{what}: {e}"))?;
+    let count = values.len();
+    values.try_into().map_err(|_| format!("{what}, got {count}"))
+}
+
+/// `--main-loop-gains K_LOW,K_HIGH,H`: three unsigned integers (0x30AE:01..03).
+pub fn parse_main_loop_gains(text: &str) -> Result<[u32; 3], String> {
+    let what = "K_LOW,K_HIGH,H: three unsigned integers (0x30AE:01..03)";
     let values: Vec<u32> =
         text.split(',').map(|x| x.trim().parse()).collect::<Result<_, _>>().map_err(|e| format!("{what}: {e}"))?;
     let count = values.len();
