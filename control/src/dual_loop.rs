@@ -33,14 +33,16 @@ const EXP_NEG_QUARTERS: [u32; 34] = [
 /// The exponent beyond which the scheduled gain is K_High: 8 (`U16F16`).
 const EXPONENT_LIMIT: u32 = 8 << 16;
 
-/// The largest gain taken, 10^7 (10,000/s, the dictionary's limit of 0x30AE:01/02): K Ts stays below 2^35.
-const GAIN_MAX: u32 = 10_000_000;
+/// The largest gain taken, 10^6 (1,000/s, the dictionary's limit of 0x30AE:01/02, five times EPOS4's largest
+/// tuned example, S1 Tab. 10-96): K Ts stays below 2^31.
+const GAIN_MAX: u32 = 1_000_000;
 
 /// 0.001/s per (1/tick): 1000 x the slow tick's rate.
 const MILLI_PER_S_PER_TICK: u64 = 1000 * SLOW_TICK_HZ as u64;
 
-/// The following-error clamp before the gains: +-2^24 increments (as the position PID's, `super::position`).
-const ERROR_LIMIT: i32 = 1 << 24;
+/// The following-error clamp before the gains: +-2^23 increments (2,048 revolutions at 4096 inc/rev, far beyond
+/// any following-error window 0x6065; the velocity demand saturates long before).
+const ERROR_LIMIT: i32 = 1 << 23;
 
 /// `exp(-x)` for `x` in `U16F16`, `U16F16` (1.0 = 65536), within 0.8 % of exp(-x) (linear interpolation between
 /// quarter steps); 0 from x = 8 on.
@@ -102,7 +104,7 @@ impl MainLoopGains {
     pub fn scheduled(&self, error: i32) -> i64 {
         let x = self.weight.saturating_mul(error.unsigned_abs());
         let share = i64::from(exp_neg(x));
-        // Both gains lie in 0..2^35 (`GAIN_MAX`) and share in 0..=2^16: the product stays within 2^51, the sum
+        // Both gains lie in 0..2^31 (`GAIN_MAX`) and share in 0..=2^16: the product stays within 2^47, the sum
         // between the two gains.
         let span = self.k_low.wrapping_sub(self.k_high);
         self.k_high.wrapping_add(span.wrapping_mul(share) >> 16)
@@ -136,15 +138,24 @@ impl MainLoop {
     }
 
     /// One slow tick: `w = K_Main (theta_des - theta_meas) + w_ref` for the demand `theta_des`, the load position
-    /// `theta_meas` (both motor increments) and the demanded motor velocity `w_ref`, saturated to the velocity
-    /// format (the auxiliary loop's limit then applies, S1 L9154: "limited to the maximal permitted motor speed").
-    pub fn step(&mut self, theta_des: Increments, theta_meas: Increments, w_ref: IncPerTick) -> IncPerTick {
+    /// `theta_meas + fraction / 2^16` (motor increments: the load encoder resolves a motor increment further, and
+    /// the loop closes on that finer position, not on the motor increment it falls in) and the demanded motor
+    /// velocity `w_ref`, saturated to the velocity format (the auxiliary loop's limit then applies, S1 L9154:
+    /// "limited to the maximal permitted motor speed").
+    pub fn step(
+        &mut self,
+        theta_des: Increments,
+        theta_meas: Increments,
+        fraction: u16,
+        w_ref: IncPerTick,
+    ) -> IncPerTick {
         let raw = theta_des.wrapping_sub(theta_meas);
         self.following_error = raw;
-        let e = raw.clamp(-ERROR_LIMIT, ERROR_LIMIT);
-        let k = self.gains.scheduled(e);
-        // 0 <= k < 2^35, |e| <= 2^24: the product stays within 2^59; >> 16 gives 2^-16 inc/tick.
-        let w = k.wrapping_mul(i64::from(e)) >> 16;
+        // The error in 2^-8 increments: |e| <= 2^31 + 255.
+        let e = (i64::from(raw.clamp(-ERROR_LIMIT, ERROR_LIMIT)) << 8).wrapping_sub(i64::from(fraction >> 8));
+        let k = self.gains.scheduled(sat_i32(e >> 8));
+        // 0 <= k < 2^31 and |e| < 2^31 + 2^8: the product stays below 2^62.1; >> 24 gives 2^-16 inc/tick.
+        let w = k.wrapping_mul(e) >> 24;
         IncPerTick::from_bits(sat_i32(w).saturating_add(w_ref.to_bits()))
     }
 }
@@ -209,16 +220,20 @@ mod tests {
     #[test]
     fn main_loop_law_is_gain_times_error_plus_demand() {
         let mut m = MainLoop::new(MainLoopGains::from_idx_0x30ae(25_000, 25_000, 10_000, 1, 1));
-        let w = m.step(Increments(1_100), Increments(1_000), IncPerTick::from_bits(2 << 16));
+        let w = m.step(Increments(1_100), Increments(1_000), 0, IncPerTick::from_bits(2 << 16));
         assert_eq!(m.following_error(), 100);
         // K Ts = 42,949,672 / 2^32 (floor of 0.01 * 2^32): 100 * 42,949,672 >> 16 = 65,535.
         assert_eq!(w.to_bits(), (2 << 16) + 65_535);
-        let w = m.step(Increments(900), Increments(1_000), IncPerTick::ZERO);
+        let w = m.step(Increments(900), Increments(1_000), 0, IncPerTick::ZERO);
         assert_eq!(w.to_bits(), -65_536, "floor of -1 inc/tick");
         // No error: the demand alone (the dual loop follows the path by its feedforward).
-        assert_eq!(m.step(Increments(5), Increments(5), IncPerTick::from_bits(777)).to_bits(), 777);
+        assert_eq!(m.step(Increments(5), Increments(5), 0, IncPerTick::from_bits(777)).to_bits(), 777);
         // Across the i32 wrap of both positions the error is the short way.
-        m.step(Increments(i32::MIN.wrapping_add(10)), Increments(i32::MAX.wrapping_sub(9)), IncPerTick::ZERO);
+        m.step(Increments(i32::MIN.wrapping_add(10)), Increments(i32::MAX.wrapping_sub(9)), 0, IncPerTick::ZERO);
         assert_eq!(m.following_error(), 20);
+        // The load half an increment short of 1,000 (999 + 0x8000 / 2^16): half the gain's 1 inc/tick per 100 inc,
+        // 0.005 inc/tick = 327.68 / 2^16, floor; the following error 0x60F4 stays in whole increments.
+        let w = m.step(Increments(1_000), Increments(999), 0x8000, IncPerTick::ZERO);
+        assert_eq!((w.to_bits(), m.following_error()), (327, 1));
     }
 }

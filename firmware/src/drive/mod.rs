@@ -497,7 +497,7 @@ impl Drive {
         let load = self.load_count as i32;
         self.dictionary.set(h::POSITION_ACTUAL_VALUE_SENSOR_1, motor);
         self.dictionary.set(h::POSITION_ACTUAL_VALUE_SENSOR_2, load);
-        let main = self.load_feedback.as_mut().map(|f| f.update(self.load_count, motor));
+        let main = self.load_feedback.as_mut().map(|f| (f.update(self.load_count, motor), f.fraction()));
         self.axis.set_main_sensor_position(main);
     }
 

@@ -285,11 +285,12 @@ impl Axis {
     }
 
     /// The dual loop's main sensor for the next steps: the load position in motor increments (the coordinates of
-    /// the encoder position, `motion::dual_loop`), or `None` when the motor encoder is the main sensor. Set by the
+    /// the encoder position, `motion::dual_loop`) with its fraction of an increment (`U0F16`, for the main loop),
+    /// or `None` when the motor encoder is the main sensor. Set by the
     /// drive's background step of the same slow period, before the step.
-    pub fn set_main_sensor_position(&mut self, load: Option<i32>) {
-        self.main_sensor = load;
-        self.loops.set_dual_loop(load.is_some());
+    pub fn set_main_sensor_position(&mut self, load: Option<(i32, u16)>) {
+        self.main_sensor = load.map(|(position, _)| position);
+        self.loops.set_dual_loop(load.is_some(), load.map_or(0, |(_, fraction)| fraction));
     }
 
     /// The dual loop's load scale, taken with the sensor configuration at switch-on (`motion::dual_loop`).

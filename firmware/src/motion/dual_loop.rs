@@ -53,7 +53,7 @@ pub fn gear_ratio(d: &Dictionary) -> (u32, u32) {
 pub struct LoadScale {
     /// Gear numerator x motor increments per revolution (reduced), 1..2^38.
     pub num: i64,
-    /// Gear denominator x load increments per revolution (reduced), 1..2^62.
+    /// Gear denominator x load increments per revolution (reduced), 1..2^46.
     pub den: i64,
 }
 
@@ -79,9 +79,10 @@ impl LoadScale {
         }
         let g = gcd(num, den).max(1);
         let (num, den) = (num.checked_div(g).unwrap_or(num), den.checked_div(g).unwrap_or(den));
-        // The carry's product (|delta| <= 2^24) stays within i64 for num below 2^38.
+        // The carry's product (|delta| <= 2^24) stays within i64 for num below 2^38, the fraction's (remainder
+        // 2^16) for den below 2^46.
         match (i64::try_from(num), i64::try_from(den)) {
-            (Ok(num), Ok(den)) if num < 1 << 38 && den < 1 << 62 => Ok(Self { num, den }),
+            (Ok(num), Ok(den)) if num < 1 << 38 && den < 1 << 46 => Ok(Self { num, den }),
             _ => Err(DualLoopError::ScalingFactor),
         }
     }
@@ -124,6 +125,14 @@ impl LoadFeedback {
         self.scale
     }
 
+    /// The fraction of a motor increment beyond the last [`Self::update`]'s position, `U0F16` (remainder / den).
+    #[must_use]
+    pub fn fraction(&self) -> u16 {
+        // 0 <= remainder < den < 2^46: the shifted remainder fits, the quotient is below 2^16.
+        let q = (self.remainder << 16).checked_div(self.scale.den).unwrap_or(0);
+        u16::try_from(q).unwrap_or(0)
+    }
+
     /// The load position (motor increments) at the load encoder's `count` (wrapping, any width up to 32 bits read
     /// as u32); the first call starts it at `motor_position`.
     pub fn update(&mut self, count: u32, motor_position: i32) -> i32 {
@@ -138,7 +147,7 @@ impl LoadFeedback {
         let delta = (count.wrapping_sub(self.last_count) as i32).clamp(-DELTA_LIMIT, DELTA_LIMIT);
         self.last_count = count;
         let LoadScale { num, den } = self.scale;
-        // |delta num| < 2^62 and 0 <= remainder < den < 2^62: no overflow.
+        // |delta num| < 2^62 and 0 <= remainder < den < 2^46: no overflow.
         let total = self.remainder.wrapping_add(i64::from(delta).wrapping_mul(num));
         let steps = total.checked_div_euclid(den).unwrap_or(0);
         // total - steps den, in 0..den.
@@ -181,6 +190,7 @@ mod tests {
         assert_eq!(f.update(count, 0), 1_128);
         // One load increment: 1.024 motor increments, the fraction carried (1, then 2 after two, ...).
         assert_eq!(f.update(count.wrapping_add(1), 0), 1_129);
+        assert_eq!(f.fraction(), 1_572, "0.024 = 3 / 125 of an increment: 1,572.864 / 2^16");
         assert_eq!(f.update(count.wrapping_sub(1), 0), 1_126, "-1 load inc: floor of 1128 - 1.024");
     }
 

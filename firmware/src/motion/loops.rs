@@ -135,6 +135,8 @@ pub struct Loops {
     /// The dual loop's main loop; it runs while [`Self::set_dual_loop`] says the position is the load's.
     main_loop: MainLoop,
     dual_loop: bool,
+    /// The load position's fraction of a motor increment (`U0F16`), beyond the position the axis hands the step.
+    load_fraction: u16,
     /// The dual loop's load scale (`super::dual_loop::LoadScale` as num/den; 0/0 without it).
     load_scale: (i64, i64),
     active: Active,
@@ -159,6 +161,7 @@ impl Loops {
             velocity: VelocityController::new(VelocityGains::ZERO),
             main_loop: MainLoop::new(MainLoopGains::default()),
             dual_loop: false,
+            load_fraction: 0,
             load_scale: (0, 0),
             active: Active::None,
             last_current: Amps::ZERO,
@@ -242,8 +245,10 @@ impl Loops {
 
     /// The position the axis hands [`Self::step`] is the load's (the dual loop's main sensor): position demands
     /// run through the main loop and the velocity loop.
-    pub fn set_dual_loop(&mut self, on: bool) {
+    /// `fraction` is the load position's fraction of a motor increment beyond that position (`U0F16`).
+    pub fn set_dual_loop(&mut self, on: bool, fraction: u16) {
         self.dual_loop = on;
+        self.load_fraction = fraction;
     }
 
     /// The dual loop's load scale (taken with the sensor configuration): the main loop's gain scheduling counts
@@ -348,7 +353,8 @@ impl Loops {
         }
         let w_ref = IncPerTick::from_bits(sp.velocity.to_inc_per_tick_q16());
         let a = IncPerTick2::from_bits(sp.acceleration.to_inc_per_tick2_q16());
-        let w = self.main_loop.step(Increments(sp.position_i32()), Increments(load_position), w_ref);
+        let w =
+            self.main_loop.step(Increments(sp.position_i32()), Increments(load_position), self.load_fraction, w_ref);
         let i = self.velocity.step_with_torque(w, self.velocity_estimate, a, torque, limit);
         (i, self.velocity.saturated(), self.main_loop.following_error(), Active::Position)
     }
