@@ -24,9 +24,9 @@
 pub use super::units::{IncPerTick, Increments};
 use super::velocity::{sat_i32, SLOW_TICK_HZ};
 
-/// `exp(-i/4)` for i = 0..=33, `U16F16` (rounded).
-const EXP_NEG_QUARTERS: [u32; 34] = [
-    65536, 51039, 39750, 30957, 24109, 18776, 14623, 11388, 8869, 6907, 5380, 4190, 3263, 2541, 1979, 1541, 1200, 935,
+/// `exp(-i/4)` for i = 0..=33, `U16F16` (rounded; exp(0) = 1 as 65535, one LSB short, to fit 16 bits).
+const EXP_NEG_QUARTERS: [u16; 34] = [
+    65535, 51039, 39750, 30957, 24109, 18776, 14623, 11388, 8869, 6907, 5380, 4190, 3263, 2541, 1979, 1541, 1200, 935,
     728, 567, 442, 344, 268, 209, 162, 127, 99, 77, 60, 47, 36, 28, 22, 17,
 ];
 
@@ -37,14 +37,16 @@ const EXPONENT_LIMIT: u32 = 8 << 16;
 /// tuned example, S1 Tab. 10-96): K Ts stays below 2^31.
 const GAIN_MAX: u32 = 1_000_000;
 
-/// 0.001/s per (1/tick): 1000 x the slow tick's rate.
-const MILLI_PER_S_PER_TICK: u64 = 1000 * SLOW_TICK_HZ as u64;
+/// 2^52 / (1000 f_s), rounded: a gain in 0.001/s times this, >> 20, is K Ts in 2^-32 per tick (a multiplication
+/// where a division would cost a call; for every gain up to [`GAIN_MAX`] within 1 LSB of the exact quotient, and
+/// equal to its floor for the values the tests check).
+const PER_TICK_Q52: u64 = (((1u128 << 53) / (1000 * SLOW_TICK_HZ as u128) + 1) >> 1) as u64;
 
 /// The following-error clamp before the gains: +-2^23 increments (2,048 revolutions at 4096 inc/rev, far beyond
 /// any following-error window 0x6065; the velocity demand saturates long before).
 const ERROR_LIMIT: i32 = 1 << 23;
 
-/// `exp(-x)` for `x` in `U16F16`, `U16F16` (1.0 = 65536), within 0.8 % of exp(-x) (linear interpolation between
+/// `exp(-x)` for `x` in `U16F16`, `U16F16` (exp(0) = 65535), within 0.8 % of exp(-x) (linear interpolation between
 /// quarter steps); 0 from x = 8 on.
 #[must_use]
 pub fn exp_neg(x: u32) -> u32 {
@@ -54,8 +56,8 @@ pub fn exp_neg(x: u32) -> u32 {
     // x < 2^19: the index is at most 31, so index + 1 is within the table.
     let index = (x >> 14) as usize;
     let fraction = x & 0x3FFF;
-    let lower = EXP_NEG_QUARTERS.get(index).copied().unwrap_or(0);
-    let upper = EXP_NEG_QUARTERS.get(index.wrapping_add(1)).copied().unwrap_or(0);
+    let lower = u32::from(EXP_NEG_QUARTERS.get(index).copied().unwrap_or(0));
+    let upper = u32::from(EXP_NEG_QUARTERS.get(index.wrapping_add(1)).copied().unwrap_or(0));
     // lower >= upper; the difference times 2^14 stays below 2^30.
     lower.wrapping_sub(((lower.wrapping_sub(upper)).wrapping_mul(fraction)) >> 14)
 }
@@ -84,10 +86,10 @@ impl MainLoopGains {
         motor_per_load_num: u64,
         motor_per_load_den: u64,
     ) -> Self {
-        // K Ts in 2^-32 inc/tick per inc = raw * 1e-3 / f_s * 2^32 (64-bit: raw is at most 10^7 < 2^24 by the
-        // dictionary's limit, so raw 2^32 stays below 2^56; a larger raw saturates).
+        // K Ts in 2^-32 inc/tick per inc = raw * 1e-3 / f_s * 2^32 (raw limited to GAIN_MAX, the dictionary's).
+        // raw <= 2^20 and the factor < 2^31: the product stays below 2^51.
         let per_tick = |raw: u32| -> i64 {
-            let q = (u64::from(raw.min(GAIN_MAX)) << 32).checked_div(MILLI_PER_S_PER_TICK).unwrap_or(0);
+            let q = u64::from(raw.min(GAIN_MAX)).wrapping_mul(PER_TICK_Q52) >> 20;
             i64::try_from(q).unwrap_or(i64::MAX)
         };
         // H e_load / 100 with e_load = e_motor den / num: (raw / 1000) / 100 * den / num per motor increment.
@@ -168,12 +170,12 @@ mod tests {
     /// above the convex exp by at most (1/4)^2 / 8 = 0.8 % of exp(-x) (0.7 % at x = 1/8, below).
     #[test]
     fn exp_table_follows_exp() {
-        assert_eq!(exp_neg(0), 65536);
+        assert_eq!(exp_neg(0), 65535, "1.0, one LSB short");
         assert_eq!(exp_neg(1 << 16), 24109, "exp(-1) = 0.367879 = 24109.4 / 65536");
         assert_eq!(exp_neg(3 << 16), 3263, "exp(-3) = 0.049787");
         assert_eq!(exp_neg(8 << 16), 0, "beyond the table: K_High");
-        // Halfway between 0 and 1/4: chord (65536 + 51039) / 2 = 58287.5; exp(-1/8) = 57835.6.
-        assert_eq!(exp_neg(1 << 13), 58288);
+        // Halfway between 0 and 1/4: chord (65535 + 51039) / 2 = 58287; exp(-1/8) = 57835.6.
+        assert_eq!(exp_neg(1 << 13), 58287);
         // Monotone non-increasing over the whole range.
         let mut last = u32::MAX;
         for x in (0..(9 << 16)).step_by(97) {
@@ -184,11 +186,12 @@ mod tests {
     }
 
     /// S1 L9158-9190: zero error gives K_Low, a large error K_High. 0x30AE:01 = 221,340 (221.34/s, EPOS4 UC1),
-    /// :02 = 44,268: K Ts = 221.34 / 2500 per tick = 0.088536 = 380,261,770 / 2^32 (floor).
+    /// :02 = 44,268: K Ts = 221.34 / 2500 per tick = 0.088536 = 380,259,224 / 2^32 (floor).
     #[test]
     fn gain_schedule_runs_from_k_low_to_k_high() {
         let g = MainLoopGains::from_idx_0x30ae(221_340, 44_268, 10_000, 1, 1);
-        assert_eq!(g.scheduled(0), 380_259_224);
+        // K_Low to within one part in 65,536 (the table's exp(0) = 65535 / 65536): 380,254,582.
+        assert_eq!(g.scheduled(0), 380_254_582);
         assert_eq!(g.k_high, 76_051_844);
         assert_eq!(g.scheduled(1_000), 76_051_844, "H |e| / 100 = 100: K_High");
         // 10 load increments with H = 10: x = 10 * 6553 / 65536 (H / 100 = 0.1 rounded down in U16F16), just

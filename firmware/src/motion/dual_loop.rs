@@ -90,6 +90,7 @@ impl LoadScale {
 
 /// The dual loop in force for the dictionary `d`: `Ok(None)` when 0x3000:02 does not select it, the load scale
 /// when it does and the configuration is complete, the reason otherwise.
+#[inline(never)]
 pub fn configuration(d: &Dictionary) -> Result<Option<LoadScale>, DualLoopError> {
     if d.get(h::CONTROL_STRUCTURE) & DUAL_LOOP_STRUCTURE_MASK != DUAL_LOOP_STRUCTURE {
         return Ok(None);
@@ -149,9 +150,14 @@ impl LoadFeedback {
         let LoadScale { num, den } = self.scale;
         // |delta num| < 2^62 and 0 <= remainder < den < 2^46: no overflow.
         let total = self.remainder.wrapping_add(i64::from(delta).wrapping_mul(num));
-        let steps = total.checked_div_euclid(den).unwrap_or(0);
-        // total - steps den, in 0..den.
-        self.remainder = total.wrapping_sub(steps.wrapping_mul(den));
+        // The floor of total / den, and the remainder total - steps den in 0..den (den > 0).
+        let mut steps = total.checked_div(den).unwrap_or(0);
+        let mut remainder = total.wrapping_sub(steps.wrapping_mul(den));
+        if remainder < 0 {
+            steps = steps.wrapping_sub(1);
+            remainder = remainder.wrapping_add(den);
+        }
+        self.remainder = remainder;
         // |steps| <= 2^24 x 2^15: an i32 step, added wrapping like every position.
         self.position = self.position.wrapping_add(i32::try_from(steps).unwrap_or(0));
         self.position
