@@ -284,10 +284,10 @@ impl Axis {
         &self.last_setpoint
     }
 
-    /// The dual loop's main sensor for the next steps: the load position in motor increments (the coordinates of
+    /// The dual loop's main sensor for the next step: the load position in motor increments (the coordinates of
     /// the encoder position, `motion::dual_loop`) with its fraction of an increment (`U0F16`, for the main loop),
-    /// or `None` when the motor encoder is the main sensor. Set by the
-    /// drive's background step of the same slow period, before the step.
+    /// or `None` when the motor encoder is the main sensor. Set by the drive's background step before the step of
+    /// the same slow period (both see the same tier-1 report).
     pub fn set_main_sensor_position(&mut self, load: Option<(i32, u16)>) {
         self.main_sensor = load.map(|(position, _)| position);
         self.loops.set_dual_loop(load.is_some(), load.map_or(0, |(_, fraction)| fraction));

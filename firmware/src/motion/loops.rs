@@ -22,7 +22,7 @@ use crate::control::dual_loop::{MainLoop, MainLoopGains};
 use crate::control::frames::Amps;
 use crate::control::observer::{ObserverGains, VelocityObserver};
 use crate::control::position::{Increments, PositionController, PositionGains};
-use crate::control::trajectory::{Setpoint, Velocity};
+use crate::control::trajectory::Velocity;
 use crate::control::velocity::{IncPerTick, IncPerTick2, VelocityController, VelocityGains};
 use crate::control::velocity_estimate::{LowPassVelocityEstimator, PositionWindow};
 use crate::od::access::Dictionary;
@@ -294,7 +294,8 @@ impl Loops {
             scale.torque_to_current(clamped, 0).1
         };
         let (current, saturated, following_error, active) = match *demand {
-            LoopDemand::Position(sp) if !self.dual_loop => {
+            LoopDemand::Position(sp) if self.dual_loop => self.step_dual_loop(&sp, position, torque, limit),
+            LoopDemand::Position(sp) => {
                 if self.active != Active::Position {
                     self.position.reset();
                     self.position.set_integral(self.last_current);
@@ -311,26 +312,15 @@ impl Loops {
                 );
                 (i, self.position.saturated(), self.position.following_error(), Active::Position)
             }
-            // The velocity modes, and the dual loop's position demands (EPOS4 AN ch. 10.3/10.4): the main loop turns
-            // the load position's error into the velocity loop's demand, which closes on the motor encoder's
-            // estimate with the demand's acceleration as feedforward.
-            LoopDemand::Position(Setpoint { velocity, acceleration, .. })
-            | LoopDemand::Velocity { velocity, acceleration } => {
-                let kind = if let LoopDemand::Position(_) = *demand { Active::Position } else { Active::Velocity };
-                if self.active != kind {
+            LoopDemand::Velocity { velocity, acceleration } => {
+                if self.active != Active::Velocity {
                     self.velocity.reset();
                     self.velocity.set_integral(self.last_current);
                 }
-                let mut w = IncPerTick::from_bits(velocity.to_inc_per_tick_q16());
+                let w = IncPerTick::from_bits(velocity.to_inc_per_tick_q16());
                 let a = IncPerTick2::from_bits(acceleration.to_inc_per_tick2_q16());
-                let mut following_error = 0;
-                if let LoopDemand::Position(sp) = *demand {
-                    let (demanded, load) = (Increments(sp.position_i32()), Increments(position));
-                    w = self.main_loop.step(demanded, load, self.load_fraction, w);
-                    following_error = self.main_loop.following_error();
-                }
                 let i = self.velocity.step_with_torque(w, self.velocity_estimate, a, torque, limit);
-                (i, self.velocity.saturated(), following_error, kind)
+                (i, self.velocity.saturated(), 0, Active::Velocity)
             }
             LoopDemand::Torque { .. } => {
                 let i = torque;
@@ -343,6 +333,30 @@ impl Loops {
         self.active = active;
         self.last_current = current;
         LoopOutput { current, saturated, following_error }
+    }
+
+    /// The dual loop's step (EPOS4 AN ch. 10.3/10.4): the main loop turns the load position's error into the
+    /// velocity demand of the velocity loop, which closes on the motor encoder's estimate with the demand's
+    /// acceleration as feedforward. The velocity controller is the one of the velocity modes, preset bumplessly
+    /// when the position control begins.
+    #[inline(never)]
+    fn step_dual_loop(
+        &mut self,
+        sp: &crate::control::trajectory::Setpoint,
+        load_position: i32,
+        torque: Amps,
+        limit: Amps,
+    ) -> (Amps, bool, i32, Active) {
+        if self.active != Active::Position {
+            self.velocity.reset();
+            self.velocity.set_integral(self.last_current);
+        }
+        let w_ref = IncPerTick::from_bits(sp.velocity.to_inc_per_tick_q16());
+        let a = IncPerTick2::from_bits(sp.acceleration.to_inc_per_tick2_q16());
+        let w =
+            self.main_loop.step(Increments(sp.position_i32()), Increments(load_position), self.load_fraction, w_ref);
+        let i = self.velocity.step_with_torque(w, self.velocity_estimate, a, torque, limit);
+        (i, self.velocity.saturated(), self.main_loop.following_error(), Active::Position)
     }
 }
 
