@@ -198,7 +198,7 @@ mod tests {
         // below 1: exp(-0.99991) = 0.36791, K = K_High + 0.36791 (K_Low - K_High).
         let k = g.scheduled(10);
         assert_eq!(exp_neg(65_530), 24_112);
-        let expected = 76_051_844 + ((380_259_224 - 76_051_844) * 24_112 >> 16);
+        let expected = 76_051_844 + (((380_259_224 - 76_051_844) * 24_112) >> 16);
         assert_eq!(k, expected);
         assert_eq!(g.scheduled(-10), k, "the scheduler sees |e|");
     }

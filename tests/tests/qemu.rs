@@ -67,8 +67,11 @@ const ECAT_CYCLE_BUDGET: u64 = 1_500;
 /// Measured then: 195,504, 227,356 and 233,428. Raised by 4, 3 and 4 KiB for the data recorder (issue 22 item 2: its
 /// entries, tier 3's drain, the SDO serving behind the application-objects port, tier 1's copy and the stack's
 /// high-water mark; +3,684, +3,100 and +3,244 bytes of text): 199,188, 230,456 and 236,672 at the last change; the
-/// CAN image is 5,612 bytes under its 200 KiB ceiling.
-const TEXT_BUDGETS: [(&str, u64); 3] = [("can", 196 * 1024), ("ethercat", 227 * 1024), ("ethercat_defmt", 233 * 1024)];
+/// CAN image is 5,612 bytes under its 200 KiB ceiling. Raised by 2 KiB each for the dual loop (issue 20 item 2: the
+/// load encoder's objects 0x3020, 0x30AE, 0x60E4, its conversion to motor increments with the configuration check,
+/// the main loop with its gain scheduler, the board's TIM5 driver; +2,508, +2,768 and +2,752 bytes of text):
+/// 201,696, 233,224 and 239,424; the CAN image is 3,104 bytes under its ceiling.
+const TEXT_BUDGETS: [(&str, u64); 3] = [("can", 198 * 1024), ("ethercat", 229 * 1024), ("ethercat_defmt", 235 * 1024)];
 
 #[test]
 fn board_images_fit_their_text_budgets() {
