@@ -398,6 +398,9 @@ mod tests {
         ("README.md", "csp --torque-feedforward"),
         ("tests/tests/canopen_real_master.rs LSS", "canopen --port 0 --lock-step --nodes 3 --unconfigured 1 --unconfigured 2 --unconfigured 3"),
         ("drive-tool/tests/simulator.rs record", "canopen --port 0 --lock-step --seconds 600 --nodes 1 --trace out/trace.csv"),
+        ("README.md", concat!("dual-loop --plant ", env!("CARGO_MANIFEST_DIR"), "/presets/geared-36v.toml --auto-tune")),
+        ("README.md", "dual-loop --motor-encoder-only"),
+        ("tests/tests/drive/dual_loop.rs", "dual-loop --main-loop-gains 20000,60000,10000"),
         ("README.md", "csv-sweep"),
         ("README.md", "ppm"),
         ("README.md", "homing"),
@@ -539,6 +542,8 @@ mod tests {
         }
         let e = parse("current-step --default-gains --gains 1,2").expect_err("conflict");
         assert_eq!(e.kind(), ErrorKind::ArgumentConflict, "{e}");
+        let e = parse("dual-loop --motor-encoder-only --main-loop-gains 1,2,3").expect_err("conflict");
+        assert_eq!(e.kind(), ErrorKind::ArgumentConflict, "no main loop without the load encoder: {e}");
         let e = parse("csv-sweep --resonance 60,15").expect_err("--resonance without --auto-tune");
         assert_eq!(e.kind(), ErrorKind::MissingRequiredArgument, "{e}");
         assert!(parse("ethercat --lock-step").is_err(), "--iface is required");
@@ -552,6 +557,7 @@ mod tests {
             ("current-step --gains 1", "--gains"),
             ("current-step --gains 1,-2", "--gains"),
             ("csp --position-gains 1,2,3,4", "--position-gains"),
+            ("dual-loop --main-loop-gains 1,2", "--main-loop-gains"),
             ("ppm --seed x", "--seed"),
             ("csp --auto-tune --resonance 0,15", "--resonance"),
             ("identify --resonance 60,7000", "--resonance"),
