@@ -281,7 +281,8 @@ fn write_setpoints(dir: &WorkDir, period_us: u64) -> PathBuf {
 }
 
 /// Proves: canopen's PDO API (`read`, `clear`, `add_variable`, `trans_type`, `enabled`, `save`) configures RPDO 1
-/// = controlword + target position and TPDO 1 = statusword + position actual, TPDO 2 = following error, all
+/// = controlword + target position and TPDO 1 = statusword + position actual, TPDO 2 = following error, TPDO 3 =
+/// the sensor positions 0x60E4:01/02 (sensor 1 following 0x6064, sensor 2 0 without a load encoder), all
 /// synchronous (read back through `read`); then CSP driven by SYNC at 1 ms: the drive enabled through the
 /// controlword in the RPDO (seen in the TPDO statusword within 100 SYNCs), the 10-revolution move (2,449 rpm peak)
 /// followed with the following error from the TPDO 0x60F4 peak <= 30 inc and RMS <= 8 inc over the move, and the
@@ -297,10 +298,17 @@ fn pdos_configured_through_canopen_then_csp_at_1_ms_follows_the_move_within_the_
         "csp.py",
         &["--lock-step", "--sync-us", "1000"],
         &eds,
-        &["--setpoints".into(), path(&sp), "--tpdo-fe".into()],
+        &["--setpoints".into(), path(&sp), "--tpdo-fe".into(), "--tpdo-sensors".into()],
     );
     pass(&out);
     assert_eq!(out.master("tpdo1_map_1"), "6041:00/16 6064:00/32");
+    // Issue 20 item 2: TPDO 3 = the sensor positions 0x60E4:01/02. Sensor 1 is the motor encoder's count, 0x6064
+    // without homing: equal, or one slow tick's travel apart (67 increments at the move's 2,449 rpm) where the
+    // SYNC falls between their publications. The reference plant has no load encoder: sensor 2 reads 0.
+    assert_eq!(out.master("tpdo3_map_1"), "60e4:01/32 60e4:02/32");
+    let diff = out.master_num("sensor1_position_diff_max_1");
+    assert!(diff <= 68.0, "0x60E4:01 against 0x6064: {diff}");
+    assert_eq!(out.master("sensor2_values_1"), "0", "0x60E4:02 without a load encoder");
     assert_eq!(out.master("rpdo1_map_1"), "6040:00/16 607a:00/32");
     assert_eq!(out.master("tpdo1_type_1"), "1");
     assert_eq!(out.master("tpdo2_enabled_1"), "1");

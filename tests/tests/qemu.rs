@@ -72,8 +72,10 @@ const ECAT_CYCLE_BUDGET: u64 = 1_500;
 /// driver, four fault rows; +3,156, +3,252 and +3,260 bytes of text) and by 3 KiB for the gear and its user units
 /// (issue 20 item 3: 0x3003 and 0x6091 in effect, the exact position conversions, the geared rpm scale, the targets
 /// converted before the slow tick and the master's values published after it, torque polarity; +3,072, +3,228 and
-/// +3,136 bytes of text).
-const TEXT_BUDGETS: [(&str, u64); 3] = [("can", 202 * 1024), ("ethercat", 233 * 1024), ("ethercat_defmt", 239 * 1024)];
+/// +3,136 bytes of text) and by 2 KiB for the dual loop (issue 20 item 2: the load encoder's objects 0x3020, 0x30AE,
+/// 0x60E4, its conversion to motor increments with the configuration check, the main loop with its gain scheduler,
+/// the board's TIM5 driver; +2,508, +2,768 and +2,752 bytes of text).
+const TEXT_BUDGETS: [(&str, u64); 3] = [("can", 204 * 1024), ("ethercat", 235 * 1024), ("ethercat_defmt", 241 * 1024)];
 
 #[test]
 fn board_images_fit_their_text_budgets() {

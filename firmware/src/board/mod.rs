@@ -14,6 +14,7 @@
 //! | DC-bus voltage, temperature | PC3, PC4 (analog)      | ADC1 IN13, ADC2 IN14           |
 //! | motor temperature sensor    | PA3 (analog)           | ADC3 IN3                       |
 //! | encoder A/B, index          | PB6, PB7, PB8 (AF2)    | TIM4 CH1/CH2 (encoder), CH3    |
+//! | load encoder A/B (sensor 2) | PA0, PA1 (AF2)         | TIM5 CH1/CH2 (load_encoder)    |
 //! | Halls H1/H2/H3              | PC6, PC7, PC8 (inputs) | GPIOC IDR                      |
 //! | digital inputs 1..4         | PC9..PC12 (inputs)     | GPIOC IDR                      |
 //! | STO-IN1/IN2 feedback        | PB10, PB11 (inputs)    | GPIOB IDR (sto, tier 2)        |
@@ -40,6 +41,7 @@ pub mod esc_spi;
 pub mod feedback;
 pub mod flash;
 pub mod interrupt;
+pub mod load_encoder;
 pub mod pwm;
 pub mod reg;
 pub mod ssi;
@@ -119,6 +121,7 @@ pub fn init() -> Result<Board, ClockError> {
         chopper::init();
         adc::init();
         feedback::init();
+        load_encoder::init();
         sto::init();
         counter::init();
         Ok(Board { power: PowerStage { _owned: () } })

@@ -86,6 +86,7 @@ use crate::hal::reset::ResetCause;
 use crate::hal::sto::StoInputs;
 use crate::motion::axis::{Axis, AxisInputs, AxisOutputs, CurrentDemand};
 use crate::motion::polarity::Polarity;
+use crate::motion::dual_loop::{self, LoadFeedback};
 use crate::od::access::Dictionary;
 use crate::od::generated::handles as h;
 use crate::power_state::{CommutationError, CommutationStage, DriveError, PowerState};
@@ -267,6 +268,10 @@ pub struct Drive {
     auto_setup: auto_setup::AutoSetup,
     /// 0x6091 and 0x3003 as last reconciled ([`gear_ratio`]).
     gear_ratio: gear_ratio::GearRatioSeen,
+    /// The load encoder's count read at the start of this slow period ([`Self::set_load_encoder_count`]).
+    load_count: u32,
+    /// The dual loop's main sensor (`motion::dual_loop`), taken with the sensor configuration at switch-on.
+    load_feedback: Option<LoadFeedback>,
 }
 
 impl Drive {
@@ -326,6 +331,8 @@ impl Drive {
             sto_inputs: StoInputs::RELEASED,
             auto_setup: auto_setup::AutoSetup::default(),
             gear_ratio: gear_ratio::GearRatioSeen::new(&dictionary),
+            load_count: 0,
+            load_feedback: None,
             dictionary,
         };
         drive.gear_ratio.reconcile(&mut drive.dictionary);
@@ -470,6 +477,7 @@ impl Drive {
             self.ssi_background(&ssi);
         }
         self.gear_ratio.reconcile(&mut self.dictionary);
+        self.update_load_position();
         self.axis.refresh(&mut self.dictionary);
         self.axis.publish_velocity_actual_values(&mut self.dictionary);
         // 0x1015 EMCY inhibit time (CiA 301), taken over when it changes.
@@ -496,6 +504,24 @@ impl Drive {
         // effect").
         self.axis.prepare_motion();
         self.hold_loop_setpoint(before);
+    }
+
+    /// The load encoder's count (sensor 2, 0x3020) for this slow period, read by tier 2 at its start (target:
+    /// `board::load_encoder`, a 32-bit counter; host: the plant's load encoder), before [`Self::background`].
+    pub fn set_load_encoder_count(&mut self, count: u32) {
+        self.load_count = count;
+    }
+
+    /// Publishes 0x60E4:01/02 (the motor and load encoder counts) and, in the dual loop, hands the axis the load
+    /// position in motor increments for this slow period's step.
+    fn update_load_position(&mut self) {
+        let motor = self.report.encoder_position;
+        // `as`: the counter's bits as the INTEGER32 of 0x60E4:02 (it wraps like every position value).
+        let load = self.load_count as i32;
+        self.dictionary.set(h::POSITION_ACTUAL_VALUE_SENSOR_1, motor);
+        self.dictionary.set(h::POSITION_ACTUAL_VALUE_SENSOR_2, load);
+        let main = self.load_feedback.as_mut().map(|f| (f.update(self.load_count, motor), f.fraction()));
+        self.axis.set_main_sensor_position(main);
     }
 
     /// The braking chopper's step on tier 1's last bus sample: its gate for this slow period
@@ -1023,6 +1049,13 @@ impl Drive {
             self.axis.position_sensor_changed();
         }
         self.position_from_encoder = position_from_encoder;
+        // The dual loop's main sensor (0x3000:02, 0x3020, 0x3003): a valid configuration is all the dictionary
+        // holds (`Drive::sdo_write` refuses the others); the conversion restarts from the motor position.
+        let scale = dual_loop::configuration(&self.dictionary).ok().flatten();
+        if scale != self.load_feedback.map(|f| f.scale()) {
+            self.load_feedback = scale.map(LoadFeedback::new);
+            self.axis.set_load_scale(scale);
+        }
         self.change_settings(|s| s.commutation = commutation);
         // Tier 1 may build its commutation again with these settings (its position restarting at 0): the SSI
         // position's base is taken again from the first report of them (the same value when it did not).

@@ -142,6 +142,8 @@ pub struct Axis {
     now: Ticks,
     /// Position actual value minus encoder position (set by homing).
     offset: i32,
+    /// The dual loop's main sensor: the load position in motor increments ([`Self::set_main_sensor_position`]).
+    main_sensor: Option<i32>,
     activity: Activity,
     /// The demand of the last step (for continuity across mode changes and stops).
     last_setpoint: Setpoint,
@@ -208,6 +210,7 @@ impl Axis {
             shown: (0, 0, Velocity::ZERO),
             previous_controlword: Controlword(0),
             last_position: 0,
+            main_sensor: None,
             limit_seen: [false; 2],
             i2t: MotorI2t::new(),
             velocity_average: Velocity::ZERO,
@@ -292,6 +295,20 @@ impl Axis {
         &self.last_setpoint
     }
 
+    /// The dual loop's main sensor for the next step: the load position in motor increments (the coordinates of
+    /// the encoder position, `motion::dual_loop`) with its fraction of an increment (`U0F16`, for the main loop),
+    /// or `None` when the motor encoder is the main sensor. Set by the drive's background step before the step of
+    /// the same slow period (both see the same tier-1 report).
+    pub fn set_main_sensor_position(&mut self, load: Option<(i32, u16)>) {
+        self.main_sensor = load.map(|(position, _)| position);
+        self.loops.set_dual_loop(load.is_some(), load.map_or(0, |(_, fraction)| fraction));
+    }
+
+    /// The dual loop's load scale, taken with the sensor configuration at switch-on (`motion::dual_loop`).
+    pub fn set_load_scale(&mut self, scale: Option<super::dual_loop::LoadScale>) {
+        self.loops.set_load_scale(scale);
+    }
+
     /// Position actual value minus the encoder position.
     #[must_use]
     pub const fn position_offset(&self) -> i32 {
@@ -316,9 +333,14 @@ impl Axis {
         self.now = Ticks(self.now.0.wrapping_add(1));
         let now = self.now;
 
-        // 2. Feedback.
-        let position = input.encoder_position.wrapping_add(self.offset);
-        let velocity = velocity_of(self.loops.estimate(position, input.encoder_window, input.current));
+        // 2. Feedback: the velocity from the motor encoder; the position from the main sensor, the load encoder in
+        // the dual loop (EPOS4 AN ch. 10), else the motor encoder.
+        let motor = input.encoder_position.wrapping_add(self.offset);
+        let velocity = velocity_of(self.loops.estimate(motor, input.encoder_window, input.current));
+        let position = match self.main_sensor {
+            Some(load) => load.wrapping_add(self.offset),
+            None => motor,
+        };
 
         // 3. Inputs (the outputs follow the machine, below).
         let inputs = self.io.inputs(input.pins, self.offset, d);

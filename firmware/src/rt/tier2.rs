@@ -218,12 +218,13 @@ async fn slow_loop() {
             let _ = with_drive(|drive| drive.motion_loop_overrun(missed));
         }
         // The report of the period that raised this tick (tier 1 published it before the raise); both steps read it.
-        // The STO inputs are read here, in tier 2, for the same period: the hardware already gates the bridge, the
-        // drive only has to follow within the slow period (`supervision::safe_torque_off`).
+        // The STO inputs and the load encoder are read here, in tier 2, for the same period: the hardware already
+        // gates the bridge, the drive only has to follow within the slow period (`supervision::safe_torque_off`).
         let _ = with_drive_timed(
             |drive| {
                 take_report(drive);
                 drive.set_sto_inputs(crate::board::sto::read());
+                drive.set_load_encoder_count(crate::board::load_encoder::read());
                 app::background(drive);
             },
             &BACKGROUND_MAX,

@@ -27,7 +27,8 @@ mod progress;
 
 use clap::{CommandFactory, FromArgMatches};
 use cli::{
-    Cli, Command, CspScenario, CurrentLoopScenario, EthercatArgs, FaultMatrixScenario, IdentifyArgs, Scenario, SsiArgs,
+    Cli, Command, CspScenario, CurrentLoopScenario, DualLoopScenario, EthercatArgs, FaultMatrixScenario, IdentifyArgs,
+    Scenario, SsiArgs,
 };
 use progress::Progress;
 
@@ -262,6 +263,61 @@ fn csp(args: &CspScenario, dir: &Path) -> Result<(), String> {
     println!("following_error_peak_inc={:.1}", f.following_error_peak_inc);
     println!("following_error_rms_inc={:.2}", f.following_error_rms_inc);
     println!("settle_error_inc={:.0}", f.settle_error_inc);
+    Ok(())
+}
+
+fn dual_loop(args: &DualLoopScenario, dir: &Path) -> Result<(), String> {
+    use hal_sim::scenarios::dual_loop::{self as dual, DualLoopConfig};
+    let cfg = DualLoopConfig {
+        seed: args.scenario.common.seed,
+        dual_loop: !args.motor_encoder_only,
+        main_loop_gains: args.main_loop_gains,
+        ..DualLoopConfig::default()
+    };
+    let closed_by = if cfg.dual_loop {
+        "the load encoder (dual loop: 0x3000:01 = 0x00040201, 0x3000:02 = 0x04021111, main loop 0x30AE)"
+    } else {
+        "the motor encoder alone (PID 0x30A1; the load encoder only measured)"
+    };
+    println!(
+        "dual-loop: plant (seed {}), CiA 402 CSP, a {:.0} deg move of the load, set-points every {:.1} ms, up to \
+         {:.0} rpm and {:.0} rpm/s at the motor, held {:.1} s; position loop closed by {closed_by}",
+        cfg.seed,
+        cfg.load_degrees,
+        cfg.cycle_periods as f64 * 0.04,
+        cfg.max_rpm,
+        cfg.peak_rpm_per_s,
+        cfg.hold_s,
+    );
+    let (f, trace) = dual::dual_loop(scenarios::scenario_plant(), &cfg).map_err(|e| e.to_string())?;
+    println!("  move: {:.3} s; the gear's backlash is {:.1} load increments", f.move_s, f.backlash_inc);
+    println!("  load following error peak during the move   {:7.1} load inc", f.load_following_error_peak_inc);
+    println!(
+        "  |load target - load| over the last {:.0} ms      {:7.1} load inc",
+        dual::SETTLE_WINDOW_S * 1000.0,
+        f.load_settle_error_inc
+    );
+    println!("  |motor / gear - load| peak                   {:7.3} deg at the load", f.motor_load_deviation_peak_deg);
+    println!("  the drive's 0x60F4 peak during the move       {:7.1} motor inc", f.drive_following_error_peak_inc);
+    let mut plot = seconds_plot(
+        &trace,
+        if cfg.dual_loop { "Dual loop: CSP move of the load" } else { "Motor encoder alone: CSP move of the load" },
+        &[
+            ("load_following_error_inc", "load following error [load inc]"),
+            ("motor_load_deviation_deg", "motor / gear - load [0.01 deg]"),
+        ],
+        "load increments",
+    );
+    if let Some(s) = plot.series.get_mut(1) {
+        for p in &mut s.points {
+            p.1 *= 100.0;
+        }
+    }
+    write(&trace, &plot, dir, "dual-loop")?;
+    println!();
+    println!("load_following_error_peak_inc={:.1}", f.load_following_error_peak_inc);
+    println!("load_settle_error_inc={:.1}", f.load_settle_error_inc);
+    println!("motor_load_deviation_peak_deg={:.3}", f.motor_load_deviation_peak_deg);
     Ok(())
 }
 
@@ -1078,6 +1134,7 @@ fn main() -> ExitCode {
             })
         }
         Command::Csp(args) => simulated(&args.scenario, &scenario, |dir| csp(args, dir)),
+        Command::DualLoop(args) => simulated(&args.scenario, &scenario, |dir| dual_loop(args, dir)),
         Command::FaultMatrix(args) => simulated(&args.scenario, &scenario, |dir| fault_matrix(args, dir)),
         Command::CsvSweep(args) => simulated(args, &scenario, |dir| csv_sweep(args.common.seed, dir)),
         Command::Ppm(args) => simulated(args, &scenario, |dir| ppm(args.common.seed, dir)),

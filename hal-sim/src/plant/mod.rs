@@ -555,7 +555,7 @@ impl Plant {
     }
 
     /// The total count of the load encoder now (`PlantParams::load_encoder_counts_per_rev` counts per output turn,
-    /// count 0 at load angle 0), or `None` without one. The drive does not read it yet (dual-loop work to come).
+    /// count 0 at load angle 0), or `None` without one: the drive's sensor 2 (0x3020, the dual loop's main sensor).
     pub fn load_encoder_count(&self) -> Option<i64> {
         let cpr = self.params.load_encoder_counts_per_rev;
         (cpr > 0).then(|| sensors::encoder_count(self.theta_l, cpr, 0))

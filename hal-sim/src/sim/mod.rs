@@ -144,8 +144,10 @@ impl Simulation {
         }
         if tick.slow_tick_due {
             self.drive.receive_report(&self.tier1.report());
-            // Tier 2 reads the STO inputs at the start of its slow period, as `rt::tier2` does on the target.
+            // Tier 2 reads the STO inputs and the load encoder at the start of its slow period, as `rt::tier2` does on the target.
             self.drive.set_sto_inputs(self.plant.sto_inputs());
+            // The load encoder's count (a 32-bit counter, as `board::load_encoder`'s TIM5; 0 without one).
+            self.drive.set_load_encoder_count(self.plant.load_encoder_count().map_or(0, |count| count as u32));
             self.drive.background();
             self.drive.slow_tick();
             self.drive.publish_master_values();

@@ -10,6 +10,7 @@ mod auto_tuning;
 mod cia402;
 mod commutation;
 mod current_loop;
+mod dual_loop;
 mod encoder_resolution;
 mod identification;
 mod identification_robustness;

@@ -64,6 +64,9 @@ pub enum Command {
     Spinning(CurrentLoopScenario),
     /// CiA 402 CSP: a 10-revolution jerk-limited move with set-points every 1 ms; following error and settling.
     Csp(CspScenario),
+    /// The dual loop (EPOS4 AN ch. 10) on a plant with a load encoder: a CSP move of the load closed by the load
+    /// encoder; load_following_error_peak_inc, load_settle_error_inc, motor_load_deviation_peak_deg.
+    DualLoop(DualLoopScenario),
     /// CiA 402 CSV: a 100 rpm velocity step and a sine sweep of the velocity loop (velocity_bandwidth_hz).
     CsvSweep(Scenario),
     /// CiA 402 PPM: moves (target reached against the analytic profile, up to 5,000 rpm) and quick stops against
@@ -187,6 +190,21 @@ pub struct CspScenario {
     /// cycle, with 0x30A1:05 (the drive's own acceleration feedforward) = 0.
     #[arg(long)]
     pub torque_feedforward: bool,
+}
+
+/// dual-loop: a scenario, the main loop's gains and the comparison without the load encoder.
+#[derive(Debug, Args)]
+pub struct DualLoopScenario {
+    /// Plant (it needs a load encoder: load_encoder_counts_per_rev), seed, auto-tuning, output directory.
+    #[command(flatten)]
+    pub scenario: Scenario,
+    /// 0x30AE:01..03 set before the move: K_Low and K_High in 0.001/s, the scheduling weight H in 0.001.
+    #[arg(long, value_name = "K_LOW,K_HIGH,H", value_parser = parse_main_loop_gains)]
+    pub main_loop_gains: Option<[u32; 3]>,
+    /// The same move with the motor encoder alone closing the position loop (the default PID 0x30A1), for
+    /// comparison: the load encoder is only measured.
+    #[arg(long, conflicts_with = "main_loop_gains")]
+    pub motor_encoder_only: bool,
 }
 
 /// fault-matrix: a scenario and the choice of cases.
@@ -333,6 +351,15 @@ pub fn parse_position_gains(text: &str) -> Result<[u32; 5], String> {
     values.try_into().map_err(|_| format!("{what}, got {count}"))
 }
 
+/// `--main-loop-gains K_LOW,K_HIGH,H`: three unsigned integers (0x30AE:01..03).
+pub fn parse_main_loop_gains(text: &str) -> Result<[u32; 3], String> {
+    let what = "K_LOW,K_HIGH,H: three unsigned integers (0x30AE:01..03)";
+    let values: Vec<u32> =
+        text.split(',').map(|x| x.trim().parse()).collect::<Result<_, _>>().map_err(|e| format!("{what}: {e}"))?;
+    let count = values.len();
+    values.try_into().map_err(|_| format!("{what}, got {count}"))
+}
+
 /// `--seconds S`: a finite, non-negative duration.
 pub fn parse_seconds(text: &str) -> Result<f64, String> {
     match text.parse::<f64>() {
@@ -384,6 +411,9 @@ mod tests {
         ("README.md", "csp --torque-feedforward"),
         ("tests/tests/canopen_real_master.rs LSS", "canopen --port 0 --lock-step --nodes 3 --unconfigured 1 --unconfigured 2 --unconfigured 3"),
         ("drive-tool/tests/simulator.rs record", "canopen --port 0 --lock-step --seconds 600 --nodes 1 --trace out/trace.csv"),
+        ("README.md", concat!("dual-loop --plant ", env!("CARGO_MANIFEST_DIR"), "/presets/geared-36v.toml --auto-tune")),
+        ("README.md", "dual-loop --motor-encoder-only"),
+        ("tests/tests/drive/dual_loop.rs", "dual-loop --main-loop-gains 20000,60000,10000"),
         ("README.md", "csv-sweep"),
         ("README.md", "ppm"),
         ("README.md", "homing"),
@@ -525,6 +555,8 @@ mod tests {
         }
         let e = parse("current-step --default-gains --gains 1,2").expect_err("conflict");
         assert_eq!(e.kind(), ErrorKind::ArgumentConflict, "{e}");
+        let e = parse("dual-loop --motor-encoder-only --main-loop-gains 1,2,3").expect_err("conflict");
+        assert_eq!(e.kind(), ErrorKind::ArgumentConflict, "no main loop without the load encoder: {e}");
         let e = parse("csv-sweep --resonance 60,15").expect_err("--resonance without --auto-tune");
         assert_eq!(e.kind(), ErrorKind::MissingRequiredArgument, "{e}");
         assert!(parse("ethercat --lock-step").is_err(), "--iface is required");
@@ -538,6 +570,7 @@ mod tests {
             ("current-step --gains 1", "--gains"),
             ("current-step --gains 1,-2", "--gains"),
             ("csp --position-gains 1,2,3,4", "--position-gains"),
+            ("dual-loop --main-loop-gains 1,2", "--main-loop-gains"),
             ("ppm --seed x", "--seed"),
             ("csp --auto-tune --resonance 0,15", "--resonance"),
             ("identify --resonance 60,7000", "--resonance"),
