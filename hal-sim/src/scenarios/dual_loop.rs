@@ -1,5 +1,6 @@
 //! The dual loop on a plant with a load encoder (`drive-sim dual-loop --plant FILE`; EPOS4 AN ch. 10): a CSP move
-//! of the load, the master's set-points in motor increments (the drive's position unit), closed either by the
+//! of the load, the master's set-points in its position units (load increments of the motor encoder's resolution,
+//! the gear being in effect in the dual loop's configuration; motor increments without it), closed either by the
 //! load encoder (the dual loop: 0x3000:01 = 0x00040201, 0x3000:02 = 0x04021111, 0x3020:01 and the gear ratio
 //! 0x3003:01/02 from the plant, written over SDO with the power stage off) or, for comparison, by the motor
 //! encoder alone (the default PID 0x30A1).
@@ -154,8 +155,14 @@ pub fn dual_loop(params: PlantParams, config: &DualLoopConfig) -> Result<(DualLo
     let p = sim.plant.params().clone();
     let motor_inc_per_rev = f64::from(p.encoder_counts_per_rev);
     let load_inc_per_rev = f64::from(p.load_encoder_counts_per_rev);
-    // Motor increments per load increment.
-    let motor_per_load = p.gear_ratio * motor_inc_per_rev / load_inc_per_rev;
+    // The master's units. The dual loop's configuration sets the gear in effect (0x3000:02 bit 12 with 0x3003), so
+    // its positions count load increments of the main sensor's resolution (0x3000:05, the motor encoder's, per load
+    // revolution) and its speeds are load rpm (`firmware::motion::gear`); the motor-encoder run keeps motor
+    // increments and motor rpm. `user_per_load_rev` is the master's position units per load revolution either way.
+    let user_per_load_rev =
+        if config.dual_loop { motor_inc_per_rev } else { (p.gear_ratio * motor_inc_per_rev).round() };
+    // Load-encoder increments per master position unit.
+    let load_per_user = load_inc_per_rev / user_per_load_rev;
     let cycle_us = (config.cycle_periods as f64 * PERIOD_S * 1e6).round() as u32;
     {
         let d = sim.drive.dictionary_mut();
@@ -164,12 +171,13 @@ pub fn dual_loop(params: PlantParams, config: &DualLoopConfig) -> Result<(DualLo
     }
     let start = f64::from(sim.drive.dictionary().get(h::POSITION_ACTUAL_VALUE));
     let load_start = sim.plant.load_encoder_count().unwrap_or(0) as f64;
-    // The distance in motor increments, a whole number of load increments that is a whole number of motor
-    // increments too, so that the target is exact on both sides.
-    let exact_step = exact_load_step(p.gear_ratio, p.encoder_counts_per_rev, p.load_encoder_counts_per_rev);
-    let load_distance = (config.load_degrees / 360.0 * load_inc_per_rev / exact_step).round() * exact_step;
-    let distance = load_distance * motor_per_load;
-    let inc_per_s_per_rpm = motor_inc_per_rev / 60.0;
+    // The distance in the master's units, a whole number of them that is a whole number of load increments too, so
+    // that the target is exact on both sides (a master unit is a whole number of motor increments with an integer
+    // gear).
+    let exact_step = exact_user_step(user_per_load_rev as u64, u64::from(p.load_encoder_counts_per_rev));
+    let distance = (config.load_degrees / 360.0 * user_per_load_rev / exact_step).round() * exact_step;
+    // Master units per second per motor rpm.
+    let inc_per_s_per_rpm = user_per_load_rev / p.gear_ratio / 60.0;
     let mv = JerkLimitedMove::new(
         start,
         distance.round(),
@@ -196,7 +204,7 @@ pub fn dual_loop(params: PlantParams, config: &DualLoopConfig) -> Result<(DualLo
         let master = mv.position(t).round();
         sim.drive.dictionary_mut().set(h::TARGET_POSITION, master as i32);
         sim.setpoint_received();
-        let load_target = load_start + (master - start) / motor_per_load;
+        let load_target = load_start + (master - start) * load_per_user;
         for _ in 0..config.cycle_periods {
             sim.step();
             periods += 1;
@@ -241,18 +249,12 @@ pub fn dual_loop(params: PlantParams, config: &DualLoopConfig) -> Result<(DualLo
     Ok((figures, trace))
 }
 
-/// The smallest number of load increments that is a whole number of motor increments: `den / gcd` of the motor
-/// increments per load increment `gear x motor / load` (an integer gear ratio; 1 otherwise).
-fn exact_load_step(gear_ratio: f64, motor_inc_per_rev: u32, load_inc_per_rev: u32) -> f64 {
-    let gear = gear_ratio.round() as u64;
-    if gear == 0 || (gear_ratio - gear as f64).abs() > 1e-9 {
-        return 1.0;
-    }
-    let num = gear * u64::from(motor_inc_per_rev);
-    let den = u64::from(load_inc_per_rev).max(1);
-    let (mut a, mut b) = (num, den);
+/// The smallest number of master units that is a whole number of load increments: `user / gcd(user, load)` for
+/// `user` master units and `load` load-encoder increments per load revolution.
+fn exact_user_step(user_per_load_rev: u64, load_inc_per_rev: u64) -> f64 {
+    let (mut a, mut b) = (user_per_load_rev.max(1), load_inc_per_rev.max(1));
     while b != 0 {
         (a, b) = (b, a % b);
     }
-    (den / a.max(1)) as f64
+    (user_per_load_rev.max(1) / a) as f64
 }
