@@ -340,6 +340,41 @@ fn pdos_configured_through_canopen_then_csp_at_1_ms_follows_the_move_within_the_
     );
 }
 
+/// Proves issue 20 ("Real masters: the ... PyPI canopen tests map and use the new objects (SSI position ...) in
+/// PDOs"): on the reference motor with an SSI absolute encoder in place of the incremental one
+/// (`hal-sim/presets/reference-ssi.toml`: 12 + 12 bits, Gray, its zero at multi-turn count 5), canopen writes
+/// 0x3000:01 = 0x00000300 (the SSI sensor alone, IDX 0x3000:01 sensor 2 type 3; read back exactly) and maps the SSI
+/// position raw value 0x3012:09 into TPDO 4 (read back as `3012:09/32`), then drives the 10-revolution CSP move
+/// at 1 ms commutated and positioned by the SSI sensor alone. Without homing 0x6064 is the sensor's absolute
+/// position (0x3012:0E = 0), so 0x3012:09 equals 0x6064 modulo 2^24 at every SYNC, or one slow tick's travel
+/// apart (67 increments at the move's 2,449 rpm, as 0x60E4:01 in the test above) where the SYNC falls between
+/// their publications; the raw value spans the move's 40,960 increments (within that travel); the target is
+/// reached within +-1 inc.
+#[test]
+fn canopen_maps_the_ssi_position_into_a_tpdo_and_drives_csp_on_the_ssi_sensor_alone() {
+    skip_unless_runnable!("canopen_maps_the_ssi_position_into_a_tpdo_and_drives_csp_on_the_ssi_sensor_alone");
+    let dir = WorkDir::new("csp-ssi");
+    let eds = write_eds(&dir);
+    let sp = write_setpoints(&dir, 1000);
+    let plant = concat!(env!("CARGO_MANIFEST_DIR"), "/../hal-sim/presets/reference-ssi.toml");
+    let out = run(
+        "csp.py",
+        &["--lock-step", "--sync-us", "1000", "--plant", plant],
+        &eds,
+        &["--setpoints".into(), path(&sp), "--ssi".into()],
+    );
+    pass(&out);
+    assert_eq!(out.master("sensors_configuration_1"), "0x00000300");
+    assert_eq!(out.master("tpdo4_map_1"), "3012:09/32");
+    let diff = out.master_num("ssi_position_diff_max_1");
+    assert!(diff <= 68.0, "0x3012:09 against 0x6064: {diff}");
+    let span = out.master_num("ssi_raw_span_1");
+    assert!((span - 40_960.0).abs() <= 68.0, "0x3012:09 over the move: {span}");
+    assert_eq!(out.master("distance_1"), "40960");
+    assert!(out.master_num("final_error_1").abs() <= 1.0, "target reached: {}", out.master("final_error_1"));
+    assert_eq!(out.sim("node1_cia402"), "OperationEnabled");
+}
+
 /// Proves: with the drive in CSP after the move, 0x1016:01 supervising the master (node 127) at 50 ms and the
 /// master's heartbeat sent every 20 SYNCs, stopping that heartbeat while SYNCs and set-points go on makes the
 /// drive carry out the 0x6007 reaction (default: quick stop, statusword «Quick stop active») within 50..=80 SYNCs
