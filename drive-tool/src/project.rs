@@ -29,7 +29,7 @@ pub fn allowed_values(dict: &Dictionary, entry: &Entry) -> Option<&'static [i64]
     if !is_project_device(dict) {
         return None;
     }
-    match Table::GENERATED.find(entry.index, entry.sub).ok()?.limits {
+    match Table::GENERATED.find(entry.index, entry.sub).ok()?.generated_limits() {
         Limits::OneOf(values) => Some(values),
         _ => None,
     }

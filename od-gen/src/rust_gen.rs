@@ -153,7 +153,7 @@ fn limits(s: &SubObject) -> String {
         return format!("Limits::OneOf(&[{}])", list.join(", "));
     }
     let (Some((lo, hi)), true) = (s.data_type.range(), s.min.is_some() || s.max.is_some()) else {
-        return "Limits::None".to_string();
+        return limits_none();
     };
     let (min, max) = (s.min.unwrap_or(lo), s.max.unwrap_or(hi));
     if s.data_type.is_signed() {
@@ -161,6 +161,11 @@ fn limits(s: &SubObject) -> String {
     } else {
         format!("Limits::Unsigned {{ min: {min}, max: {max} }}")
     }
+}
+
+/// The entry without limits, position 0 of `LIMITS`.
+fn limits_none() -> String {
+    "Limits::None".to_string()
 }
 
 /// A byte-string literal: printable ASCII as is, everything else escaped.
@@ -261,6 +266,25 @@ pub fn rust_with_names(d: &Description, names: bool) -> Result<String, String> {
     );
     let _ = writeln!(w);
 
+    // Every distinct range once, `Limits::None` first (`LimitsRef::NONE`); an entry names its range by position.
+    let mut ranges = vec![limits_none()];
+    for s in d.objects.iter().flat_map(|o| o.subs.iter()) {
+        let range = limits(s);
+        if !ranges.contains(&range) {
+            ranges.push(range);
+        }
+    }
+    if ranges.len() > usize::from(u8::MAX) + 1 {
+        return Err(format!("{} distinct limits do not fit the u8 positions of LimitsRef", ranges.len()));
+    }
+    let range_of = |s: &SubObject| ranges.iter().position(|r| *r == limits(s)).unwrap_or(0);
+    let _ = writeln!(w, "/// Every distinct range of the entries' limits; `Entry::limits` is a position here.");
+    let _ = writeln!(w, "pub static LIMITS: [Limits; {}] = [", ranges.len());
+    for range in &ranges {
+        let _ = writeln!(w, "    {range},");
+    }
+    let _ = writeln!(w, "];\n");
+
     let _ = writeln!(w, "/// Every entry of the dictionary, sorted by (index, sub-index).");
     let _ = writeln!(w, "pub static ENTRIES: [Entry; {entry_count}] = [");
     for o in &d.objects {
@@ -268,7 +292,7 @@ pub fn rust_with_names(d: &Description, names: bool) -> Result<String, String> {
             let _ = writeln!(
                 w,
                 "    Entry {{ index: 0x{:04X}, sub: 0x{:02X}, name: {}, data_type: {}, access: {}, pdo: {}, \
-                 persistent: {}, write_condition: {}, limits: &{}, storage: {}, node_id_relative: {} }},",
+                 persistent: {}, write_condition: {}, limits: LimitsRef({}), storage: {}, node_id_relative: {} }},",
                 o.index,
                 s.sub,
                 name(&s.name),
@@ -277,7 +301,7 @@ pub fn rust_with_names(d: &Description, names: bool) -> Result<String, String> {
                 pdo(s.pdo),
                 s.persistent,
                 write_condition(s.writable_in),
-                limits(s),
+                range_of(s),
                 storage(s, layout.slots.get(&(o.index, s.sub)).copied())
                     .map_err(|e| format!("0x{:04X}:{:02X}: {e}", o.index, s.sub))?,
                 matches!(s.default, Value::NodeIdPlus(_)),

@@ -22,7 +22,7 @@ mod generated {
 }
 
 use entry::{Limits, Storage};
-use generated::{handles, DEFAULT_NONZERO, DEFAULT_NONZERO_MASK, DEFAULT_VALUES, ENTRIES, NAMES, OBJECTS};
+use generated::{handles, DEFAULT_NONZERO, DEFAULT_NONZERO_MASK, DEFAULT_VALUES, ENTRIES, LIMITS, NAMES, OBJECTS};
 
 fn fixture(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures").join(name)
@@ -80,13 +80,18 @@ fn entry(index: u16, sub: u8) -> &'static entry::Entry {
     ENTRIES.iter().find(|e| e.index == index && e.sub == sub).expect("entry")
 }
 
+/// The limits the entry at (index, sub) names by its position in `LIMITS`.
+fn limits(index: u16, sub: u8) -> Limits {
+    LIMITS[usize::from(entry(index, sub).limits.0)]
+}
+
 #[test]
 fn limits_storage_and_node_id_defaults() {
-    assert_eq!(*entry(0x605A, 0).limits, Limits::OneOf(&[0, 1, 2, 5, 6]));
+    assert_eq!(limits(0x605A, 0), Limits::OneOf(&[0, 1, 2, 5, 6]));
     // Only `min` given: the type's maximum fills in.
-    assert_eq!(*entry(0x6060, 0).limits, Limits::Signed { min: -1, max: 127 });
-    assert_eq!(*entry(0x1400, 2).limits, Limits::Unsigned { min: 0, max: 255 });
-    assert_eq!(*entry(0x6040, 0).limits, Limits::None);
+    assert_eq!(limits(0x6060, 0), Limits::Signed { min: -1, max: 127 });
+    assert_eq!(limits(0x1400, 2), Limits::Unsigned { min: 0, max: 255 });
+    assert_eq!(limits(0x6040, 0), Limits::None);
     assert_eq!(entry(0x1008, 0).storage.constant(), Some(&b"FIX-1"[..]));
     assert_eq!(entry(0x1018, 1).storage.constant(), Some(&[0xCE, 0x0A, 0x00, 0x00][..]));
     assert_eq!(entry(0x1400, 1).storage.constant(), None);

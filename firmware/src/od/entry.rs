@@ -84,8 +84,7 @@ impl ConstRef {
 /// The name of an object or entry: its place in the generated text of every name, `NAMES` (od-gen writes each
 /// name once, and a name that is part of another one not at all). Three bytes instead of a `&str`'s eight in each
 /// entry and object. The CANopen image serves no names (build.rs sets `od_no_names`): there `NAMES` is empty
-/// and a name takes no bytes at all, which makes an object 8 bytes instead of 12 and, with the entry's packing
-/// of 2, an entry 22 bytes instead of 24.
+/// and a name takes no bytes at all, which makes an object 8 bytes instead of 12 and an entry 16 instead of 20.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg(not(od_no_names))]
 pub struct Name([u8; 3]);
@@ -135,10 +134,21 @@ impl core::fmt::Display for Name {
     }
 }
 
+/// Which [`Limits`] an entry has: its position in the table's list of limits (od-gen's `LIMITS`, where 0 is
+/// [`Limits::None`]; [`crate::od::access::Table`]). One byte instead of a 4-byte reference in each of the several
+/// hundred entries: the dictionary has a few dozen distinct ranges.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LimitsRef(pub u8);
+
+impl LimitsRef {
+    /// No limits: position 0 of every list of limits holds [`Limits::None`].
+    pub const NONE: Self = Self(0);
+}
+
 /// One sub-object of the dictionary. The generated table holds one per (index, sub-index), sorted. Packed to 2
-/// bytes: of its 22 bytes (19 in an image without names, where the name takes none, [`Name`]) the alignment of the
-/// limits' reference would make 24; the access layer reads entries on no fast path, and the Cortex-M4 loads a word
-/// from any half-word address.
+/// bytes: 16 bytes in an image without names (where the name takes none, [`Name`]), 20 with them (19 bytes of
+/// fields); the access layer reads entries on no fast path, and the Cortex-M4 loads a word from any half-word
+/// address.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[repr(Rust, packed(2))]
 pub struct Entry {
@@ -158,11 +168,9 @@ pub struct Entry {
     pub persistent: bool,
     /// When writes are accepted.
     pub write_condition: WriteCondition,
-    /// Range for writes. A reference: most entries share a few ranges, and a 4-byte pointer instead of the
-    /// 24-byte enum in each of the several hundred entries saves about 8.5 KB of flash (56 to 36 bytes an entry;
-    /// the thin [`Storage::Const`], the three-byte [`Name`] and the object code left to [`Object`] then 24; the
-    /// 6-byte [`Storage`] and the packing then 22, 20 without names).
-    pub limits: &'static Limits,
+    /// Range for writes: a position in the table's list of limits (most entries share a few ranges; the 24-byte
+    /// enum in each entry took about 8.5 KB, a 4-byte reference to it 2 KB).
+    pub limits: LimitsRef,
     /// Where the value lives.
     pub storage: Storage,
     /// The default is the declared value plus the node-ID (CiA 301 `$NODEID+` defaults of COB-IDs).
@@ -170,6 +178,14 @@ pub struct Entry {
 }
 
 impl Entry {
+    /// The limits this entry names in the generated list (`LIMITS`), as the generated table's entries mean them;
+    /// [`Limits::None`] for a position outside it. A hand-made table's entries name positions in the table's own
+    /// list ([`crate::od::access::Table::limits_of`]).
+    #[must_use]
+    pub fn generated_limits(&self) -> &'static Limits {
+        super::generated::LIMITS.get(usize::from(self.limits.0)).unwrap_or(&Limits::None)
+    }
+
     /// Size of the value in bits as a PDO mapping entry states it, or `None` for types that cannot be mapped.
     pub const fn bit_size(&self) -> Option<u16> {
         match self.data_type.fixed_size() {

@@ -243,7 +243,7 @@ impl<const N: usize> Values<N> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::od::entry::{Access, DataType, Limits, Name, PdoMapping, WriteCondition};
+    use crate::od::entry::{Access, DataType, LimitsRef, Name, PdoMapping, WriteCondition};
 
     const fn ram(index: u16, data_type: DataType, offset: u16, len: u16, node_id_relative: bool) -> Entry {
         Entry {
@@ -255,7 +255,7 @@ mod tests {
             pdo: PdoMapping::No,
             persistent: false,
             write_condition: WriteCondition::Always,
-            limits: &Limits::None,
+            limits: LimitsRef::NONE,
             storage: Storage::Ram { offset, len },
             node_id_relative,
         }

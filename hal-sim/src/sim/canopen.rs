@@ -860,7 +860,7 @@ mod reset_tests {
             let mut bytes = [0u8; 8];
             bytes[..raw.len()].copy_from_slice(raw);
             let value = u64::from_le_bytes(bytes);
-            let max = match *e.limits {
+            let max = match *e.generated_limits() {
                 Limits::Unsigned { max, .. } => max,
                 _ => u64::MAX >> (64 - 8 * raw.len() as u32),
             };

@@ -246,7 +246,7 @@ fn chosen_parameters() -> Vec<(&'static Entry, i64, i64)> {
             if !matches!(e.storage, Storage::Ram { .. }) {
                 return None;
             }
-            let (min, max) = match *e.limits {
+            let (min, max) = match *e.generated_limits() {
                 Limits::Signed { min, max } => (min, max),
                 Limits::Unsigned { min, max } => (i64::try_from(min).ok()?, i64::try_from(max).ok()?),
                 _ => return None,

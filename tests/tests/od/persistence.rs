@@ -13,7 +13,7 @@
 use firmware::hal::flash::NorFlash;
 use firmware::od::abort::SdoAbort;
 use firmware::od::access::{AccessContext, CommState, Dictionary};
-use firmware::od::entry::{Access, DataType, Entry, Limits, Name, PdoMapping, Storage, WriteCondition};
+use firmware::od::entry::{Access, DataType, Entry, LimitsRef, Name, PdoMapping, Storage, WriteCondition};
 use firmware::od::generated::ENTRIES;
 use firmware::od::store::{
     store_group_of, Group, ParamStore, Selection, StoreError, StoreObjects, LOAD_SIGNATURE, RECORD_HEADER_LEN,
@@ -45,7 +45,7 @@ fn ram_entry(index: u16, sub: u8, data_type: DataType, persistent: bool, offset:
         pdo: PdoMapping::No,
         persistent,
         write_condition: WriteCondition::Always,
-        limits: &Limits::None,
+        limits: LimitsRef::NONE,
         storage: Storage::Ram { offset, len },
         node_id_relative: false,
     }
