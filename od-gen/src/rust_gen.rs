@@ -189,7 +189,11 @@ fn storage(s: &SubObject, slot: Option<RamSlot>) -> Result<String, String> {
     Ok(match s.storage {
         StorageKind::Ram => {
             let slot = slot.ok_or("RAM entry without a slot")?;
-            format!("Storage::Ram {{ offset: {}, len: {} }}", slot.offset, slot.len)
+            let node_id_relative = matches!(s.default, Value::NodeIdPlus(_));
+            format!(
+                "Storage::Ram {{ offset: {}, len: {}, node_id_relative: {node_id_relative} }}",
+                slot.offset, slot.len
+            )
         }
         // `Storage::Const` holds a thin reference to the bytes' slice (`entry.rs` `ConstRef`).
         StorageKind::Const => {
@@ -292,7 +296,7 @@ pub fn rust_with_names(d: &Description, names: bool) -> Result<String, String> {
             let _ = writeln!(
                 w,
                 "    Entry {{ index: 0x{:04X}, sub: 0x{:02X}, name: {}, data_type: {}, access: {}, pdo: {}, \
-                 persistent: {}, write_condition: {}, limits: LimitsRef({}), storage: {}, node_id_relative: {} }},",
+                 persistent: {}, write_condition: {}, limits: LimitsRef({}), storage: {} }},",
                 o.index,
                 s.sub,
                 name(&s.name),
@@ -304,7 +308,6 @@ pub fn rust_with_names(d: &Description, names: bool) -> Result<String, String> {
                 range_of(s),
                 storage(s, layout.slots.get(&(o.index, s.sub)).copied())
                     .map_err(|e| format!("0x{:04X}:{:02X}: {e}", o.index, s.sub))?,
-                matches!(s.default, Value::NodeIdPlus(_)),
             );
         }
     }

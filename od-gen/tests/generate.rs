@@ -96,15 +96,15 @@ fn limits_storage_and_node_id_defaults() {
     assert_eq!(entry(0x1018, 1).storage.constant(), Some(&[0xCE, 0x0A, 0x00, 0x00][..]));
     assert_eq!(entry(0x1400, 1).storage.constant(), None);
     assert_eq!(entry(0x1F50, 1).storage, Storage::Application);
-    assert!(entry(0x1400, 1).node_id_relative);
-    assert!(!entry(0x1400, 2).node_id_relative);
+    assert!(entry(0x1400, 1).node_id_relative());
+    assert!(!entry(0x1400, 2).node_id_relative());
 }
 
 #[test]
 fn ram_values_are_aligned_disjoint_and_hold_the_defaults() {
     let mut slots: Vec<(usize, usize)> = Vec::new();
     for e in &ENTRIES {
-        if let Storage::Ram { offset, len } = e.storage {
+        if let Storage::Ram { offset, len, .. } = e.storage {
             let (offset, len) = (usize::from(offset), usize::from(len));
             if let Some(size) = e.data_type.fixed_size() {
                 assert_eq!(len, size);

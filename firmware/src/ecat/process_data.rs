@@ -263,12 +263,11 @@ mod tests {
             write_condition: WriteCondition::Always,
             limits: LimitsRef::NONE,
             storage,
-            node_id_relative: false,
         }
     }
 
     const fn ram(offset: u16, len: u16) -> Storage {
-        Storage::Ram { offset, len }
+        Storage::Ram { offset, len, node_id_relative: false }
     }
 
     // A small table with BOOLEANs (which the drive's dictionary does not map) to prove bit-level mapping.

@@ -630,12 +630,11 @@ mod tests {
             write_condition: WriteCondition::Always,
             limits: LimitsRef::NONE,
             storage,
-            node_id_relative: false,
         }
     }
 
     const fn ram(offset: u16, len: u16) -> Storage {
-        Storage::Ram { offset, len }
+        Storage::Ram { offset, len, node_id_relative: false }
     }
 
     const fn mapping(index: u16, sub: u8, offset: u16) -> Entry {

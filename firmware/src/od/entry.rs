@@ -42,6 +42,9 @@ pub enum Storage {
         offset: u16,
         /// Capacity in bytes (the type size, or the maximum length of a string).
         len: u16,
+        /// The default is the declared value plus the node-ID (CiA 301 `$NODEID+` defaults of COB-IDs). Only a
+        /// RAM value has a default to add to; kept here, beside the tag's byte, it costs the entry no byte.
+        node_id_relative: bool,
     },
     /// A constant in flash (device name, version strings, constant identity fields), [`ConstRef`].
     Const(ConstRef),
@@ -84,7 +87,7 @@ impl ConstRef {
 /// The name of an object or entry: its place in the generated text of every name, `NAMES` (od-gen writes each
 /// name once, and a name that is part of another one not at all). Three bytes instead of a `&str`'s eight in each
 /// entry and object. The CANopen image serves no names (build.rs sets `od_no_names`): there `NAMES` is empty
-/// and a name takes no bytes at all, which makes an object 8 bytes instead of 12 and an entry 16 instead of 20.
+/// and a name takes no bytes at all, which makes an object 8 bytes instead of 12 and an entry 16 instead of 18.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg(not(od_no_names))]
 pub struct Name([u8; 3]);
@@ -146,8 +149,8 @@ impl LimitsRef {
 }
 
 /// One sub-object of the dictionary. The generated table holds one per (index, sub-index), sorted. Packed to 2
-/// bytes: 16 bytes in an image without names (where the name takes none, [`Name`]), 20 with them (19 bytes of
-/// fields); the access layer reads entries on no fast path, and the Cortex-M4 loads a word from any half-word
+/// bytes: 16 bytes in an image without names (where the name takes none, [`Name`]), 18 with them (15 and 18
+/// bytes of fields); the access layer reads entries on no fast path, and the Cortex-M4 loads a word from any half-word
 /// address.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[repr(Rust, packed(2))]
@@ -173,11 +176,16 @@ pub struct Entry {
     pub limits: LimitsRef,
     /// Where the value lives.
     pub storage: Storage,
-    /// The default is the declared value plus the node-ID (CiA 301 `$NODEID+` defaults of COB-IDs).
-    pub node_id_relative: bool,
 }
 
 impl Entry {
+    /// Whether the default is the declared value plus the node-ID (CiA 301 `$NODEID+` defaults of COB-IDs): a
+    /// mark of RAM storage ([`Storage::Ram`]).
+    #[must_use]
+    pub const fn node_id_relative(&self) -> bool {
+        matches!(self.storage, Storage::Ram { node_id_relative: true, .. })
+    }
+
     /// The limits this entry names in the generated list (`LIMITS`), as the generated table's entries mean them;
     /// [`Limits::None`] for a position outside it. A hand-made table's entries name positions in the table's own
     /// list ([`crate::od::access::Table::limits_of`]).
@@ -238,5 +246,23 @@ impl<T> Handle<T> {
     /// Byte offset of the value in the value storage.
     pub const fn offset(self) -> usize {
         self.offset as usize
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_entry_is_its_fields_packed_to_two_bytes() {
+        // 16 bytes on the target without names, 18 with them: the node-ID mark sits beside the storage's tag and
+        // the limits take a one-byte position (flash: several hundred entries in every image). A wider field or a
+        // new one fails here. The storage is its tag byte, the node-ID mark and a thin pointer or two half-words.
+        let storage = core::mem::size_of::<Storage>();
+        assert_eq!(storage, 2 + core::mem::size_of::<&u8>());
+        assert_eq!(core::mem::size_of::<LimitsRef>(), 1);
+        // index, sub, data type, access, PDO, persistent, write condition, limits: 9 bytes; then name and storage.
+        let fields = 9 + core::mem::size_of::<Name>() + storage;
+        assert_eq!(core::mem::size_of::<Entry>(), fields + fields % 2);
     }
 }

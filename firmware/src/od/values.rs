@@ -56,7 +56,7 @@ impl Scalar for bool {
 /// lies outside `bytes` (which a generated table never produces).
 pub fn slot<'a>(bytes: &'a [u8], entry: &Entry) -> Option<&'a [u8]> {
     match entry.storage {
-        Storage::Ram { offset, len } => bytes.get(usize::from(offset)..)?.get(..usize::from(len)),
+        Storage::Ram { offset, len, .. } => bytes.get(usize::from(offset)..)?.get(..usize::from(len)),
         Storage::Const(_) | Storage::Application => None,
     }
 }
@@ -64,7 +64,7 @@ pub fn slot<'a>(bytes: &'a [u8], entry: &Entry) -> Option<&'a [u8]> {
 /// Mutable form of [`slot`].
 pub fn slot_mut<'a>(bytes: &'a mut [u8], entry: &Entry) -> Option<&'a mut [u8]> {
     match entry.storage {
-        Storage::Ram { offset, len } => bytes.get_mut(usize::from(offset)..)?.get_mut(..usize::from(len)),
+        Storage::Ram { offset, len, .. } => bytes.get_mut(usize::from(offset)..)?.get_mut(..usize::from(len)),
         Storage::Const(_) | Storage::Application => None,
     }
 }
@@ -180,7 +180,7 @@ impl<const N: usize> Values<N> {
 
     /// Adds `node_id` to the value of every RAM entry of `entries` marked `node_id_relative` ([`Self::from_defaults`]).
     fn add_node_id(&mut self, entries: &[Entry], node_id: u8) {
-        for entry in entries.iter().filter(|e| e.node_id_relative) {
+        for entry in entries.iter().filter(|e| e.node_id_relative()) {
             if let Some(base) = unsigned(&self.bytes, entry) {
                 // Wrapping on purpose: the default is an offset the generator checked to leave room for any
                 // node-ID 1..127; wrapping keeps a corrupt table from panicking.
@@ -256,8 +256,7 @@ mod tests {
             persistent: false,
             write_condition: WriteCondition::Always,
             limits: LimitsRef::NONE,
-            storage: Storage::Ram { offset, len },
-            node_id_relative,
+            storage: Storage::Ram { offset, len, node_id_relative },
         }
     }
 

@@ -46,8 +46,7 @@ fn ram_entry(index: u16, sub: u8, data_type: DataType, persistent: bool, offset:
         persistent,
         write_condition: WriteCondition::Always,
         limits: LimitsRef::NONE,
-        storage: Storage::Ram { offset, len },
-        node_id_relative: false,
+        storage: Storage::Ram { offset, len, node_id_relative: false },
     }
 }
 
@@ -84,7 +83,7 @@ fn tables() -> Vec<(&'static str, Table)> {
 /// The RAM slot of an entry.
 fn slot(e: &Entry) -> Option<std::ops::Range<usize>> {
     match e.storage {
-        Storage::Ram { offset, len } => Some(offset as usize..offset as usize + len as usize),
+        Storage::Ram { offset, len, .. } => Some(offset as usize..offset as usize + len as usize),
         _ => None,
     }
 }
@@ -424,7 +423,7 @@ fn firmware_update_skips_unknown_and_resized_entries() {
     new_fw.entries.retain(|e| e.index != 0x6083);
     for e in &mut new_fw.entries {
         if e.index == 0x605A {
-            e.storage = Storage::Ram { offset: old_fw.defaults.len() as u16, len: 4 };
+            e.storage = Storage::Ram { offset: old_fw.defaults.len() as u16, len: 4, node_id_relative: false };
         }
         if e.index == 0x30A0 {
             e.persistent = false;
