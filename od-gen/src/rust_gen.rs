@@ -163,6 +163,22 @@ fn limits(s: &SubObject) -> String {
     }
 }
 
+/// Whether the bounds of `s`'s limits fit the 32-bit fields of `Limits` (signed or unsigned as its type).
+fn limits_fit(s: &SubObject) -> bool {
+    if let Some(values) = &s.values {
+        return values.iter().all(|v| i32::try_from(*v).is_ok());
+    }
+    let (Some((lo, hi)), true) = (s.data_type.range(), s.min.is_some() || s.max.is_some()) else {
+        return true;
+    };
+    let (min, max) = (s.min.unwrap_or(lo), s.max.unwrap_or(hi));
+    if s.data_type.is_signed() {
+        i32::try_from(min).is_ok() && i32::try_from(max).is_ok()
+    } else {
+        u32::try_from(min).is_ok() && u32::try_from(max).is_ok()
+    }
+}
+
 /// The entry without limits, position 0 of `LIMITS`.
 fn limits_none() -> String {
     "Limits::None".to_string()
@@ -272,6 +288,11 @@ pub fn rust_with_names(d: &Description, names: bool) -> Result<String, String> {
 
     // Every distinct range once, `Limits::None` first (`LimitsRef::NONE`); an entry names its range by position.
     let mut ranges = vec![limits_none()];
+    for o in &d.objects {
+        if let Some(s) = o.subs.iter().find(|s| !limits_fit(s)) {
+            return Err(format!("0x{:04X}:{:02X}: limits beyond the 32-bit bounds of Limits", o.index, s.sub));
+        }
+    }
     for s in d.objects.iter().flat_map(|o| o.subs.iter()) {
         let range = limits(s);
         if !ranges.contains(&range) {

@@ -239,3 +239,18 @@ fn sparse_defaults_hold_every_non_zero_byte_in_order() {
     assert_eq!(nonzero.next(), None, "no byte without its bit");
     assert_eq!(DEFAULT_NONZERO_MASK.len(), DEFAULT_VALUES.len().div_ceil(8));
 }
+
+#[test]
+fn limits_beyond_the_32_bit_bounds_are_refused() {
+    // `Limits` holds 32-bit bounds; a wider bound (or a listed value) must stop the build, not be cut.
+    let mut d = description();
+    let object = d.objects.iter_mut().find(|o| o.index == 0x6060).expect("0x6060 in the fixture");
+    object.subs[0].max = Some(i128::from(i32::MAX) + 1);
+    let report = od_gen::rust_gen::rust(&d).expect_err("a bound past i32::MAX");
+    assert_eq!(report, "0x6060:00: limits beyond the 32-bit bounds of Limits");
+    let mut d = description();
+    let object = d.objects.iter_mut().find(|o| o.index == 0x605A).expect("0x605A in the fixture");
+    object.subs[0].values = Some(vec![0, 1 << 40]);
+    let report = od_gen::rust_gen::rust(&d).expect_err("a listed value past i32");
+    assert_eq!(report, "0x605A:00: limits beyond the 32-bit bounds of Limits");
+}

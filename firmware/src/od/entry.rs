@@ -10,7 +10,9 @@ use core::marker::PhantomData;
 
 pub use od_types::{Access, DataType, ObjectCode, PdoMapping, WriteCondition};
 
-/// The value range a write must fall in (CiA 301 aborts 0x0609_0030..0x0609_0032 when it does not).
+/// The value range a write must fall in (CiA 301 aborts 0x0609_0030..0x0609_0032 when it does not). 32-bit bounds:
+/// no 64-bit entry of the dictionary has limits (od-gen refuses one whose bounds do not fit), and 12 bytes a range
+/// instead of 24 keep the table's list small.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Limits {
     /// Any value the data type can hold.
@@ -18,19 +20,19 @@ pub enum Limits {
     /// Inclusive range for a signed type.
     Signed {
         /// Lowest accepted value.
-        min: i64,
+        min: i32,
         /// Highest accepted value.
-        max: i64,
+        max: i32,
     },
     /// Inclusive range for an unsigned type.
     Unsigned {
         /// Lowest accepted value.
-        min: u64,
+        min: u32,
         /// Highest accepted value.
-        max: u64,
+        max: u32,
     },
     /// Only these values are accepted (option codes such as 0x605A); sorted ascending.
-    OneOf(&'static [i64]),
+    OneOf(&'static [i32]),
 }
 
 /// Where an entry's value lives.

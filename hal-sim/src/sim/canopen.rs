@@ -861,7 +861,7 @@ mod reset_tests {
             bytes[..raw.len()].copy_from_slice(raw);
             let value = u64::from_le_bytes(bytes);
             let max = match *e.generated_limits() {
-                Limits::Unsigned { max, .. } => max,
+                Limits::Unsigned { max, .. } => u64::from(max),
                 _ => u64::MAX >> (64 - 8 * raw.len() as u32),
             };
             let new = if value < max { value + 1 } else { value - 1 };
