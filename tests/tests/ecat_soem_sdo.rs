@@ -178,7 +178,7 @@ fn parameter_of(d: &Dictionary, data_type: DataType) -> &'static Entry {
                 && matches!(e.storage, Storage::Ram { .. })
                 && (0x2000..0xA000).contains(&e.index)
                 && !e.pdo.rx()
-                && match *e.limits {
+                && match *e.generated_limits() {
                     Limits::Signed { min, max } => i128::from(min) > type_min && i128::from(max) < type_max,
                     Limits::Unsigned { min, max } => i128::from(min) > type_min && i128::from(max) < type_max,
                     _ => false,
@@ -210,7 +210,7 @@ fn parameters_of_several_types_write_and_read_back_and_bad_writes_abort_with_the
     for data_type in [DataType::Unsigned8, DataType::Unsigned16, DataType::Integer32, DataType::Unsigned32] {
         let e = parameter_of(&d, data_type);
         let size = data_type.fixed_size().expect("fixed size");
-        let (min, max) = match *e.limits {
+        let (min, max) = match *e.generated_limits() {
             Limits::Signed { min, max } => (i128::from(min), i128::from(max)),
             Limits::Unsigned { min, max } => (i128::from(min), i128::from(max)),
             _ => unreachable!("parameter_of picks ranges"),

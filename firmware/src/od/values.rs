@@ -56,7 +56,7 @@ impl Scalar for bool {
 /// lies outside `bytes` (which a generated table never produces).
 pub fn slot<'a>(bytes: &'a [u8], entry: &Entry) -> Option<&'a [u8]> {
     match entry.storage {
-        Storage::Ram { offset, len } => bytes.get(usize::from(offset)..)?.get(..usize::from(len)),
+        Storage::Ram { offset, len, .. } => bytes.get(usize::from(offset)..)?.get(..usize::from(len)),
         Storage::Const(_) | Storage::Application => None,
     }
 }
@@ -64,7 +64,7 @@ pub fn slot<'a>(bytes: &'a [u8], entry: &Entry) -> Option<&'a [u8]> {
 /// Mutable form of [`slot`].
 pub fn slot_mut<'a>(bytes: &'a mut [u8], entry: &Entry) -> Option<&'a mut [u8]> {
     match entry.storage {
-        Storage::Ram { offset, len } => bytes.get_mut(usize::from(offset)..)?.get_mut(..usize::from(len)),
+        Storage::Ram { offset, len, .. } => bytes.get_mut(usize::from(offset)..)?.get_mut(..usize::from(len)),
         Storage::Const(_) | Storage::Application => None,
     }
 }
@@ -180,7 +180,7 @@ impl<const N: usize> Values<N> {
 
     /// Adds `node_id` to the value of every RAM entry of `entries` marked `node_id_relative` ([`Self::from_defaults`]).
     fn add_node_id(&mut self, entries: &[Entry], node_id: u8) {
-        for entry in entries.iter().filter(|e| e.node_id_relative) {
+        for entry in entries.iter().filter(|e| e.node_id_relative()) {
             if let Some(base) = unsigned(&self.bytes, entry) {
                 // Wrapping on purpose: the default is an offset the generator checked to leave room for any
                 // node-ID 1..127; wrapping keeps a corrupt table from panicking.
@@ -243,7 +243,7 @@ impl<const N: usize> Values<N> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::od::entry::{Access, DataType, Limits, Name, PdoMapping, WriteCondition};
+    use crate::od::entry::{Access, DataType, LimitsRef, Name, PdoMapping, WriteCondition};
 
     const fn ram(index: u16, data_type: DataType, offset: u16, len: u16, node_id_relative: bool) -> Entry {
         Entry {
@@ -255,9 +255,8 @@ mod tests {
             pdo: PdoMapping::No,
             persistent: false,
             write_condition: WriteCondition::Always,
-            limits: &Limits::None,
-            storage: Storage::Ram { offset, len },
-            node_id_relative,
+            limits: LimitsRef::NONE,
+            storage: Storage::Ram { offset, len, node_id_relative },
         }
     }
 

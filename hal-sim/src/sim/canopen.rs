@@ -845,7 +845,7 @@ mod reset_tests {
             d.table()
                 .entries()
                 .iter()
-                .filter(|e| (0x1000..=0x1FFF).contains(&e.index) && e.persistent && !e.node_id_relative)
+                .filter(|e| (0x1000..=0x1FFF).contains(&e.index) && e.persistent && !e.node_id_relative())
                 .filter(|e| matches!(e.storage, Storage::Ram { .. }) && e.data_type.fixed_size().is_some())
                 .copied()
                 .collect()
@@ -860,8 +860,8 @@ mod reset_tests {
             let mut bytes = [0u8; 8];
             bytes[..raw.len()].copy_from_slice(raw);
             let value = u64::from_le_bytes(bytes);
-            let max = match *e.limits {
-                Limits::Unsigned { max, .. } => max,
+            let max = match *e.generated_limits() {
+                Limits::Unsigned { max, .. } => u64::from(max),
                 _ => u64::MAX >> (64 - 8 * raw.len() as u32),
             };
             let new = if value < max { value + 1 } else { value - 1 };
@@ -877,7 +877,7 @@ mod reset_tests {
             nmt(&mut r, command);
             let now = r.drives[0].sim.drive.dictionary().values().bytes().to_vec();
             for e in &entries {
-                let Storage::Ram { offset, len } = e.storage else { continue };
+                let Storage::Ram { offset, len, .. } = e.storage else { continue };
                 let range = usize::from(offset)..usize::from(offset) + usize::from(len);
                 assert_eq!(now[range.clone()], saved[range], "{:#06x}:{} after NMT {command:#x}", e.index, e.sub);
             }

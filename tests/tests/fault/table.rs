@@ -195,7 +195,7 @@ fn the_dictionary_holds_what_the_fault_handling_writes() {
     assert_eq!(firmware::fault::history::capacity(&dict), object.max_sub);
     let count = dict.find(0x1003, 0).unwrap();
     assert_eq!(
-        (count.data_type, count.access, *count.limits),
+        (count.data_type, count.access, *count.generated_limits()),
         (DataType::Unsigned8, Access::ReadWrite, Limits::OneOf(&[0]))
     );
     for sub in 1..=object.max_sub {
@@ -210,8 +210,8 @@ fn the_dictionary_holds_what_the_fault_handling_writes() {
     assert_eq!((inhibit.data_type, inhibit.access), (DataType::Unsigned16, Access::ReadWrite));
 
     // Class f follows 0x605E (0 coast, 1 slow-down, 2 quick stop); class a follows 0x6007.
-    assert_eq!(*dict.find(0x605E, 0).unwrap().limits, Limits::OneOf(&[0, 1, 2]));
+    assert_eq!(*dict.find(0x605E, 0).unwrap().generated_limits(), Limits::OneOf(&[0, 1, 2]));
     let abort = dict.find(0x6007, 0).unwrap();
     assert_eq!(abort.data_type, DataType::Integer16);
-    assert!(matches!(*abort.limits, Limits::OneOf(values) if values.contains(&1)));
+    assert!(matches!(*abort.generated_limits(), Limits::OneOf(values) if values.contains(&1)));
 }
