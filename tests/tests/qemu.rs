@@ -70,17 +70,17 @@ const ECAT_CYCLE_BUDGET: u64 = 1_500;
 /// CAN image is 5,612 bytes under its 200 KiB ceiling. Lowered by 2 KiB when the entries named their limits by a
 /// one-byte position in the table's list instead of a reference and kept the node-ID mark in their RAM storage (an
 /// entry 16 bytes in the CAN image, 18 with names; -2,212, -1,976 and -1,976 bytes of text): 196,976, 228,480 and
-/// 234,696. Lowered by 1, 2 and 2 KiB when the limits took 32-bit bounds (-1,332, -1,324 and -1,324): 195,644,
-/// 227,156 and 233,372. Then/// raised by 3 KiB for the SSI absolute encoder (issue 20 item
-/// 1: 0x3012, the frame check and decoding in tier 1, tier 2's absolute position and frame check, the SPI3 board
-/// driver, four fault rows; +3,156, +3,252 and +3,260 bytes of text) and by 3 KiB for the gear and its user units
-/// (issue 20 item 3: 0x3003 and 0x6091 in effect, the exact position conversions, the geared rpm scale, the targets
-/// converted before the slow tick and the master's values published after it, torque polarity; +3,072, +3,228 and
-/// +3,136 bytes of text) and by 2 KiB for the dual loop (issue 20 item 2: the load encoder's objects 0x3020, 0x30AE,
-/// 0x60E4, its conversion to motor increments with the configuration check, the main loop with its gain scheduler,
-/// the board's TIM5 driver; +2,508, +2,768 and +2,752 bytes of text).
-/// MEASURED_AT_MERGE
-const TEXT_BUDGETS: [(&str, u64); 3] = [("can", 204 * 1024), ("ethercat", 235 * 1024), ("ethercat_defmt", 241 * 1024)];
+/// 234,696. Lowered by 1, 2 and 2 KiB when the limits took 32-bit bounds (-1,332, -1,324 and -1,324): 195,644, 227,156
+/// and 233,372. Then raised for the SSI absolute encoder (issue 20 item 1: 0x3012, the frame check and decoding in tier
+/// 1, tier 2's absolute position and frame check, the SPI3 board driver, four fault rows; +3,156, +3,252 and +3,260
+/// bytes of text), the gear and its user units (issue 20 item 3: 0x3003 and 0x6091 in effect, the exact position
+/// conversions, the geared rpm scale, the targets converted before the slow tick and the master's values published
+/// after it, torque polarity; +3,072, +3,228 and +3,136 bytes of text) and the dual loop (issue 20 item 2: the load
+/// encoder's objects 0x3020, 0x30AE, 0x60E4, its conversion to motor increments with the configuration check, the main
+/// loop with its gain scheduler, the board's TIM5 driver; +2,508, +2,768 and +2,752 bytes of text), measured together:
+/// 204,244, 236,148 and 242,380. The CAN image's budget is its 200 KiB ceiling itself, 556 bytes above it (size + 1 KB
+/// would pass the ceiling); the next feature on the CAN image must pay for itself.
+const TEXT_BUDGETS: [(&str, u64); 3] = [("can", 200 * 1024), ("ethercat", 232 * 1024), ("ethercat_defmt", 238 * 1024)];
 
 #[test]
 fn board_images_fit_their_text_budgets() {
