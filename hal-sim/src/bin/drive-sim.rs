@@ -298,7 +298,10 @@ fn dual_loop(args: &DualLoopScenario, dir: &Path) -> Result<(), String> {
         f.load_settle_error_inc
     );
     println!("  |motor / gear - load| peak                   {:7.3} deg at the load", f.motor_load_deviation_peak_deg);
-    println!("  the drive's 0x60F4 peak during the move       {:7.1} motor inc", f.drive_following_error_peak_inc);
+    println!(
+        "  the drive's 0x60F4 peak during the move       {:7.1} inc (the master's units)",
+        f.drive_following_error_peak_inc
+    );
     let mut plot = seconds_plot(
         &trace,
         if cfg.dual_loop { "Dual loop: CSP move of the load" } else { "Motor encoder alone: CSP move of the load" },

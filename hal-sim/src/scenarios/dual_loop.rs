@@ -78,7 +78,8 @@ pub struct DualLoopFigures {
     pub motor_load_deviation_peak_deg: f64,
     /// The gear's backlash, load increments (the plant's), for comparison.
     pub backlash_inc: f64,
-    /// Largest |0x60F4| during the move, motor increments (the drive's own following error).
+    /// Largest |0x60F4| during the move, in the master's position units (the drive's own following error; load
+    /// increments of the motor encoder's resolution with the dual loop's gear in effect).
     pub drive_following_error_peak_inc: f64,
     /// Duration of the move, s.
     pub move_s: f64,
