@@ -307,6 +307,7 @@ impl Axis {
     /// The dual loop's load scale, taken with the sensor configuration at switch-on (`motion::dual_loop`).
     pub fn set_load_scale(&mut self, scale: Option<super::dual_loop::LoadScale>) {
         self.loops.set_load_scale(scale);
+        self.params.set_main_sensor(scale);
     }
 
     /// Position actual value minus the encoder position.

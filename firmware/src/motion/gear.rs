@@ -20,6 +20,9 @@
 //! (the 2.5 kHz path has no time for a 64-bit software division: [`Ratio`] precomputes a 32.32 factor when the
 //! gear is written and corrects its one possible rounding step with the exact integer remainder).
 //!
+//! In the dual loop the load encoder is the main sensor, and the master's positions count its increments
+//! ([`UserUnits::with_main_sensor`]).
+//!
 //! 0x3003:04 bit 0 (the gear output turns opposite to its input) inverts the load's positions and velocities on
 //! top of the polarity 0x607E (they combine as signs do); torques keep the motor's sign.
 //!
@@ -205,6 +208,24 @@ impl UserUnits {
         }
     }
 
+    /// These units with the dual loop's main sensor (EPOS4 AN ch. 10, 0x3000:02 main sensor 2 on the gear output):
+    /// the master's positions count the load encoder's increments (4 x 0x3020:01 per load revolution), as the
+    /// position loop closes on them, instead of the motor encoder's resolution at the load, which would make one
+    /// master increment several load increments (8 on geared-36v) and round every set-point to them. `scale` is
+    /// motor increments per load increment ([`super::dual_loop::LoadScale`]); one whose terms do not fit 32 bits
+    /// (beyond any catalogue encoder and gear) keeps the gear's units. Velocities stay load rpm. Divides: not for
+    /// the slow tick.
+    #[must_use]
+    pub fn with_main_sensor(mut self, scale: Option<super::dual_loop::LoadScale>) -> Self {
+        if let Some(s) = scale {
+            if let (Ok(num), Ok(den)) = (u32::try_from(s.num), u32::try_from(s.den)) {
+                self.to_motor = Ratio::new(num, den);
+                self.to_load = Ratio::new(den, num);
+            }
+        }
+        self
+    }
+
     /// The units the dictionary sets now (divides: not for the slow tick).
     #[must_use]
     pub fn from_dictionary(d: &Dictionary) -> Self {
@@ -305,5 +326,28 @@ mod tests {
         assert_eq!(inverted.position_to_axis(100), 500);
         assert_eq!(u.position_to_axis(i32::MAX), i32::MIN, "saturates, no wrap");
         assert_eq!(UserUnits::new(&gear, 0).position_to_axis(i32::MAX), i32::MAX);
+    }
+
+    /// EPOS4 AN ch. 10: in the dual loop the master's positions count the main sensor's, the load encoder's,
+    /// increments. geared-36v: 5:1, 5,000 motor increments and 40,000 load increments per revolution, so 5 x 5,000
+    /// / 40,000 = 5/8 motor increment per load increment: one load revolution (40,000) is 25,000 motor increments
+    /// and back, a quarter turn (10,000) 6,250. Without the dual loop the same gear counts 5,000 per load
+    /// revolution; a scale whose terms pass 32 bits keeps those units.
+    #[test]
+    fn the_dual_loops_main_sensor_sets_the_position_units() {
+        use crate::motion::dual_loop::LoadScale;
+        let gear = Gear { numerator: 5, ..Gear::NONE };
+        let geared = UserUnits::new(&gear, 0);
+        assert_eq!(geared.position_to_axis(5_000), 25_000);
+        let scale = LoadScale::new((5, 1), 5_000, 40_000).expect("in range");
+        let dual = geared.with_main_sensor(Some(scale));
+        assert_eq!(dual.position_to_axis(40_000), 25_000);
+        assert_eq!(dual.position_to_axis(10_000), 6_250);
+        assert_eq!(dual.position_to_master(25_000), 40_000);
+        assert_eq!(dual.position_to_master(-6_250), -10_000);
+        assert_eq!(dual.distance_to_axis(8), 5);
+        assert_eq!(geared.with_main_sensor(None), geared);
+        let wide = LoadScale { num: 1 << 33, den: 3 };
+        assert_eq!(geared.with_main_sensor(Some(wide)), geared);
     }
 }

@@ -132,6 +132,8 @@ pub struct MotionParams {
     pub polarity: Polarity,
     /// The master's positions to the axis's and back: polarity and gear.
     pub units: UserUnits,
+    /// The dual loop's main sensor, whose increments the master's positions count ([`Self::set_main_sensor`]).
+    main_sensor: Option<crate::motion::dual_loop::LoadScale>,
     /// The gear in effect.
     pub gear: Gear,
     /// The master's targets the slow tick follows, converted.
@@ -173,6 +175,7 @@ impl MotionParams {
             options: OptionCodes::DEFAULT,
             polarity: Polarity::NONE,
             units: UserUnits::NONE,
+            main_sensor: None,
             gear: Gear::NONE,
             targets: Targets::default(),
             raw_targets: None,
@@ -197,6 +200,15 @@ impl MotionParams {
             None => self.scale.velocity_to_rpm(velocity),
         };
         i32::try_from(rpm).unwrap_or(if rpm < 0 { i32::MIN } else { i32::MAX })
+    }
+
+    /// The dual loop's main sensor (its load scale), or `None`: the master's position units follow it
+    /// ([`UserUnits::with_main_sensor`]), converted again at the next [`Self::refresh`] when it changed.
+    pub fn set_main_sensor(&mut self, scale: Option<crate::motion::dual_loop::LoadScale>) {
+        if self.main_sensor != scale {
+            self.main_sensor = scale;
+            self.raw = None;
+        }
     }
 
     /// Re-reads the dictionary; converts what changed. An invalid profile type keeps the previous profile.
@@ -236,7 +248,7 @@ impl MotionParams {
     /// Converts the parameters (when one of them changed).
     fn convert(&mut self, raw: RawParams) {
         self.gear = raw.gear;
-        self.units = UserUnits::new(&raw.gear, raw.polarity);
+        self.units = UserUnits::new(&raw.gear, raw.polarity).with_main_sensor(self.main_sensor);
         self.polarity = self.units.polarity;
         let gear = raw.gear;
         let scale = MotionScale::geared(raw.inc_per_rev.max(1), gear.numerator, gear.denominator);

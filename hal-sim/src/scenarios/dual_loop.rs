@@ -1,6 +1,6 @@
 //! The dual loop on a plant with a load encoder (`drive-sim dual-loop --plant FILE`; EPOS4 AN ch. 10): a CSP move
-//! of the load, the master's set-points in its position units (load increments of the motor encoder's resolution,
-//! the gear being in effect in the dual loop's configuration; motor increments without it), closed either by the
+//! of the load, the master's set-points in its position units (the load encoder's increments in the dual loop's
+//! configuration, the gear being in effect; motor increments without it), closed either by the
 //! load encoder (the dual loop: 0x3000:01 = 0x00040201, 0x3000:02 = 0x04021111, 0x3020:01 and the gear ratio
 //! 0x3003:01/02 from the plant, written over SDO with the power stage off) or, for comparison, by the motor
 //! encoder alone (the default PID 0x30A1).
@@ -79,7 +79,7 @@ pub struct DualLoopFigures {
     /// The gear's backlash, load increments (the plant's), for comparison.
     pub backlash_inc: f64,
     /// Largest |0x60F4| during the move, in the master's position units (the drive's own following error; load
-    /// increments of the motor encoder's resolution with the dual loop's gear in effect).
+    /// encoder increments in the dual loop).
     pub drive_following_error_peak_inc: f64,
     /// Duration of the move, s.
     pub move_s: f64,
@@ -156,12 +156,12 @@ pub fn dual_loop(params: PlantParams, config: &DualLoopConfig) -> Result<(DualLo
     let p = sim.plant.params().clone();
     let motor_inc_per_rev = f64::from(p.encoder_counts_per_rev);
     let load_inc_per_rev = f64::from(p.load_encoder_counts_per_rev);
-    // The master's units. The dual loop's configuration sets the gear in effect (0x3000:02 bit 12 with 0x3003), so
-    // its positions count load increments of the main sensor's resolution (0x3000:05, the motor encoder's, per load
-    // revolution) and its speeds are load rpm (`firmware::motion::gear`); the motor-encoder run keeps motor
-    // increments and motor rpm. `user_per_load_rev` is the master's position units per load revolution either way.
+    // The master's units. The dual loop's configuration sets the gear in effect (0x3000:02 bit 12 with 0x3003) with
+    // the load encoder as main sensor, so its positions count the load encoder's increments and its speeds are load
+    // rpm (`firmware::motion::gear`, `UserUnits::with_main_sensor`); the motor-encoder run keeps motor increments
+    // and motor rpm. `user_per_load_rev` is the master's position units per load revolution either way.
     let user_per_load_rev =
-        if config.dual_loop { motor_inc_per_rev } else { (p.gear_ratio * motor_inc_per_rev).round() };
+        if config.dual_loop { load_inc_per_rev } else { (p.gear_ratio * motor_inc_per_rev).round() };
     // Load-encoder increments per master position unit.
     let load_per_user = load_inc_per_rev / user_per_load_rev;
     let cycle_us = (config.cycle_periods as f64 * PERIOD_S * 1e6).round() as u32;
