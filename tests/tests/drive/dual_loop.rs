@@ -88,13 +88,14 @@ fn run(dual: bool) -> DualLoopFigures {
 
 /// Issue 20 item 2 "What it must show": on geared-36v (5:1, 0.3 deg backlash = 33.3 increments of its 40,000-count
 /// load encoder, coupling at 60 Hz), a 90 deg CSP move of the load at 1 ms set-points. With the load encoder
-/// closing the loop the load settles within +-2 load increments over the last 100 ms of the 0.4 s hold (reached:
-/// 1.0 on seed 1; seeds 2 and 3 reach 1.0 and 3.0: the load ends where the motor, crawling through the backlash at
-/// the main loop's low gain, leaves it); with the motor encoder alone it misses by about the backlash (reached:
-/// 25, 23, 24 on seeds 1..3: where the load rests within the backlash depends on the last reversal), asserted as
-/// half to one and a half backlash. The following error peak (314 load increments, the coupling's twist under the
-/// move's acceleration) and the motor/load deviation (1.9 deg) are reported, bounded by what a stable run
-/// reaches plus 20 % (an unstable loop rings far beyond them).
+/// closing the loop (the master's set-points in the load encoder's increments, its main sensor's) the load settles
+/// within +-2 load increments over the last 100 ms of the 0.4 s hold (reached: 2.0 on seed 1; seeds 2 and 3 reach
+/// 1.0 and 3.0: the load ends where the motor, crawling through the backlash at the main loop's low gain, leaves
+/// it); with the motor encoder alone it misses by about the backlash (reached: 25, 23, 24 on seeds 1..3: where the
+/// load rests within the backlash depends on the last reversal), asserted as half to one and a half backlash. The
+/// following error peak (312 load increments, the coupling's twist under the move's acceleration) and the
+/// motor/load deviation (1.9 deg) are reported, bounded by what a stable run reaches plus 20 % (an unstable loop
+/// rings far beyond them).
 #[test]
 fn load_encoder_settles_the_load_where_the_motor_encoder_misses_by_the_backlash() {
     let dual = run(true);
