@@ -11,30 +11,22 @@
 
 use firmware::drive::{Drive, DriveConfig};
 use firmware::od::abort::SdoAbort;
-use firmware::od::access::{AccessContext, CommState};
-use firmware::od::generated::{handles as h, MAX_PDO_BYTES_ETHERCAT};
+use firmware::od::access::AccessContext;
+use firmware::od::generated::handles as h;
 use firmware::od::store::{ParamStore, LOAD_SIGNATURE, SAVE_SIGNATURE};
 use hal_sim::flash::SimFlash;
 use hal_sim::plant::PlantParams;
 use hal_sim::scenarios::{prepare_plant, Setup};
 use hal_sim::sim::Simulation;
 
-const PRE_OP: AccessContext = AccessContext {
-    comm_state: CommState::PreOperational,
-    power_stage_enabled: false,
-    max_pdo_bytes: MAX_PDO_BYTES_ETHERCAT as u16,
-};
+use super::master::{get_i32, ppm_move, until_status, BIT12, BIT4, ENABLE_OPERATION, PRE_OP};
+
 /// 0x6067 default, (load) increments.
 const POSITION_WINDOW_INC: i64 = 10;
 /// Half the 0x606D default, motor rpm.
 const MOTOR_RPM_TOLERANCE: f64 = 15.0;
-/// Controlword «Enable operation», and with bit 4 (new set-point / homing start).
-const ENABLE_OPERATION: u16 = 0x000F;
-const BIT4: u16 = 0x0010;
-/// Statusword bits 10 (target reached), 11 (internal limit active) and 12 (set-point acknowledge, homing attained).
-const TARGET_REACHED: u16 = 1 << 10;
+/// Statusword bit 11, internal limit active.
 const INTERNAL_LIMIT: u16 = 1 << 11;
-const BIT12: u16 = 1 << 12;
 /// 0x3000:02 bit 12, gear mounted.
 const GEAR_MOUNTED: u32 = 1 << 12;
 
@@ -64,38 +56,6 @@ fn control_structure_with_gear() -> [u8; 4] {
     (Drive::new(DriveConfig::DEFAULT).dictionary().get(h::CONTROL_STRUCTURE) | GEAR_MOUNTED).to_le_bytes()
 }
 
-fn get_i32(sim: &Simulation, handle: firmware::od::entry::Handle<i32>) -> i64 {
-    i64::from(sim.drive.dictionary().get(handle))
-}
-
-/// Slow ticks until the statusword has `bits`, at most `max`.
-fn until_status(sim: &mut Simulation, bits: u16, max: u64) -> bool {
-    (0..max).any(|_| {
-        sim.run_slow_ticks(1);
-        sim.statusword() & bits == bits
-    })
-}
-
-/// A PPM absolute move to `target` (master units), to target reached plus 25 ticks of settling.
-fn ppm_move(sim: &mut Simulation, target: i64) {
-    sim.drive.dictionary_mut().set(h::TARGET_POSITION, i32::try_from(target).expect("in range"));
-    sim.set_controlword(ENABLE_OPERATION | BIT4);
-    assert!(until_status(sim, BIT12, 50), "set-point acknowledged");
-    sim.set_controlword(ENABLE_OPERATION);
-    let reached = until_status(sim, TARGET_REACHED, 10_000);
-    assert!(
-        reached,
-        "target reached: error {:#06x} status {:#06x}, 0x6064 {}, 0x6062 {}, 0x60FC {}, 0x6063 {}",
-        sim.drive.dictionary().get(h::ERROR_CODE),
-        sim.statusword(),
-        get_i32(sim, h::POSITION_ACTUAL_VALUE),
-        get_i32(sim, h::POSITION_DEMAND_VALUE),
-        get_i32(sim, h::POSITION_DEMAND_INTERNAL_VALUE),
-        get_i32(sim, h::POSITION_ACTUAL_INTERNAL_VALUE)
-    );
-    sim.run_slow_ticks(25);
-}
-
 /// round(x p / q), half up: the conversion the drive must make.
 fn rounded(x: i64, p: i64, q: i64) -> i64 {
     (2 * x * p + q).div_euclid(2 * q)
@@ -117,7 +77,7 @@ fn gear_through_0x3003_makes_0x607a_and_0x6064_count_load_increments() {
     let (start, start_internal) =
         (get_i32(&sim, h::POSITION_ACTUAL_VALUE), get_i32(&sim, h::POSITION_ACTUAL_INTERNAL_VALUE));
     let start_count = sim.plant.true_encoder_count();
-    ppm_move(&mut sim, start + 4096);
+    ppm_move(&mut sim, start + 4096, 10_000);
     assert!((get_i32(&sim, h::POSITION_ACTUAL_VALUE) - (start + 4096)).abs() <= 2, "0x6064 at the load target");
     assert_eq!(get_i32(&sim, h::POSITION_DEMAND_VALUE), start + 4096, "0x6062 at the target");
     let moved = sim.plant.true_encoder_count() - start_count;
@@ -189,7 +149,7 @@ fn non_integer_ratio_converts_exactly() {
     let mut sim = enabled_with(&writes, 1);
     sim.drive.dictionary_mut().set(h::PROFILE_VELOCITY, 1u32);
     let target = get_i32(&sim, h::POSITION_ACTUAL_VALUE) + 10;
-    ppm_move(&mut sim, target);
+    ppm_move(&mut sim, target, 10_000);
     assert_eq!(get_i32(&sim, h::POSITION_DEMAND_VALUE), target, "0x6062");
     assert_eq!(get_i32(&sim, h::POSITION_DEMAND_INTERNAL_VALUE), rounded(target, 359_424, 875), "0x60FC");
     assert!((get_i32(&sim, h::POSITION_ACTUAL_VALUE) - target).abs() <= 1, "0x6064");
@@ -227,7 +187,7 @@ fn home_offset_and_software_limits_count_load_increments() {
     sim.run_slow_ticks(10);
     let start_count = sim.plant.true_encoder_count();
     let start = get_i32(&sim, h::POSITION_ACTUAL_VALUE);
-    ppm_move(&mut sim, 3_000);
+    ppm_move(&mut sim, 3_000, 10_000);
     let position = get_i32(&sim, h::POSITION_ACTUAL_VALUE);
     assert!((position - 1_500).abs() <= 2, "0x6064 = {position}, held at 0x607D:02");
     let moved = sim.plant.true_encoder_count() - start_count;

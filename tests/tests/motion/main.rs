@@ -6,6 +6,7 @@ mod cyclic;
 mod encoder_resolution;
 mod gear;
 mod homing;
+mod master;
 mod observer;
 mod polarity;
 mod profile;

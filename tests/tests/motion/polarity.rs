@@ -9,29 +9,20 @@
 
 use firmware::drive::{Drive, DriveConfig};
 use firmware::od::abort::SdoAbort;
-use firmware::od::access::{AccessContext, CommState};
-use firmware::od::generated::{handles as h, MAX_PDO_BYTES_ETHERCAT};
+use firmware::od::access::AccessContext;
+use firmware::od::generated::handles as h;
 use firmware::od::store::{ParamStore, SAVE_SIGNATURE};
 use hal_sim::flash::SimFlash;
 use hal_sim::plant::PlantParams;
 use hal_sim::scenarios::{prepare_plant, Setup};
 use hal_sim::sim::Simulation;
 
-const PRE_OP: AccessContext = AccessContext {
-    comm_state: CommState::PreOperational,
-    power_stage_enabled: false,
-    max_pdo_bytes: MAX_PDO_BYTES_ETHERCAT as u16,
-};
+use super::master::{get_i32, ppm_move, until_status, BIT12, BIT4, ENABLE_OPERATION, PRE_OP};
+
 /// 0x6067 default, increments.
 const POSITION_WINDOW_INC: i64 = 10;
 /// Half the 0x606D default, rpm.
 const VELOCITY_TOLERANCE_RPM: f64 = 15.0;
-/// Controlword «Enable operation», and with bit 4 (new set-point / homing start).
-const ENABLE_OPERATION: u16 = 0x000F;
-const BIT4: u16 = 0x0010;
-/// Statusword bits 10 (target reached) and 12 (set-point acknowledge, homing attained).
-const TARGET_REACHED: u16 = 1 << 10;
-const BIT12: u16 = 1 << 12;
 
 /// The commissioned reference drive, shut down («Ready to switch on», power stage off), 0x607E = `polarity`
 /// written over SDO, then enabled in `mode` through the controlword.
@@ -49,28 +40,6 @@ fn enabled_with(polarity: u8, mode: i8) -> Simulation {
     sim
 }
 
-fn get_i32(sim: &Simulation, handle: firmware::od::entry::Handle<i32>) -> i64 {
-    i64::from(sim.drive.dictionary().get(handle))
-}
-
-/// Slow ticks until the statusword has `bits`, at most `max`.
-fn until_status(sim: &mut Simulation, bits: u16, max: u64) -> bool {
-    (0..max).any(|_| {
-        sim.run_slow_ticks(1);
-        sim.statusword() & bits == bits
-    })
-}
-
-/// A PPM absolute move to `target` (master coordinates), to target reached plus 25 ticks of settling.
-fn ppm_move(sim: &mut Simulation, target: i64) {
-    sim.drive.dictionary_mut().set(h::TARGET_POSITION, i32::try_from(target).expect("in range"));
-    sim.set_controlword(ENABLE_OPERATION | BIT4);
-    assert!(until_status(sim, BIT12, 50), "set-point acknowledged");
-    sim.set_controlword(ENABLE_OPERATION);
-    assert!(until_status(sim, TARGET_REACHED, 5_000), "target reached");
-    sim.run_slow_ticks(25);
-}
-
 /// PPM, one revolution forwards in the master's coordinates (target = 0x6064 + 4,096): 0x6064 and the demand
 /// 0x6062 end at the target in every case; the motor turns +4,096 inc with 0x607E = 0 and 0x40 (bit 6 is not a
 /// position bit) and -4,096 inc with 0x80 and 0xC0; the internal value 0x6063 keeps the motor's direction.
@@ -81,7 +50,7 @@ fn ppm_target_and_actual_position_follow_bit_7() {
         let (start, start_internal) =
             (get_i32(&sim, h::POSITION_ACTUAL_VALUE), get_i32(&sim, h::POSITION_ACTUAL_INTERNAL_VALUE));
         let start_count = sim.plant.true_encoder_count();
-        ppm_move(&mut sim, start + 4096);
+        ppm_move(&mut sim, start + 4096, 5000);
         let what = format!("0x607E = {polarity:#04x}");
         assert!((get_i32(&sim, h::POSITION_ACTUAL_VALUE) - (start + 4096)).abs() <= POSITION_WINDOW_INC, "{what}");
         assert_eq!(get_i32(&sim, h::POSITION_DEMAND_VALUE), start + 4096, "{what}: 0x6062 at the target");
@@ -169,7 +138,7 @@ fn home_offset_and_software_limits_follow_bit_7() {
     sim.run_slow_ticks(10);
     for (target, end, motor_moves) in [(8_000_i64, 3_000_i64, -2_000_i64), (-9_000, -2_000, 5_000)] {
         let start_count = sim.plant.true_encoder_count();
-        ppm_move(&mut sim, target);
+        ppm_move(&mut sim, target, 5000);
         let position = get_i32(&sim, h::POSITION_ACTUAL_VALUE);
         assert!((position - end).abs() <= POSITION_WINDOW_INC, "target {target}: 0x6064 = {position}");
         let moved = sim.plant.true_encoder_count() - start_count;
