@@ -12,6 +12,9 @@
 //! When the machine cannot make a network namespace the tests fail under `CI=true` and are reported skips
 //! elsewhere (`drive_tests::prerequisite`).
 
+mod common;
+use common::csv_rows;
+
 use std::path::Path;
 use std::process::Command;
 
@@ -303,15 +306,6 @@ fn ecat_faults_show_the_code_and_text_of_a_following_error_and_fault_reset_clear
     let reset = steps[4].json();
     assert_eq!(reset["cia402"], "Switch on disabled", "{reset}");
     assert_eq!(reset["error_code"], 0, "{reset}");
-}
-
-/// The rows of a CSV file after its header, as numbers.
-fn csv_rows(path: &Path) -> (String, Vec<Vec<f64>>) {
-    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    let mut lines = text.lines();
-    let header = lines.next().expect("a header").to_owned();
-    let rows = lines.map(|l| l.split(',').map(|v| v.parse().expect("a number")).collect()).collect();
-    (header, rows)
 }
 
 /// Proves issue 22's "`record` of a current step writes a CSV and an SVG whose trace matches the simulator's own
