@@ -19,7 +19,7 @@ use hal_sim::plant::PlantParams;
 use hal_sim::scenarios::{prepare_plant, Setup};
 use hal_sim::sim::Simulation;
 
-use super::master::{get_i32, ppm_move, until_status, BIT12, BIT4, ENABLE_OPERATION, PRE_OP};
+use super::master::{get_i32, home_here, ppm_move, BIT12, BIT4, ENABLE_OPERATION, PRE_OP};
 
 /// 0x6067 default, (load) increments.
 const POSITION_WINDOW_INC: i64 = 10;
@@ -162,15 +162,7 @@ fn non_integer_ratio_converts_exactly() {
 fn home_offset_and_software_limits_count_load_increments() {
     let cs = control_structure_with_gear();
     let mut sim = enabled_with(&[(0x3003, 1, &5u32.to_le_bytes()), (0x3000, 2, &cs)], 6);
-    {
-        let d = sim.drive.dictionary_mut();
-        d.set(h::HOMING_METHOD, 37);
-        d.set(h::HOME_OFFSET, 1_000);
-    }
-    sim.run_slow_ticks(5);
-    sim.set_controlword(ENABLE_OPERATION | BIT4);
-    assert!(until_status(&mut sim, BIT12, 2_500), "homing attained");
-    sim.run_slow_ticks(25);
+    home_here(&mut sim, 1_000);
     assert!((get_i32(&sim, h::POSITION_ACTUAL_VALUE) - 1_000).abs() <= 2, "0x6064 reads the home offset");
     {
         let d = sim.drive.dictionary_mut();

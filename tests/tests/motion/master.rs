@@ -50,3 +50,17 @@ pub fn ppm_move(sim: &mut Simulation, target: i64, max_ticks: u64) {
     );
     sim.run_slow_ticks(25);
 }
+
+/// Homing method 37 (the current position is home, CiA 402 §8) with home offset 0x607C = `home_offset` (the
+/// master's units), started by controlword bit 4, to «homing attained» within 2,500 slow ticks plus 25 ticks.
+pub fn home_here(sim: &mut Simulation, home_offset: i32) {
+    {
+        let d = sim.drive.dictionary_mut();
+        d.set(h::HOMING_METHOD, 37);
+        d.set(h::HOME_OFFSET, home_offset);
+    }
+    sim.run_slow_ticks(5);
+    sim.set_controlword(ENABLE_OPERATION | BIT4);
+    assert!(until_status(sim, BIT12, 2_500), "homing attained");
+    sim.run_slow_ticks(25);
+}
