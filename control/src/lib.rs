@@ -19,6 +19,7 @@
 //! - [`pi`]: PI with back-calculation anti-windup, gains from IDX 0x30A0.
 //! - [`svpwm`]: voltage limit, bus compensation, SVPWM, duty clamp.
 //! - [`current_loop`]: the whole FOC step, [`current_loop::foc_step`].
+//! - [`dual_loop`]: EPOS4's dual-loop main loop with its gain scheduler (load position to motor velocity demand).
 //! - [`wide`]: 128-bit multiply-shift, division and square root on the 32-bit core (the profile generator's).
 
 #![cfg_attr(not(test), no_std)]
@@ -36,6 +37,7 @@
 pub mod angle;
 pub mod current_loop;
 pub mod demand;
+pub mod dual_loop;
 pub mod frames;
 pub mod interpolator;
 pub mod observer;

@@ -41,6 +41,9 @@ pub struct FeedbackSample {
     /// Levels of the digital inputs as wired (before the polarity of 0x3141:02): bit n = input n+1. Sampled every
     /// PWM period so that tier 1 can latch the position at an edge (homing, touch probe).
     pub digital_inputs: u8,
+    /// The SSI absolute encoder's frame clocked at the previous PWM centre (right-aligned, first bit clocked
+    /// highest), when an SSI sensor is configured; 0 otherwise.
+    pub ssi_frame: u32,
 }
 
 /// Everything tier 1 reads at the start of its interrupt.

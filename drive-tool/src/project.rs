@@ -25,11 +25,11 @@ pub fn is_project_device(dict: &Dictionary) -> bool {
 }
 
 /// The only values `entry` accepts, for a drive of this project (device.toml `values`, e.g. 0x6060's modes).
-pub fn allowed_values(dict: &Dictionary, entry: &Entry) -> Option<&'static [i64]> {
+pub fn allowed_values(dict: &Dictionary, entry: &Entry) -> Option<&'static [i32]> {
     if !is_project_device(dict) {
         return None;
     }
-    match Table::GENERATED.find(entry.index, entry.sub).ok()?.limits {
+    match Table::GENERATED.find(entry.index, entry.sub).ok()?.generated_limits() {
         Limits::OneOf(values) => Some(values),
         _ => None,
     }
@@ -42,7 +42,7 @@ pub fn check_allowed(dict: &Dictionary, entry: &Entry, value: i128) -> Result<()
             "{} ({}): {value} is not one of the values the drive accepts: {}",
             entry.address(),
             entry.full_name(),
-            values.iter().map(i64::to_string).collect::<Vec<_>>().join(", ")
+            values.iter().map(i32::to_string).collect::<Vec<_>>().join(", ")
         )),
         _ => Ok(()),
     }

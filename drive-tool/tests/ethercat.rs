@@ -12,6 +12,9 @@
 //! When the machine cannot make a network namespace the tests fail under `CI=true` and are reported skips
 //! elsewhere (`drive_tests::prerequisite`).
 
+mod common;
+use common::csv_rows;
+
 use std::path::Path;
 use std::process::Command;
 
@@ -69,6 +72,12 @@ sleep 0.3
     );
     for (k, step) in steps.iter().enumerate() {
         let at = |ext: &str| quoted(&dir.join(&format!("{k}.{ext}")).display().to_string());
+        if let [pause, seconds] = step.as_slice() {
+            if pause == PAUSE {
+                script.push_str(&format!("sleep {}; echo 0 > {}\n", quoted(seconds), at("rc")));
+                continue;
+            }
+        }
         let args = step.iter().map(|a| quoted(a)).collect::<Vec<_>>().join(" ");
         script.push_str(&format!(
             "timeout 120 {} --ecat ecm0 {args} > {} 2> {}; echo $? > {}\n",
@@ -101,6 +110,11 @@ sleep 0.3
     );
     Some(outcome)
 }
+
+/// A step that runs no command but lets the simulator idle for the seconds that follow it: in lock-step with
+/// `--idle-cycle`, simulated time passes one cycle per idle poll, and a command that polls the mailbox without a
+/// pause of a millisecond leaves it none (on a real drive time passes on its own).
+const PAUSE: &str = "#pause";
 
 fn args(words: &[&str]) -> Vec<String> {
     words.iter().map(|w| (*w).to_owned()).collect()
@@ -292,4 +306,94 @@ fn ecat_faults_show_the_code_and_text_of_a_following_error_and_fault_reset_clear
     let reset = steps[4].json();
     assert_eq!(reset["cia402"], "Switch on disabled", "{reset}");
     assert_eq!(reset["error_code"], 0, "{reset}");
+}
+
+/// Proves issue 22's "`record` of a current step writes a CSV and an SVG whose trace matches the simulator's own
+/// within 1 %" over EtherCAT (the recording uploaded by CoE segmented transfer, ETG.1000.6 §5.6.2): in CST
+/// (0x6060 = 10, no interpolation 0x60C2:01 = 0) `record --no-wait` arms the data recorder (q current and its
+/// reference at 25 kHz, 200 samples, 20 before the trigger: the reference rising through 100 mA); ten reads of its
+/// state (each lets simulated time pass: `--idle-cycle`) show it waiting, 0x6071 = 600 makes the step, half a
+/// second of idle lets the recording complete, and `record --fetch` uploads it into the CSV and the SVG.
+///
+/// The reference is `drive-sim ethercat --trace`, the simulator's own values every current-loop period, outside
+/// the recorder's path. The recording's sample 20 is the trace's first period with the reference at 100 mA or
+/// above (the trigger), and every sample matches the trace period for period: the reference exactly, the q current
+/// within 1 % of the step (the same value rounded to the same mA, so a shift by one period or a lost sample would
+/// show as the step's slope, far above 1 %).
+#[test]
+fn ecat_record_of_a_current_step_matches_the_simulators_own_trace() {
+    let files = WorkDir::new("drive-tool-ecat-record-files");
+    let (trace, csv, svg) = (files.join("trace.csv"), files.join("step.csv"), files.join("step.svg"));
+    let path = |p: &Path| p.to_str().expect("utf-8").to_owned();
+    let mut steps = vec![
+        args(&["set", "0x60C2:01", "0"]),
+        args(&["set", "0x6071", "0"]),
+        args(&["set", "0x6060", "10"]),
+        args(&["enable"]),
+        args(&[
+            "record",
+            "--channel",
+            "iq",
+            "--channel",
+            "iq_ref",
+            "--samples",
+            "200",
+            "--pre",
+            "20",
+            "--trigger",
+            "rising",
+            "--trigger-channel",
+            "2",
+            "--level",
+            "100",
+            "--no-wait",
+            "--json",
+        ]),
+    ];
+    steps.extend((0..10).map(|_| args(&["get", "0x3300:02", "--json"])));
+    steps.push(args(&["set", "0x6071", "600"]));
+    // At least 7.2 ms of simulated time for the 180 samples after the trigger: `record --fetch` polls the
+    // recorder's state through the mailbox and leaves the simulator few idle polls.
+    steps.push(args(&[PAUSE, "0.5"]));
+    steps.push(vec![
+        "record".into(),
+        "--fetch".into(),
+        "--csv".into(),
+        path(&csv),
+        "--svg".into(),
+        path(&svg),
+        "--json".into(),
+    ]);
+    steps.push(args(&["disable"]));
+    let Some(out) = session("record", &["--trace", &path(&trace)], &steps) else {
+        return;
+    };
+    assert_eq!(out[4].json()["armed"], true, "{:?}", out[4]);
+    for waiting in &out[5..15] {
+        assert_eq!(waiting.json()[0]["value"], 1, "0x3300:02 = 1 waiting for the trigger: {waiting:?}");
+    }
+    let fetched = out[17].json();
+    assert_eq!(fetched["samples"], 200, "{fetched}");
+    assert_eq!(fetched["channels"][0]["name"], "iq", "{fetched}");
+
+    let (header, recorded) = csv_rows(&csv);
+    assert_eq!(header, "time_s,iq_mA,iq_ref_mA");
+    assert_eq!(recorded.len(), 200);
+    assert!((recorded[1][0] - 40e-6).abs() < 1e-9, "25 kHz: {:?}", &recorded[..2]);
+    let svg_text = std::fs::read_to_string(&svg).expect("the SVG");
+    assert!(svg_text.starts_with("<svg") && svg_text.matches("<polyline").count() >= 2, "two panels with a trace");
+
+    let (_, own) = csv_rows(&trace);
+    let trigger = own.iter().position(|r| r[2] >= 100.0).expect("the simulator saw the reference step");
+    assert!(trigger >= 20, "20 periods before the step in the trace");
+    let window = &own[trigger - 20..trigger + 180];
+    let step_ma = window.iter().map(|t| t[2]).fold(0.0, f64::max);
+    assert!(step_ma > 1_000.0, "a step of {step_ma} mA");
+    let mut worst = 0.0f64;
+    for (k, (r, t)) in recorded.iter().zip(window).enumerate() {
+        assert_eq!(r[2], t[2], "sample {k}: reference {} mA recorded, {} mA in the simulator", r[2], t[2]);
+        worst = worst.max((r[1] - t[1]).abs());
+    }
+    eprintln!("recorded against the simulator's own trace: worst {worst} mA of a {step_ma} mA step");
+    assert!(worst <= 0.01 * step_ma, "recorded q current off the simulator's by {worst} mA (1 % of {step_ma})");
 }

@@ -4,6 +4,9 @@
 //! request runs until its answer is out), so the verdicts do not depend on the load of the machine; the
 //! timeouts are generous wall-clock bounds only.
 
+mod common;
+use common::csv_rows;
+
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
 
@@ -561,15 +564,6 @@ fn identify_reports_the_reference_motor_and_tune_follows_the_stiffness() {
     assert!(v_after < 0.9 * v_before, "velocity P {v_before} -> {v_after} at stiffness 800");
     assert_eq!(tuned["current_p_gain"], report["current_p_gain"], "the current loop does not follow the stiffness");
     assert_eq!(tuned["result"], 1, "0x3205:05 = 1 gains written");
-}
-
-/// The rows of a CSV file after its header, as numbers.
-fn csv_rows(path: &std::path::Path) -> (String, Vec<Vec<f64>>) {
-    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    let mut lines = text.lines();
-    let header = lines.next().expect("a header").to_owned();
-    let rows = lines.map(|l| l.split(',').map(|v| v.parse().expect("a number")).collect()).collect();
-    (header, rows)
 }
 
 /// Proves issue 22's "`record` of a current step writes a CSV and an SVG whose trace matches the simulator's own

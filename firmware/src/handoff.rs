@@ -123,6 +123,14 @@ impl<B: Words<N>, const N: usize> Command<B, N> {
     pub fn epoch(&self) -> u32 {
         self.epoch.load(Ordering::Acquire)
     }
+
+    /// The cells of publication `epoch`, an epoch [`Self::epoch`] returned to this reader: what [`Self::front`]
+    /// gives without loading the epoch (and its barrier) a second time. They hold that block while the reader
+    /// runs (the writer, of lower priority, fills the other slot).
+    #[must_use]
+    pub fn block_of(&self, epoch: u32) -> &[AtomicU32; N] {
+        slot_of(&self.slots, epoch)
+    }
 }
 
 /// The slot of publication `epoch`: even epochs in slot 0, odd ones in slot 1.

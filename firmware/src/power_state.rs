@@ -45,7 +45,10 @@ impl DriveError {
     pub const fn fault_id(self) -> FaultId {
         match self {
             Self::Calibration(_) => FaultId::CurrentOffsetCalibration,
-            Self::Commutation(_) => FaultId::HallInvalidState,
+            Self::Commutation(CommutationError::InvalidHallState(_)) => FaultId::HallInvalidState,
+            Self::Commutation(CommutationError::SsiNoData) => FaultId::SsiSensor,
+            Self::Commutation(CommutationError::SsiMissing) => FaultId::MissingCommutationSensor,
+            Self::Commutation(CommutationError::SsiFrame) => FaultId::SsiFrame,
             Self::Protection(Trip::BreakInput) => FaultId::PowerStageProtection,
             Self::Protection(Trip::BusOverVoltage) => FaultId::DcBusOverVoltage,
             Self::Protection(Trip::BusUnderVoltage) => FaultId::DcBusUnderVoltage,
@@ -61,7 +64,7 @@ impl DriveError {
         match self {
             Self::Overrun { cost } => i32::try_from(cost).unwrap_or(i32::MAX),
             Self::Commutation(CommutationError::InvalidHallState(h)) => i32::from(h),
-            Self::Calibration(_) | Self::Protection(_) => 0,
+            Self::Calibration(_) | Self::Protection(_) | Self::Commutation(_) => 0,
         }
     }
 }
@@ -110,6 +113,15 @@ pub enum CommutationError {
     /// The Hall sensors report an impossible state (0 or 7, or bits above bit 2): spec §2.7 "Hall sensor error"
     /// 0xFF01 (wiring, supply, damage, noise).
     InvalidHallState(u8),
+    /// The SSI sensor sent no data (every clocked bit at one level: clock stuck, sensor unpowered or gone) after
+    /// it had sent valid frames: 0x738C "SSI sensor error" (IDX L7276).
+    SsiNoData,
+    /// No valid SSI frame since the commutation was built (the sensor configured as the commutation sensor is not
+    /// there): 0x7391 "missing commutation sensor" (IDX L7300).
+    SsiMissing,
+    /// An SSI frame with a wrong start or stop bit, or whose position jumped farther than the shaft can move in one
+    /// period (a corrupted data bit): 0x738D "SSI sensor frame error" (IDX L7284).
+    SsiFrame,
 }
 
 /// How well the electrical angle is known.

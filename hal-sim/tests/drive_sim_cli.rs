@@ -13,6 +13,7 @@ const SUBCOMMANDS: &[&str] = &[
     "csv-sweep",
     "ppm",
     "homing",
+    "ssi",
     "fault-matrix",
     "duty-cycle",
     "identify",
@@ -67,6 +68,33 @@ fn help_of_drive_sim_and_of_every_scenario_is_printed_on_stdout_with_status_0() 
     let out = drive_sim(&[]);
     assert_eq!(out.status.code(), Some(2));
     assert!(text(&out.stderr).contains("Usage: drive-sim <COMMAND>"), "{}", text(&out.stderr));
+}
+
+/// `drive-sim ssi` (issue 20 item 5) prints its figures last as `key=value`, each within the issue's bound: start-up
+/// commutation error <= 2 degrees electrical (SSI only, no Halls), the position after a power cycle equal to the
+/// one before plus the turn made while off within 1 increment (no homing), and each sensor fault's code (IDX
+/// L7066-L7069: 0x738D flipped bit, 0x738C stuck clock, 0x7391 no sensor).
+#[test]
+fn ssi_prints_its_figures_within_the_issue_bounds() {
+    let out = drive_sim(&["ssi"]);
+    let stdout = text(&out.stdout);
+    assert!(out.status.success(), "{}\n{stdout}", text(&out.stderr));
+    let figure = |key: &str| -> String {
+        let line =
+            stdout.lines().find(|l| l.starts_with(&format!("{key}="))).unwrap_or_else(|| panic!("{key}: {stdout}"));
+        line[key.len() + 1..].to_owned()
+    };
+    let commutation: f64 = figure("commutation_error_deg").parse().expect("a number");
+    assert!(commutation.abs() <= 2.0, "commutation_error_deg={commutation}");
+    let absolute: i64 = figure("absolute_position_error_inc").parse().expect("a number");
+    assert!(absolute.abs() <= 1, "absolute_position_error_inc={absolute}");
+    assert_eq!(figure("flipped_bit_code"), "0x738d");
+    assert_eq!(figure("stuck_clock_code"), "0x738c");
+    assert_eq!(figure("missing_sensor_code"), "0x7391");
+    let reference = concat!(env!("CARGO_MANIFEST_DIR"), "/presets/reference.toml");
+    let out = drive_sim(&["ssi", "--plant", reference]);
+    assert!(!out.status.success(), "the reference plant has no SSI sensor");
+    assert!(text(&out.stderr).contains("no SSI sensor"), "{}", text(&out.stderr));
 }
 
 #[test]

@@ -321,9 +321,41 @@ fn mailbox_repeat_request_is_an_event_for_the_pdi() {
     // The master cannot write the PDI control byte.
     fpwr(&mut e, 0x080F, &[0x01]);
     assert_eq!(e.register(0x080F), 0x02);
-    // PDI deactivation disables the SM: the window becomes plain memory.
+    // PDI deactivation disables the SM and locks its window towards the master (0x0807 bit 0).
     e.pdi_write(0x0807, &[0x01]);
     assert!(!e.sm_config(0).unwrap().is_active());
+}
+
+#[test]
+fn a_sync_manager_the_pdi_deactivated_locks_its_window_so_the_masters_outputs_count_no_working_counter() {
+    // ESC datasheet section II, 0x0807 bit 0: "SyncManager deactivated and reset, SyncManager locks access to
+    // memory area"; ETG.1000.4 §5.4: a slave increments the working counter only for memory it accessed. So an
+    // LRW to a slave whose SM2 the firmware deactivated (SAFE-OP after a local error) counts 1 (inputs), not 3.
+    let mut e = process_data_esc();
+    let mut fm = Vec::new();
+    fm.extend_from_slice(&fmmu_bytes(0x0001_0000, 6, 0, 7, 0x1100, 0, 2));
+    fm.extend_from_slice(&fmmu_bytes(0x0001_0006, 6, 0, 7, 0x1180, 0, 1));
+    assert_eq!(fpwr(&mut e, reg::FMMU0, &fm), 1);
+    let lrw = |e: &mut Esc, fill: u8| {
+        let f = run(e, FrameBuilder::new().push_logical(Command::Lrw, 0x0001_0000, &[fill; 12]));
+        dg(&f, 0).1
+    };
+    assert_eq!(lrw(&mut e, 1), 3, "SM2 active: outputs written (+2), inputs read (+1)");
+    e.pdi_write(0x0817, &[0x01]);
+    assert_eq!(lrw(&mut e, 2), 1, "SM2 deactivated by the PDI: only the inputs count");
+    assert_eq!(fpwr(&mut e, 0x1100, &[3; 6]), 0, "a physical write into the locked window: refused, WKC 0");
+    assert_eq!(fprd(&mut e, 0x1100, 6).1, 0, "a physical read of it: refused, WKC 0");
+    assert_eq!(e.sm_runtime(2).unwrap().writes, 0, "the deactivated SM took no write");
+    // The PDI activates it again (the master acknowledged the error): outputs count again.
+    e.pdi_write(0x0817, &[0x00]);
+    assert_eq!(lrw(&mut e, 4), 3);
+    let mut out = [0u8; 6];
+    e.pdi_read(0x1100, &mut out);
+    assert_eq!(out, [4; 6], "the write after re-activation, not the refused ones");
+    // A sync manager the master disabled (0x0806 bit 0 = 0) leaves plain memory: "access to memory without
+    // SyncManager control" (0x0806 bit 0).
+    assert_eq!(fpwr(&mut e, 0x0816, &[0x00]), 1);
+    assert_eq!(fpwr(&mut e, 0x1100, &[5; 6]), 1);
 }
 
 /// SM2 outputs (0x1100, 6 bytes, 0x64) and SM3 inputs (0x1180, 6 bytes, 0x20) as a master configures them.

@@ -38,6 +38,20 @@ fn reference_toml_equals_the_reference_plant_exactly() {
     assert_eq!(preset("reference.toml"), PlantParams::reference());
 }
 
+/// `drive-sim ssi`'s default plant is the preset's: the reference motor with a 12 + 12-bit Gray SSI sensor.
+#[test]
+fn reference_ssi_toml_equals_the_ssi_scenario_plant() {
+    assert_eq!(preset("reference-ssi.toml"), hal_sim::scenarios::ssi::reference_ssi_plant());
+}
+
+/// An SSI sensor the drive cannot read is refused by name: 17 single-turn bits (the drive keeps at most 16), or 12
+/// + 20 bits with the frame bits (34 clocked bits, over 32).
+#[test]
+fn an_ssi_sensor_out_of_range_is_refused_naming_its_key() {
+    assert_names(&refused("ssi_single_turn_bits = 17"), "ssi_single_turn_bits");
+    assert_names(&refused("ssi_single_turn_bits = 12\nssi_multi_turn_bits = 20"), "ssi_multi_turn_bits");
+}
+
 #[test]
 fn the_reference_plant_written_as_a_file_reads_back_equal() {
     let text = PlantParams::reference().to_toml_string();

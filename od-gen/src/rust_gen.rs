@@ -153,7 +153,7 @@ fn limits(s: &SubObject) -> String {
         return format!("Limits::OneOf(&[{}])", list.join(", "));
     }
     let (Some((lo, hi)), true) = (s.data_type.range(), s.min.is_some() || s.max.is_some()) else {
-        return "Limits::None".to_string();
+        return limits_none();
     };
     let (min, max) = (s.min.unwrap_or(lo), s.max.unwrap_or(hi));
     if s.data_type.is_signed() {
@@ -161,6 +161,27 @@ fn limits(s: &SubObject) -> String {
     } else {
         format!("Limits::Unsigned {{ min: {min}, max: {max} }}")
     }
+}
+
+/// Whether the bounds of `s`'s limits fit the 32-bit fields of `Limits` (signed or unsigned as its type).
+fn limits_fit(s: &SubObject) -> bool {
+    if let Some(values) = &s.values {
+        return values.iter().all(|v| i32::try_from(*v).is_ok());
+    }
+    let (Some((lo, hi)), true) = (s.data_type.range(), s.min.is_some() || s.max.is_some()) else {
+        return true;
+    };
+    let (min, max) = (s.min.unwrap_or(lo), s.max.unwrap_or(hi));
+    if s.data_type.is_signed() {
+        i32::try_from(min).is_ok() && i32::try_from(max).is_ok()
+    } else {
+        u32::try_from(min).is_ok() && u32::try_from(max).is_ok()
+    }
+}
+
+/// The entry without limits, position 0 of `LIMITS`.
+fn limits_none() -> String {
+    "Limits::None".to_string()
 }
 
 /// A byte-string literal: printable ASCII as is, everything else escaped.
@@ -184,7 +205,11 @@ fn storage(s: &SubObject, slot: Option<RamSlot>) -> Result<String, String> {
     Ok(match s.storage {
         StorageKind::Ram => {
             let slot = slot.ok_or("RAM entry without a slot")?;
-            format!("Storage::Ram {{ offset: {}, len: {} }}", slot.offset, slot.len)
+            let node_id_relative = matches!(s.default, Value::NodeIdPlus(_));
+            format!(
+                "Storage::Ram {{ offset: {}, len: {}, node_id_relative: {node_id_relative} }}",
+                slot.offset, slot.len
+            )
         }
         // `Storage::Const` holds a thin reference to the bytes' slice (`entry.rs` `ConstRef`).
         StorageKind::Const => {
@@ -261,6 +286,30 @@ pub fn rust_with_names(d: &Description, names: bool) -> Result<String, String> {
     );
     let _ = writeln!(w);
 
+    // Every distinct range once, `Limits::None` first (`LimitsRef::NONE`); an entry names its range by position.
+    let mut ranges = vec![limits_none()];
+    for o in &d.objects {
+        if let Some(s) = o.subs.iter().find(|s| !limits_fit(s)) {
+            return Err(format!("0x{:04X}:{:02X}: limits beyond the 32-bit bounds of Limits", o.index, s.sub));
+        }
+    }
+    for s in d.objects.iter().flat_map(|o| o.subs.iter()) {
+        let range = limits(s);
+        if !ranges.contains(&range) {
+            ranges.push(range);
+        }
+    }
+    if ranges.len() > usize::from(u8::MAX) + 1 {
+        return Err(format!("{} distinct limits do not fit the u8 positions of LimitsRef", ranges.len()));
+    }
+    let range_of = |s: &SubObject| ranges.iter().position(|r| *r == limits(s)).unwrap_or(0);
+    let _ = writeln!(w, "/// Every distinct range of the entries' limits; `Entry::limits` is a position here.");
+    let _ = writeln!(w, "pub static LIMITS: [Limits; {}] = [", ranges.len());
+    for range in &ranges {
+        let _ = writeln!(w, "    {range},");
+    }
+    let _ = writeln!(w, "];\n");
+
     let _ = writeln!(w, "/// Every entry of the dictionary, sorted by (index, sub-index).");
     let _ = writeln!(w, "pub static ENTRIES: [Entry; {entry_count}] = [");
     for o in &d.objects {
@@ -268,7 +317,7 @@ pub fn rust_with_names(d: &Description, names: bool) -> Result<String, String> {
             let _ = writeln!(
                 w,
                 "    Entry {{ index: 0x{:04X}, sub: 0x{:02X}, name: {}, data_type: {}, access: {}, pdo: {}, \
-                 persistent: {}, write_condition: {}, limits: &{}, storage: {}, node_id_relative: {} }},",
+                 persistent: {}, write_condition: {}, limits: LimitsRef({}), storage: {} }},",
                 o.index,
                 s.sub,
                 name(&s.name),
@@ -277,10 +326,9 @@ pub fn rust_with_names(d: &Description, names: bool) -> Result<String, String> {
                 pdo(s.pdo),
                 s.persistent,
                 write_condition(s.writable_in),
-                limits(s),
+                range_of(s),
                 storage(s, layout.slots.get(&(o.index, s.sub)).copied())
                     .map_err(|e| format!("0x{:04X}:{:02X}: {e}", o.index, s.sub))?,
-                matches!(s.default, Value::NodeIdPlus(_)),
             );
         }
     }

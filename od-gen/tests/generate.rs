@@ -22,7 +22,7 @@ mod generated {
 }
 
 use entry::{Limits, Storage};
-use generated::{handles, DEFAULT_NONZERO, DEFAULT_NONZERO_MASK, DEFAULT_VALUES, ENTRIES, NAMES, OBJECTS};
+use generated::{handles, DEFAULT_NONZERO, DEFAULT_NONZERO_MASK, DEFAULT_VALUES, ENTRIES, LIMITS, NAMES, OBJECTS};
 
 fn fixture(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures").join(name)
@@ -80,26 +80,31 @@ fn entry(index: u16, sub: u8) -> &'static entry::Entry {
     ENTRIES.iter().find(|e| e.index == index && e.sub == sub).expect("entry")
 }
 
+/// The limits the entry at (index, sub) names by its position in `LIMITS`.
+fn limits(index: u16, sub: u8) -> Limits {
+    LIMITS[usize::from(entry(index, sub).limits.0)]
+}
+
 #[test]
 fn limits_storage_and_node_id_defaults() {
-    assert_eq!(*entry(0x605A, 0).limits, Limits::OneOf(&[0, 1, 2, 5, 6]));
+    assert_eq!(limits(0x605A, 0), Limits::OneOf(&[0, 1, 2, 5, 6]));
     // Only `min` given: the type's maximum fills in.
-    assert_eq!(*entry(0x6060, 0).limits, Limits::Signed { min: -1, max: 127 });
-    assert_eq!(*entry(0x1400, 2).limits, Limits::Unsigned { min: 0, max: 255 });
-    assert_eq!(*entry(0x6040, 0).limits, Limits::None);
+    assert_eq!(limits(0x6060, 0), Limits::Signed { min: -1, max: 127 });
+    assert_eq!(limits(0x1400, 2), Limits::Unsigned { min: 0, max: 255 });
+    assert_eq!(limits(0x6040, 0), Limits::None);
     assert_eq!(entry(0x1008, 0).storage.constant(), Some(&b"FIX-1"[..]));
     assert_eq!(entry(0x1018, 1).storage.constant(), Some(&[0xCE, 0x0A, 0x00, 0x00][..]));
     assert_eq!(entry(0x1400, 1).storage.constant(), None);
     assert_eq!(entry(0x1F50, 1).storage, Storage::Application);
-    assert!(entry(0x1400, 1).node_id_relative);
-    assert!(!entry(0x1400, 2).node_id_relative);
+    assert!(entry(0x1400, 1).node_id_relative());
+    assert!(!entry(0x1400, 2).node_id_relative());
 }
 
 #[test]
 fn ram_values_are_aligned_disjoint_and_hold_the_defaults() {
     let mut slots: Vec<(usize, usize)> = Vec::new();
     for e in &ENTRIES {
-        if let Storage::Ram { offset, len } = e.storage {
+        if let Storage::Ram { offset, len, .. } = e.storage {
             let (offset, len) = (usize::from(offset), usize::from(len));
             if let Some(size) = e.data_type.fixed_size() {
                 assert_eq!(len, size);
@@ -233,4 +238,19 @@ fn sparse_defaults_hold_every_non_zero_byte_in_order() {
     assert_eq!(rebuilt, DEFAULT_VALUES);
     assert_eq!(nonzero.next(), None, "no byte without its bit");
     assert_eq!(DEFAULT_NONZERO_MASK.len(), DEFAULT_VALUES.len().div_ceil(8));
+}
+
+#[test]
+fn limits_beyond_the_32_bit_bounds_are_refused() {
+    // `Limits` holds 32-bit bounds; a wider bound (or a listed value) must stop the build, not be cut.
+    let mut d = description();
+    let object = d.objects.iter_mut().find(|o| o.index == 0x6060).expect("0x6060 in the fixture");
+    object.subs[0].max = Some(i128::from(i32::MAX) + 1);
+    let report = od_gen::rust_gen::rust(&d).expect_err("a bound past i32::MAX");
+    assert_eq!(report, "0x6060:00: limits beyond the 32-bit bounds of Limits");
+    let mut d = description();
+    let object = d.objects.iter_mut().find(|o| o.index == 0x605A).expect("0x605A in the fixture");
+    object.subs[0].values = Some(vec![0, 1 << 40]);
+    let report = od_gen::rust_gen::rust(&d).expect_err("a listed value past i32");
+    assert_eq!(report, "0x605A:00: limits beyond the 32-bit bounds of Limits");
 }

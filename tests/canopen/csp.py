@@ -4,7 +4,10 @@ RPDO and moved along a set-point table, SYNC by SYNC; optionally the master's he
 
 Per node (canopen's PDO API: `read`, `clear`, `add_variable`, `trans_type`, `enabled`, `save`): RPDO 1 =
 controlword 0x6040 + target position 0x607A, synchronous (type 1); TPDO 1 = statusword 0x6041 + position actual
-0x6064, synchronous every SYNC; with --tpdo-fe TPDO 2 = following error actual 0x60F4, synchronous; every other
+0x6064, synchronous every SYNC; with --tpdo-fe TPDO 2 = following error actual 0x60F4, synchronous; with
+--tpdo-sensors TPDO 3 = the positions of sensor 1 and 2 0x60E4:01/02, synchronous; with --ssi the drive is first
+set to its SSI absolute encoder alone (0x3000:01 = 0x00000300, a plant with an SSI sensor) and TPDO 4 = the SSI
+position raw value 0x3012:09, synchronous; every other
 PDO disabled. Then 0x6060 = 8 (CSP), 0x60C2 the interpolation period, 0x1006 the SYNC period, NMT start.
 
 Each cycle the master sends every node's RPDO (set-point for the coming SYNC, CiA 301 §7.2.2.2.2), its own
@@ -33,7 +36,12 @@ from can_common import Fail, connect, emit, main, parser
 MASTER_HB_ID = 127
 
 
-def configure(node, tpdo_fe, period_us):
+def configure(node, tpdo_fe, period_us, tpdo_sensors=False, ssi=False):
+    if ssi:
+        # The SSI absolute encoder as the only sensor (IDX 0x3000:01 sensor 2 type 3), written in PRE-OPERATIONAL with
+        # the power stage off as the object requires; taken at the next switch-on.
+        node.sdo.download(0x3000, 1, struct.pack("<I", 0x00000300))
+        emit(f"sensors_configuration_{node.id}", f"0x{struct.unpack('<I', node.sdo.upload(0x3000, 1))[0]:08x}")
     node.rpdo.read()
     node.tpdo.read()
     for pdo in (node.rpdo, node.tpdo):
@@ -57,6 +65,20 @@ def configure(node, tpdo_fe, period_us):
         t2.add_variable(0x60F4)
         t2.trans_type = 1
         t2.enabled = True
+    if tpdo_sensors:
+        # The positions of sensor 1 (motor encoder) and sensor 2 (load encoder, the dual loop's main sensor).
+        t3 = node.tpdo[3]
+        t3.clear()
+        t3.add_variable(0x60E4, 1)
+        t3.add_variable(0x60E4, 2)
+        t3.trans_type = 1
+        t3.enabled = True
+    if ssi:
+        t4 = node.tpdo[4]
+        t4.clear()
+        t4.add_variable(0x3012, 9)
+        t4.trans_type = 1
+        t4.enabled = True
     node.rpdo.save()
     node.tpdo.save()
     # Read back what the node holds now.
@@ -66,6 +88,10 @@ def configure(node, tpdo_fe, period_us):
     emit(f"rpdo1_map_{node.id}", " ".join(f"{v.index:04x}:{v.subindex:02x}/{v.length}" for v in node.rpdo[1].map))
     emit(f"tpdo1_type_{node.id}", node.tpdo[1].trans_type)
     emit(f"tpdo2_enabled_{node.id}", int(bool(node.tpdo[2].enabled)))
+    if tpdo_sensors:
+        emit(f"tpdo3_map_{node.id}", " ".join(f"{v.index:04x}:{v.subindex:02x}/{v.length}" for v in node.tpdo[3].map))
+    if ssi:
+        emit(f"tpdo4_map_{node.id}", " ".join(f"{v.index:04x}:{v.subindex:02x}/{v.length}" for v in node.tpdo[4].map))
     node.sdo.download(0x6060, 0, b"\x08")
     if period_us % 1000 == 0:
         value, exponent = period_us // 1000, -3
@@ -77,11 +103,19 @@ def configure(node, tpdo_fe, period_us):
 
 
 class Axis:
-    def __init__(self, node, column, tpdo_fe):
+    def __init__(self, node, column, tpdo_fe, tpdo_sensors=False, ssi=False):
         self.node = node
         self.column = column
         self.tpdo_fe = tpdo_fe
-        self.count1 = self.count2 = 0
+        self.tpdo_sensors = tpdo_sensors
+        self.ssi = ssi
+        self.count1 = self.count2 = self.count3 = self.count4 = 0
+        self.ssi_raw = 0
+        self.ssi_diff_max = 0
+        self.ssi_raw_min = self.ssi_raw_max = None
+        self.sensor1 = self.sensor2 = 0
+        self.sensor1_diff_max = 0
+        self.sensor2_values = set()
         self.statusword = 0
         self.actual = 0
         self.fe = 0
@@ -95,6 +129,10 @@ class Axis:
         node.tpdo[1].add_callback(self.on_tpdo1)
         if tpdo_fe:
             node.tpdo[2].add_callback(self.on_tpdo2)
+        if tpdo_sensors:
+            node.tpdo[3].add_callback(self.on_tpdo3)
+        if ssi:
+            node.tpdo[4].add_callback(self.on_tpdo4)
 
     def on_tpdo1(self, m):
         self.statusword = m[0x6041].raw
@@ -105,8 +143,36 @@ class Axis:
         self.fe = m[0x60F4].raw
         self.count2 += 1
 
+    def on_tpdo3(self, m):
+        # Both entries share the index: by position in the mapping (sub 1, then sub 2).
+        self.sensor1 = m.map[0].raw
+        self.sensor2 = m.map[1].raw
+        self.count3 += 1
+
+    def on_tpdo4(self, m):
+        self.ssi_raw = m.map[0].raw
+        self.count4 += 1
+
+    def check_sensors(self):
+        """After a SYNC whose TPDOs all arrived: without homing 0x6064 is the motor encoder's count, which 0x60E4:01
+        carries; 0x60E4:02 is the load encoder's."""
+        if self.tpdo_sensors:
+            self.sensor1_diff_max = max(self.sensor1_diff_max, abs(self.sensor1 - self.actual))
+            self.sensor2_values.add(self.sensor2)
+        if self.ssi:
+            # Without homing 0x6064 is the SSI sensor's absolute position (0x3012:0E = 0), 24 bits here: equal
+            # modulo 2^24 to the raw value 0x3012:09, or one slow tick's travel apart.
+            diff = (self.actual - self.ssi_raw) % (1 << 24)
+            diff = min(diff, (1 << 24) - diff)
+            self.ssi_diff_max = max(self.ssi_diff_max, diff)
+            # The span from the enable on: before the first switch-on the drive has not read the sensor yet.
+            if self.enabled_at is not None:
+                self.ssi_raw_min = self.ssi_raw if self.ssi_raw_min is None else min(self.ssi_raw_min, self.ssi_raw)
+                self.ssi_raw_max = self.ssi_raw if self.ssi_raw_max is None else max(self.ssi_raw_max, self.ssi_raw)
+
     def arrived(self, cycles):
-        return self.count1 >= cycles and (not self.tpdo_fe or self.count2 >= cycles)
+        return (self.count1 >= cycles and (not self.tpdo_fe or self.count2 >= cycles)
+                and (not self.tpdo_sensors or self.count3 >= cycles) and (not self.ssi or self.count4 >= cycles))
 
     def controlword(self):
         s = self.statusword & 0x6F
@@ -122,11 +188,11 @@ def run(args):
     network, nodes, recorder = connect(args.port, args.eds, ids)
     try:
         for i in ids:
-            configure(nodes[i], args.tpdo_fe, args.sync_us)
+            configure(nodes[i], args.tpdo_fe, args.sync_us, args.tpdo_sensors, args.ssi)
         if args.hb_loss:
             nodes[ids[0]].sdo.download(0x1016, 1, struct.pack("<I", MASTER_HB_ID << 16 | args.hb_consumer_ms))
             nodes[ids[0]].sdo.download(0x1017, 0, struct.pack("<H", args.hb_producer_ms))
-        axes = [Axis(nodes[i], k, args.tpdo_fe) for k, i in enumerate(ids)]
+        axes = [Axis(nodes[i], k, args.tpdo_fe, args.tpdo_sensors, args.ssi) for k, i in enumerate(ids)]
         for i in ids:
             nodes[i].nmt.state = "OPERATIONAL"
         # The NMT frames run until quiet; an SDO answered after them is the barrier.
@@ -165,6 +231,9 @@ def run(args):
                 late += 1
                 if late > args.max_late:
                     break
+            else:
+                for a in axes:
+                    a.check_sensors()
             if k == args.enable_cycles - 1 and any(a.enabled_at is None for a in axes):
                 raise Fail("not all drives «Operation enabled»: statuswords "
                            + " ".join(f"0x{a.statusword:04x}" for a in axes))
@@ -182,6 +251,12 @@ def run(args):
                 emit(f"fe_samples_{i}", a.fe_n)
                 emit(f"fe_peak_{i}", a.fe_peak)
                 emit(f"fe_rms_{i}", f"{(a.fe_sq / a.fe_n) ** 0.5 if a.fe_n else 0:.3f}")
+            if a.tpdo_sensors:
+                emit(f"sensor1_position_diff_max_{i}", a.sensor1_diff_max)
+                emit(f"sensor2_values_{i}", " ".join(str(v) for v in sorted(a.sensor2_values)))
+            if a.ssi:
+                emit(f"ssi_position_diff_max_{i}", a.ssi_diff_max)
+                emit(f"ssi_raw_span_{i}", (a.ssi_raw_max or 0) - (a.ssi_raw_min or 0))
         if args.hb_loss:
             heartbeat_loss(args, network, recorder, axes[0], cycles, last_hb)
     finally:
@@ -230,6 +305,8 @@ if __name__ == "__main__":
     p.add_argument("--setpoints", required=True)
     p.add_argument("--sync-us", type=int, default=1000)
     p.add_argument("--tpdo-fe", action="store_true")
+    p.add_argument("--tpdo-sensors", action="store_true")
+    p.add_argument("--ssi", action="store_true")
     p.add_argument("--enable-cycles", type=int, default=400)
     p.add_argument("--settle", type=int, default=200)
     p.add_argument("--tpdo-wait-s", type=float, default=1.0)

@@ -6,7 +6,7 @@ Run by tests/tests/ecat_soem_sdo.rs in a private network namespace against `driv
 (issue 6). The Rust test computes every expectation from the firmware's dictionary and hands it over in a file;
 this script only does the transfers and prints what differs. One part per run (--part):
 
-- objects: each line of --expect is `IIII SS rule hex size name`: rule `exact` (the upload must equal hex),
+- objects: each line of --expect is `IIII SS rule hex size name` (hex `-`: no bytes): rule `exact` (the upload must equal hex),
   `len` (only its length: a measured value, see the Rust test) or `abort` (hex is the abort code expected).
   Prints the counts and one `mismatch_N` line per difference.
 - params: each line of --cases is `name IIII SS data expect`: expect `ok` (the download is accepted and reads
@@ -75,7 +75,7 @@ def part_objects(args, slave):
     longest = 0
     for fields in lines_of(args.expect):
         index, sub, rule, hexval, size = int(fields[0], 16), int(fields[1], 16), fields[2], fields[3], int(fields[4])
-        expected = bytes.fromhex(hexval) if rule != "abort" else int(hexval, 16)
+        expected = int(hexval, 16) if rule == "abort" else bytes.fromhex("" if hexval == "-" else hexval)
         got, code = read_any(slave, index, sub, max(size + 16, 16))
         counts[rule] += 1
         if rule == "abort":
@@ -128,9 +128,11 @@ def part_params(args, slave):
 
 
 # The CSV process data (issue 6): outputs controlword, modes of operation, target velocity; inputs statusword,
-# modes of operation display, velocity actual value, position actual value. Entries: index << 16 | sub << 8 | bits.
+# modes of operation display, velocity actual value, position actual value, and the positions of sensor 1 (motor
+# encoder) and sensor 2 (load encoder, the dual loop's main sensor; issue 20 item 2), 0x60E4:01/02. Entries:
+# index << 16 | sub << 8 | bits.
 CSV_RX = [0x60400010, 0x60600008, 0x60FF0020]
-CSV_TX = [0x60410010, 0x60610008, 0x606C0020, 0x60640020]
+CSV_TX = [0x60410010, 0x60610008, 0x606C0020, 0x60640020, 0x60E40120, 0x60E40220]
 
 
 def expect_refused(slave, index, sub, data, code, what):
@@ -186,6 +188,7 @@ def run_csv(args, master, slave):
     samples = []
     enabled_at = None
     bad, first_bad = 0, None
+    sensor1_diff_max, sensor2_seen = 0, set()
     for k in range(args.csv_cycles + 300):
         sw = statusword & 0x6F
         stopping = k >= args.csv_cycles
@@ -204,9 +207,13 @@ def run_csv(args, master, slave):
             bad += 1
             first_bad = first_bad or (k, wkc)
             continue
-        statusword, mode, velocity, _position = struct.unpack_from("<HbiI", slave.input, 0)
+        statusword, mode, velocity, position, sensor1, sensor2 = struct.unpack_from("<Hbiiii", slave.input, 0)
         if not stopping and k >= args.csv_cycles - args.window:
             samples.append((velocity, mode))
+            # Without homing 0x6064 is the motor encoder's count: 0x60E4:01 follows it (both from the same tier-1
+            # report; within one slow tick's travel where a cycle falls between the two publications).
+            sensor1_diff_max = max(sensor1_diff_max, abs(sensor1 - position))
+            sensor2_seen.add(sensor2)
     emit("wkc_errors", bad)
     emit("first_bad_wkc", first_bad)
     emit("enabled_at_cycle", enabled_at)
@@ -219,6 +226,8 @@ def run_csv(args, master, slave):
     emit("csv_velocity_min", min(vs))
     emit("csv_velocity_max", max(vs))
     emit("velocity_after_stop", velocity)
+    emit("sensor1_position_diff_max", sensor1_diff_max)
+    emit("sensor2_values", " ".join(str(v) for v in sorted(sensor2_seen)))
 
 
 def part_remap(args, master, slave):
@@ -236,16 +245,16 @@ def part_remap(args, master, slave):
 
     def tx_refusals():
         # 0x1000 (device type) is not PDO-mappable at all: 0x0604_0041.
-        expect_refused(slave, 0x1A00, 5, struct.pack("<I", 0x10000020), 0x06040041, "unmappable_object")
-        # Eight more 32-bit entries: 11 + 32 = 43 bytes, above the 40 bytes an EtherCAT PDO may carry (IDX L2196):
+        expect_refused(slave, 0x1A00, 7, struct.pack("<I", 0x10000020), 0x06040041, "unmappable_object")
+        # Six more 32-bit entries: 19 + 24 = 43 bytes, above the 40 bytes an EtherCAT PDO may carry (IDX L2196):
         # 0x0604_0042 at sub 0, which stays 0.
-        for k in range(5, 13):
+        for k in range(len(CSV_TX) + 1, 13):
             write_checked(slave, 0x1A00, k, struct.pack("<I", 0x60640020))
         expect_refused(slave, 0x1A00, 0, b"\x0c", 0x06040042, "pdo_too_long")
-        for k in range(5, 13):
+        for k in range(len(CSV_TX) + 1, 13):
             write_checked(slave, 0x1A00, k, b"\x00\x00\x00\x00")
 
-    write_pdo(slave, 0x1A00, CSV_TX + [0] * 8, [tx_refusals])
+    write_pdo(slave, 0x1A00, CSV_TX + [0] * (12 - len(CSV_TX)), [tx_refusals])
     assign_pdos(slave, 0x1C13, [0x1A00], 4)
     emit("csv_rx_map", " ".join(f"{x:08x}" for x in CSV_RX))
     emit("csv_tx_map", " ".join(f"{x:08x}" for x in CSV_TX))

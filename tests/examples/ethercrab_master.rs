@@ -4,6 +4,7 @@
 //!
 //! ```text
 //! ethercrab_master --iface NAME <scenario> [--cycle-us N] [--sync free|sm|dc] [--deadline-s S] [--slaves N]
+//!                  [--realtime-s S]
 //! scenarios: identity | objects | parameters | remap | csp | watchdog | line
 //! ```
 //!
@@ -96,6 +97,9 @@ pub struct Args {
     deadline_s: u64,
     /// SubDevices on the bus (`--slaves`, default 1; scenario `line` brings them all up).
     slaves: usize,
+    /// Scenario `line` against a real-time simulator (`--realtime-s S`): the cycles run for S seconds, each one
+    /// paced to the wall clock, and the lost and late frames are counted instead of failing the run.
+    realtime_s: Option<f64>,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -106,6 +110,7 @@ fn parse_args() -> Result<Args, String> {
         sync: Sync::Sm,
         deadline_s: 200,
         slaves: 1,
+        realtime_s: None,
     };
     let mut it = std::env::args().skip(1);
     while let Some(a) = it.next() {
@@ -115,6 +120,9 @@ fn parse_args() -> Result<Args, String> {
             "--cycle-us" => args.cycle_us = value("--cycle-us")?.parse().map_err(|e| format!("--cycle-us: {e}"))?,
             "--deadline-s" => {
                 args.deadline_s = value("--deadline-s")?.parse().map_err(|e| format!("--deadline-s: {e}"))?
+            }
+            "--realtime-s" => {
+                args.realtime_s = Some(value("--realtime-s")?.parse().map_err(|e| format!("--realtime-s: {e}"))?)
             }
             "--slaves" => args.slaves = value("--slaves")?.parse().map_err(|e| format!("--slaves: {e}"))?,
             "--sync" => {
@@ -131,7 +139,7 @@ fn parse_args() -> Result<Args, String> {
     }
     if args.iface.is_empty() || args.scenario.is_empty() {
         return Err("usage: ethercrab_master --iface NAME <identity|objects|parameters|remap|csp|watchdog|line> \
-                    [--cycle-us N] [--sync free|sm|dc] [--deadline-s S] [--slaves N]"
+                    [--cycle-us N] [--sync free|sm|dc] [--deadline-s S] [--slaves N] [--realtime-s S]"
             .to_owned());
     }
     if args.cycle_us == 0 || args.cycle_us > 100_000 {

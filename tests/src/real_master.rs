@@ -72,17 +72,24 @@ pub fn figures(text: &str) -> HashMap<String, String> {
     text.lines().filter_map(|l| l.split_once('=')).map(|(k, v)| (k.trim().to_owned(), v.trim().to_owned())).collect()
 }
 
-/// The shell script run inside the namespace: lo up, the veth pair, the simulator on ecs0 in the background,
+/// The shell script run inside the namespace: lo up, the veth pair, the simulator on ecs0 in the background
+/// (after `sim_prefix`, e.g. a `chrt`),
 /// the master command on ecm0 (its own arguments after `--iface ecm0`), then the simulator's exit report after a
 /// `--- drive-sim` marker.
-fn namespace_script(drive_sim: &Path, sim_log: &Path, sim_args: &str, master_command: &str) -> String {
+fn namespace_script(
+    drive_sim: &Path,
+    sim_log: &Path,
+    sim_args: &str,
+    master_command: &str,
+    sim_prefix: &str,
+) -> String {
     format!(
         "set -u
 ip link set lo up
 ip link add ecm0 type veth peer name ecs0
 ip link set ecm0 up
 ip link set ecs0 up
-timeout 300 '{sim}' ethercat --iface ecs0 {sim_args} --seconds 280 --idle-exit-ms 1500 > '{log}' 2>&1 &
+timeout 300 {sim_prefix}'{sim}' ethercat --iface ecs0 {sim_args} --seconds 280 --idle-exit-ms 1500 > '{log}' 2>&1 &
 SIM=$!
 sleep 0.3
 timeout 250 {master_command}
@@ -149,12 +156,69 @@ pub fn run_in_namespace(name: &str, sim_args: &str, master_command: &str) -> Run
 /// [`run_in_namespace`] with the `drive-sim` executable at `drive_sim` (e.g. a release build for a real-time
 /// measurement).
 pub fn run_in_namespace_with(drive_sim: &Path, name: &str, sim_args: &str, master_command: &str) -> RunOutput {
+    run_in_namespace_at(drive_sim, name, sim_args, master_command, None)
+}
+
+/// The real-time priorities (SCHED_FIFO) of a real-time measurement: the master's threads above the simulator's
+/// frame path, whose drive workers step one below it (`hal_sim::sim::host_priority`). A master on a real
+/// machine runs its cycle at a real-time priority; at the normal policy both wait behind whatever else the
+/// host runs, and the master skips cycles.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RealTimePriorities {
+    /// The master's (every thread of its process).
+    pub master: u8,
+    /// drive-sim's frame path (its drive workers run one below).
+    pub simulator: u8,
+}
+
+impl RealTimePriorities {
+    /// Master 30, drive-sim 20 (workers 19): both below 50, the priority of the kernel's threaded interrupt
+    /// handlers, so that the network path under them is never starved.
+    pub const MEASUREMENT: Self = Self { master: 30, simulator: 20 };
+
+    /// Whether this host lets the tests raise a process to SCHED_FIFO (root or CAP_SYS_NICE; the priority is
+    /// set outside the namespace, where the privilege counts, and inherited inside it).
+    pub fn permitted() -> bool {
+        Command::new("chrt").args(["-f", "1", "true"]).output().is_ok_and(|o| o.status.success())
+    }
+}
+
+/// [`run_in_namespace_with`] with the master at `priorities.master` and drive-sim at `priorities.simulator`
+/// (SCHED_FIFO; the caller checks [`RealTimePriorities::permitted`]).
+pub fn run_in_namespace_at_real_time_priority(
+    drive_sim: &Path,
+    name: &str,
+    sim_args: &str,
+    master_command: &str,
+    priorities: RealTimePriorities,
+) -> RunOutput {
+    run_in_namespace_at(drive_sim, name, sim_args, master_command, Some(priorities))
+}
+
+fn run_in_namespace_at(
+    drive_sim: &Path,
+    name: &str,
+    sim_args: &str,
+    master_command: &str,
+    priorities: Option<RealTimePriorities>,
+) -> RunOutput {
     let _one_at_a_time = one_run_at_a_time();
     let dir = std::env::temp_dir().join(format!("ecat-real-masters-{}-{name}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("temp dir");
     let sim_log = dir.join("drive-sim.log");
-    let script = namespace_script(drive_sim, &sim_log, sim_args, master_command);
-    let out = Command::new("unshare").args(["-Urn", "sh", "-c", &script]).output().expect("run unshare");
+    // Raising the priority needs the host's privilege, so the whole namespace starts at the master's; inside
+    // it drive-sim is lowered to its own, which needs none (sched(7)).
+    let sim_prefix = priorities.map(|p| format!("chrt -f {} ", p.simulator)).unwrap_or_default();
+    let script = namespace_script(drive_sim, &sim_log, sim_args, master_command, &sim_prefix);
+    let mut command = match priorities {
+        Some(p) => {
+            let mut c = Command::new("chrt");
+            c.args(["-f", &p.master.to_string(), "unshare"]);
+            c
+        }
+        None => Command::new("unshare"),
+    };
+    let out = command.args(["-Urn", "sh", "-c", &script]).output().expect("run unshare");
     let text = String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
     let _ = std::fs::remove_dir_all(&dir);
     // The master's lines and both exit statuses come first; the simulator's log after the marker.

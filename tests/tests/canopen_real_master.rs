@@ -281,7 +281,8 @@ fn write_setpoints(dir: &WorkDir, period_us: u64) -> PathBuf {
 }
 
 /// Proves: canopen's PDO API (`read`, `clear`, `add_variable`, `trans_type`, `enabled`, `save`) configures RPDO 1
-/// = controlword + target position and TPDO 1 = statusword + position actual, TPDO 2 = following error, all
+/// = controlword + target position and TPDO 1 = statusword + position actual, TPDO 2 = following error, TPDO 3 =
+/// the sensor positions 0x60E4:01/02 (sensor 1 following 0x6064, sensor 2 0 without a load encoder), all
 /// synchronous (read back through `read`); then CSP driven by SYNC at 1 ms: the drive enabled through the
 /// controlword in the RPDO (seen in the TPDO statusword within 100 SYNCs), the 10-revolution move (2,449 rpm peak)
 /// followed with the following error from the TPDO 0x60F4 peak <= 30 inc and RMS <= 8 inc over the move, and the
@@ -297,10 +298,17 @@ fn pdos_configured_through_canopen_then_csp_at_1_ms_follows_the_move_within_the_
         "csp.py",
         &["--lock-step", "--sync-us", "1000"],
         &eds,
-        &["--setpoints".into(), path(&sp), "--tpdo-fe".into()],
+        &["--setpoints".into(), path(&sp), "--tpdo-fe".into(), "--tpdo-sensors".into()],
     );
     pass(&out);
     assert_eq!(out.master("tpdo1_map_1"), "6041:00/16 6064:00/32");
+    // Issue 20 item 2: TPDO 3 = the sensor positions 0x60E4:01/02. Sensor 1 is the motor encoder's count, 0x6064
+    // without homing: equal, or one slow tick's travel apart (67 increments at the move's 2,449 rpm) where the
+    // SYNC falls between their publications. The reference plant has no load encoder: sensor 2 reads 0.
+    assert_eq!(out.master("tpdo3_map_1"), "60e4:01/32 60e4:02/32");
+    let diff = out.master_num("sensor1_position_diff_max_1");
+    assert!(diff <= 68.0, "0x60E4:01 against 0x6064: {diff}");
+    assert_eq!(out.master("sensor2_values_1"), "0", "0x60E4:02 without a load encoder");
     assert_eq!(out.master("rpdo1_map_1"), "6040:00/16 607a:00/32");
     assert_eq!(out.master("tpdo1_type_1"), "1");
     assert_eq!(out.master("tpdo2_enabled_1"), "1");
@@ -330,6 +338,41 @@ fn pdos_configured_through_canopen_then_csp_at_1_ms_follows_the_move_within_the_
         out.master("cycles"),
         out.master("script_s"),
     );
+}
+
+/// Proves issue 20 ("Real masters: the ... PyPI canopen tests map and use the new objects (SSI position ...) in
+/// PDOs"): on the reference motor with an SSI absolute encoder in place of the incremental one
+/// (`hal-sim/presets/reference-ssi.toml`: 12 + 12 bits, Gray, its zero at multi-turn count 5), canopen writes
+/// 0x3000:01 = 0x00000300 (the SSI sensor alone, IDX 0x3000:01 sensor 2 type 3; read back exactly) and maps the SSI
+/// position raw value 0x3012:09 into TPDO 4 (read back as `3012:09/32`), then drives the 10-revolution CSP move
+/// at 1 ms commutated and positioned by the SSI sensor alone. Without homing 0x6064 is the sensor's absolute
+/// position (0x3012:0E = 0), so 0x3012:09 equals 0x6064 modulo 2^24 at every SYNC, or one slow tick's travel
+/// apart (67 increments at the move's 2,449 rpm, as 0x60E4:01 in the test above) where the SYNC falls between
+/// their publications; the raw value spans the move's 40,960 increments (within that travel); the target is
+/// reached within +-1 inc.
+#[test]
+fn canopen_maps_the_ssi_position_into_a_tpdo_and_drives_csp_on_the_ssi_sensor_alone() {
+    skip_unless_runnable!("canopen_maps_the_ssi_position_into_a_tpdo_and_drives_csp_on_the_ssi_sensor_alone");
+    let dir = WorkDir::new("csp-ssi");
+    let eds = write_eds(&dir);
+    let sp = write_setpoints(&dir, 1000);
+    let plant = concat!(env!("CARGO_MANIFEST_DIR"), "/../hal-sim/presets/reference-ssi.toml");
+    let out = run(
+        "csp.py",
+        &["--lock-step", "--sync-us", "1000", "--plant", plant],
+        &eds,
+        &["--setpoints".into(), path(&sp), "--ssi".into()],
+    );
+    pass(&out);
+    assert_eq!(out.master("sensors_configuration_1"), "0x00000300");
+    assert_eq!(out.master("tpdo4_map_1"), "3012:09/32");
+    let diff = out.master_num("ssi_position_diff_max_1");
+    assert!(diff <= 68.0, "0x3012:09 against 0x6064: {diff}");
+    let span = out.master_num("ssi_raw_span_1");
+    assert!((span - 40_960.0).abs() <= 68.0, "0x3012:09 over the move: {span}");
+    assert_eq!(out.master("distance_1"), "40960");
+    assert!(out.master_num("final_error_1").abs() <= 1.0, "target reached: {}", out.master("final_error_1"));
+    assert_eq!(out.sim("node1_cia402"), "OperationEnabled");
 }
 
 /// Proves: with the drive in CSP after the move, 0x1016:01 supervising the master (node 127) at 50 ms and the

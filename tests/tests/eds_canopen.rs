@@ -40,7 +40,7 @@ fn entries_json(node_id: u8) -> String {
     let mut out = format!("{{\"node_id\": {node_id}, \"entries\": [\n");
     for (i, e) in ENTRIES.iter().enumerate() {
         let default = match e.storage {
-            Storage::Ram { offset, len } => {
+            Storage::Ram { offset, len, .. } => {
                 let (o, l) = (usize::from(offset), usize::from(len));
                 let bytes = DEFAULT_VALUES.get(o..o + l).expect("RAM value inside DEFAULT_VALUES");
                 Some(bytes.iter().map(|b| format!("{b:02x}")).collect::<String>())
@@ -64,7 +64,7 @@ fn entries_json(node_id: u8) -> String {
             OBJECTS.iter().find(|o| o.index == e.index).expect("the entry's object").object_code.code(),
             e.data_type.code(),
             e.pdo != firmware::od::entry::PdoMapping::No,
-            e.node_id_relative,
+            e.node_id_relative(),
             default.map_or("null".to_string(), |d| format!("\"{d}\"")),
             if i + 1 == ENTRIES.len() { "" } else { "," }
         );

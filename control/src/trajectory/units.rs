@@ -49,11 +49,32 @@ impl MotionScale {
     /// changes, not per tick.
     #[must_use]
     pub fn new(increments_per_revolution: u32) -> Self {
-        let n = u128::from(increments_per_revolution.max(1));
-        // n < 2^32: n 2^48 < 2^80, n 2^56 < 2^88, 150,000 2^64 < 2^82: no overflow.
-        let velocity_factor = div_round_u(n << 48, RPM_TICKS);
-        let acceleration_factor = div_round_u(n << 56, RPM_PER_S_TICKS2);
-        let rpm_factor = div_round_u(RPM_TICKS << 64, n);
+        Self::geared(increments_per_revolution, 1, 1)
+    }
+
+    /// The scale of the load behind a gear of `numerator` motor revolutions per `denominator` load revolutions
+    /// (IDX 0x3003): rpm and rpm/s of the load, `increments_per_revolution x numerator / denominator` motor
+    /// increments per load revolution, exact for any ratio (the factors divide once, in 128 bits). Zeros are taken
+    /// as 1.
+    #[must_use]
+    pub fn geared(increments_per_revolution: u32, numerator: u32, denominator: u32) -> Self {
+        if numerator == denominator {
+            // No gear: the constant divisors (the common case, and the cheap one at run time: a conversion at a
+            // master's start-up stays within tier 2's budget).
+            let n = u128::from(increments_per_revolution.max(1));
+            return Self {
+                increments_per_revolution: increments_per_revolution.max(1),
+                velocity_factor: div_round_u(n << 48, RPM_TICKS),
+                acceleration_factor: div_round_u(n << 56, RPM_PER_S_TICKS2),
+                rpm_factor: div_round_u(RPM_TICKS << 64, n),
+            };
+        }
+        let (num, den) = (u128::from(numerator.max(1)), u128::from(denominator.max(1)));
+        // Increments per load revolution as n num / den: n num < 2^64; n num 2^56 < 2^120, 150,000 den 2^64 < 2^114.
+        let n = u128::from(increments_per_revolution.max(1)).saturating_mul(num);
+        let velocity_factor = div_round_u(n << 48, RPM_TICKS.saturating_mul(den));
+        let acceleration_factor = div_round_u(n << 56, RPM_PER_S_TICKS2.saturating_mul(den));
+        let rpm_factor = div_round_u((RPM_TICKS.saturating_mul(den)) << 64, n);
         Self {
             increments_per_revolution: increments_per_revolution.max(1),
             velocity_factor,
@@ -108,5 +129,19 @@ mod tests {
         // 0x60C5's default 2^32 - 1 rpm/s is 46,912 inc/tick² at 4096 inc/rev: representable.
         assert_eq!(s.acceleration_from_rpm_per_s(u32::MAX).to_bits() >> 40, 46_912);
         assert_eq!(MotionScale::new(u32::MAX).acceleration_from_rpm_per_s(u32::MAX), Acceleration::MAX);
+    }
+
+    /// A 5:1 gear (IDX 0x3003): 600 load rpm is 3000 motor rpm; 359424/875 (non-integer) stays exact to rounding.
+    #[test]
+    fn geared_scale_counts_load_revolutions() {
+        let s = MotionScale::geared(4096, 5, 1);
+        assert_eq!(s.velocity_from_rpm(600), MotionScale::new(4096).velocity_from_rpm(3000));
+        assert_eq!(s.velocity_to_rpm(MotionScale::new(4096).velocity_from_rpm(-3000)), -600);
+        assert_eq!(s.acceleration_from_rpm_per_s(4000), MotionScale::new(4096).acceleration_from_rpm_per_s(20_000));
+        let odd = MotionScale::geared(4096, 359_424, 875);
+        // 10 load rpm = 10 x 4096 x 359424 / 875 / 150,000 inc/tick = 112.1796... inc/tick.
+        let v = odd.velocity_from_rpm(10).to_bits() as f64 / 2f64.powi(32);
+        assert!((v - 10.0 * 4096.0 * 359_424.0 / 875.0 / 150_000.0).abs() < 1e-6, "{v}");
+        assert_eq!(odd.velocity_to_rpm(odd.velocity_from_rpm(-7)), -7);
     }
 }

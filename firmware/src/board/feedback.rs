@@ -54,5 +54,6 @@ pub fn read() -> FeedbackSample {
         index_latch,
         hall: ((HALL_PORT.idr().read() >> HALL_SHIFT) & 0b111) as u8,
         digital_inputs: ((INPUT_PORT.idr().read() >> INPUT_SHIFT) & 0b1111) as u8,
+        ssi_frame: super::ssi::frame(),
     }
 }

@@ -14,6 +14,7 @@
 //! | DC-bus voltage, temperature | PC3, PC4 (analog)      | ADC1 IN13, ADC2 IN14           |
 //! | motor temperature sensor    | PA3 (analog)           | ADC3 IN3                       |
 //! | encoder A/B, index          | PB6, PB7, PB8 (AF2)    | TIM4 CH1/CH2 (encoder), CH3    |
+//! | load encoder A/B (sensor 2) | PA0, PA1 (AF2)         | TIM5 CH1/CH2 (load_encoder)    |
 //! | Halls H1/H2/H3              | PC6, PC7, PC8 (inputs) | GPIOC IDR                      |
 //! | digital inputs 1..4         | PC9..PC12 (inputs)     | GPIOC IDR                      |
 //! | STO-IN1/IN2 feedback        | PB10, PB11 (inputs)    | GPIOB IDR (sto, tier 2)        |
@@ -22,6 +23,7 @@
 //! | ESC SPI SEL/CLK/DO/DI       | PA4 (out), PA5..7 (AF5)| SPI1 (esc_spi, `ethercat`)     |
 //! | ESC SPI_IRQ (AL event)      | PB0 (input)            | EXTI0 (esc_spi, `ethercat`)    |
 //! | braking chopper gate        | PB1 (output)           | GPIOB BSRR (chopper)           |
+//! | SSI clock / data            | PB3, PB4 (AF6)         | SPI3 SCK/MISO, DMA1 S0 (ssi)   |
 //!
 //! With the `qemu` feature (QEMU's `netduinoplus2`, which models neither the RCC nor these peripherals) [`init`]
 //! only starts the cost counter, and [`PowerStage`] is fed by a small built-in motor model (`plant`, present only in that build).
@@ -39,8 +41,10 @@ pub mod esc_spi;
 pub mod feedback;
 pub mod flash;
 pub mod interrupt;
+pub mod load_encoder;
 pub mod pwm;
 pub mod reg;
+pub mod ssi;
 pub mod sto;
 pub mod sync_timer;
 pub mod watchdog;
@@ -117,6 +121,7 @@ pub fn init() -> Result<Board, ClockError> {
         chopper::init();
         adc::init();
         feedback::init();
+        load_encoder::init();
         sto::init();
         counter::init();
         Ok(Board { power: PowerStage { _owned: () } })

@@ -134,6 +134,8 @@ impl Plant {
                 index_latch: self.index.take(),
                 hall: HALL_PATTERN.get(usize::from(sector)).copied().unwrap_or(0),
                 digital_inputs: if self.theta < TAU / 2.0 { CAM_INPUT } else { 0 },
+                // The QEMU image runs on the incremental encoder (no SSI sensor in this plant).
+                ssi_frame: 0,
             },
             break_input: false,
         }

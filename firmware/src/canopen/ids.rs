@@ -119,13 +119,18 @@ const fn restored_by_communication_reset(index: u16) -> bool {
 /// Reset communication (CiA 301 §7.3.2.2.1): every writable RAM parameter of 0x1000..0x1FFF back to its default
 /// for `node_id` (so the node-ID-relative COB-IDs follow a new node-ID). Read-only entries (actual values such as
 /// the error register 0x1001, the serial number 0x1018:04) and application-served entries keep what they hold.
-/// Runs at tier 3: it builds the default storage once (`VALUE_BYTES` on the stack).
+/// Runs at tier 3, inside the drive's lock, which holds tier 2 off: it builds the default storage once
+/// (`VALUE_BYTES` on the stack) and visits only the entries of 0x1000..0x1FFF, found by binary search in the sorted
+/// table (fewer than half of the entries), both for the node-ID-relative defaults and for the copy.
 pub fn reset_communication_parameters(d: &mut Dictionary, node_id: u8) {
-    let defaults = Values::new(node_id);
-    let table = *d.table();
-    for entry in table.entries() {
+    let entries = d.table().entries();
+    let first = entries.partition_point(|e| e.index < 0x1000);
+    let end = entries.partition_point(|e| e.index <= 0x1FFF);
+    let communication = entries.get(first..end).unwrap_or(&[]);
+    let defaults = Values::defaults_for(communication, node_id);
+    for entry in communication {
         let writable = matches!(entry.access, Access::ReadWrite | Access::WriteOnly);
-        let node_relative = entry.node_id_relative;
+        let node_relative = entry.node_id_relative();
         if !restored_by_communication_reset(entry.index) || !(writable || node_relative) {
             continue;
         }
@@ -162,5 +167,17 @@ mod tests {
         assert_eq!(read_u32(&d, 0x1014, 0), 0x89);
         assert_eq!(read_u32(&d, 0x1400, 1), 0x209);
         assert_eq!(read_u32(&d, 0x1017, 0), 0, "producer heartbeat back to its default");
+    }
+
+    #[test]
+    fn communication_reset_restores_up_to_the_area_end_and_keeps_the_application_area() {
+        // CiA 301 §7.3.2.2.1: the whole of 0x1000..0x1FFF and nothing above it. 0x1C13:00 (default 3) is among the
+        // area's last writable entries; 0x6083 (profile acceleration, default 10,000) lies just outside it.
+        let mut d = Dictionary::new(1);
+        assert!(write(&mut d, 0x1C13, 0, 0));
+        assert!(write(&mut d, 0x6083, 0, 20_000));
+        reset_communication_parameters(&mut d, 1);
+        assert_eq!(read_u32(&d, 0x1C13, 0), 3, "0x1C13:00 back to its default");
+        assert_eq!(read_u32(&d, 0x6083, 0), 20_000, "0x6083 keeps what was written");
     }
 }

@@ -160,7 +160,7 @@ impl ByteCopy {
         let MapTarget::Object(entry) = target else {
             return Some(None);
         };
-        let Storage::Ram { offset, len } = entry.storage else {
+        let Storage::Ram { offset, len, .. } = entry.storage else {
             return None;
         };
         let aligned = bit_offset & 7 == 0 && bits & 7 == 0;

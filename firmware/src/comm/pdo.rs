@@ -245,7 +245,7 @@ pub fn compile_item<const N: usize>(
         MapTarget::Object(entry) => {
             let expected = entry.data_type.fixed_size().and_then(|n| u16::try_from(n).ok());
             let (location, op) = match (entry.storage, direction) {
-                (Storage::Ram { offset, len }, _) => {
+                (Storage::Ram { offset, len, .. }, _) => {
                     let value = Span::new(offset, len).ok_or(SdoAbort::InternalIncompatibility)?;
                     if Some(len) != expected || usize::from(value.end) > N {
                         return Err(SdoAbort::InternalIncompatibility);

@@ -23,6 +23,7 @@ use crate::control::velocity_estimate::PositionWindow;
 use crate::handoff::Words;
 use crate::power_state::{CalibrationError, CommutationError, CommutationStage, DriveError, PowerState, Trip};
 use crate::sensors::latch::{EdgeLatch, PinLatches, DIGITAL_INPUTS};
+use crate::sensors::ssi::SsiFormat;
 use fixed::types::{I1F31, I8F24};
 
 /// The power-stage state tier 2 asks for (CiA 402 transitions 3-6, 8, 9, 15, as the drive's request methods
@@ -205,6 +206,9 @@ pub struct Tier1Report {
     /// over the periods between them is a slow tick's average, free of one period's noise (the motor
     /// identification's mechanical step, `super::auto_setup`).
     pub q_sums: [i32; 2],
+    /// The SSI frame of the reporting period (0 without an SSI sensor): tier 2 reads the multi-turn position, the
+    /// raw value objects and the special bits from it and checks it whole.
+    pub ssi_frame: u32,
 }
 
 impl Default for Tier1Report {
@@ -228,6 +232,7 @@ impl Default for Tier1Report {
             index_offset: None,
             offsets: ShuntOffsets::NOMINAL,
             q_sums: [0; 2],
+            ssi_frame: 0,
         }
     }
 }
@@ -366,10 +371,15 @@ impl Words<15> for Settings {
     fn to_words(&self) -> [u32; 15] {
         let c = &self.commutation;
         let (forced, alignment) = match c.method {
-            CommutationMethod::Hall => (false, None),
+            CommutationMethod::Hall | CommutationMethod::Absolute(_) => (false, None),
             CommutationMethod::ForcedAlignment(a) => (true, Some(a)),
         };
+        let ssi = match c.method {
+            CommutationMethod::Absolute(f) => Some(f),
+            _ => None,
+        };
         let flags = u32::from(forced)
+            | u32::from(ssi.is_some()) << 1
             | u32::from(c.hall_mask) << 8
             | u32::from(c.encoder_present) << 16
             | u32::from(c.configured_index_offset.is_some()) << 17
@@ -377,12 +387,22 @@ impl Words<15> for Settings {
             | u32::from(c.encoder.inverted) << 19
             | u32::from(c.encoder.has_index) << 20
             | u32::from(c.encoder.pole_pairs) << 24;
-        let a = alignment.unwrap_or(AlignmentConfig {
+        let mut a = alignment.unwrap_or(AlignmentConfig {
             current: Amps::ZERO,
             ramp_ticks: 0,
             hold_ticks: 0,
             damping_bits_per_count: 0,
         });
+        if let Some(f) = ssi {
+            // The SSI format travels in the alignment's words, which the absolute method does not use.
+            let [first, second] = ssi_format_words(&f);
+            a = AlignmentConfig {
+                current: Amps::from_bits(first.cast_signed()),
+                ramp_ticks: low_half(second),
+                hold_ticks: high_half(second),
+                damping_bits_per_count: f.commutation_offset.cast_signed(),
+            };
+        }
         let cal = &self.calibration;
         let mut put = Put::<15>::new();
         put.word(self.version)
@@ -422,7 +442,13 @@ impl Words<15> for Settings {
         let configured = ElectricalAngle(take.word());
         let default = ElectricalAngle(take.word());
         let bit = |n: u32| flags >> n & 1 == 1;
-        let method = if bit(0) {
+        let method = if bit(1) {
+            CommutationMethod::Absolute(ssi_format_from_words(
+                current.to_bits().cast_unsigned(),
+                ticks,
+                damping_bits_per_count.cast_unsigned(),
+            ))
+        } else if bit(0) {
             CommutationMethod::ForcedAlignment(AlignmentConfig {
                 current,
                 ramp_ticks: low_half(ticks),
@@ -457,6 +483,35 @@ impl Words<15> for Settings {
                 encoder_present: bit(16),
             },
         }
+    }
+}
+
+/// An SSI format's fields in two words: multi-turn, single-turn and special bits and the flags (Gray, frame
+/// check, inverted); the position bits kept, the alignment shift and the clocked bits.
+fn ssi_format_words(f: &SsiFormat) -> [u32; 2] {
+    let flags = u8::from(f.gray) | u8::from(f.frame_check) << 1 | u8::from(f.inverted) << 2;
+    [
+        u32::from_le_bytes([f.multi_turn_bits, f.single_turn_bits, f.special_bits, flags]),
+        u32::from_le_bytes([f.multi_turn_position_bits, f.single_turn_position_bits, f.align_bits, f.frame_bits]),
+    ]
+}
+
+/// [`ssi_format_words`] back, with the commutation offset.
+fn ssi_format_from_words(first: u32, second: u32, commutation_offset: u32) -> SsiFormat {
+    let [multi_turn_bits, single_turn_bits, special_bits, flags] = first.to_le_bytes();
+    let [multi_turn_position_bits, single_turn_position_bits, align_bits, frame_bits] = second.to_le_bytes();
+    SsiFormat {
+        frame_bits,
+        multi_turn_bits,
+        single_turn_bits,
+        special_bits,
+        multi_turn_position_bits,
+        single_turn_position_bits,
+        gray: flags & 1 != 0,
+        frame_check: flags & 2 != 0,
+        inverted: flags & 4 != 0,
+        align_bits,
+        commutation_offset,
     }
 }
 
@@ -517,6 +572,9 @@ fn power_words(power: PowerState) -> [u32; 2] {
                 CalibrationError::Aborted => (4, 0, 3, 0, 0),
             },
             DriveError::Commutation(CommutationError::InvalidHallState(hall)) => (4, 1, hall, 0, 0),
+            DriveError::Commutation(CommutationError::SsiNoData) => (4, 1, 0, 1, 0),
+            DriveError::Commutation(CommutationError::SsiMissing) => (4, 1, 0, 2, 0),
+            DriveError::Commutation(CommutationError::SsiFrame) => (4, 1, 0, 3, 0),
             DriveError::Protection(trip) => {
                 let cause = match trip {
                     Trip::BreakInput => 0,
@@ -543,7 +601,12 @@ fn power_from_words(head: u32, payload: u32) -> PowerState {
             2 => CalibrationError::Timeout,
             _ => CalibrationError::Aborted,
         }),
-        1 => DriveError::Commutation(CommutationError::InvalidHallState(cause)),
+        1 => DriveError::Commutation(match channel {
+            1 => CommutationError::SsiNoData,
+            2 => CommutationError::SsiMissing,
+            3 => CommutationError::SsiFrame,
+            _ => CommutationError::InvalidHallState(cause),
+        }),
         2 => DriveError::Protection(match cause {
             0 => Trip::BreakInput,
             1 => Trip::BusOverVoltage,
@@ -587,7 +650,7 @@ fn stage_from_byte(value: u8) -> CommutationStage {
 }
 
 /// Words of a [`Tier1Report`].
-pub const REPORT_WORDS: usize = 4 + 2 + 2 * SIGNAL_WORDS + 4 + 1 + 2 * (2 * DIGITAL_INPUTS + 1) + 3 + 3 + 2;
+pub const REPORT_WORDS: usize = 4 + 2 + 2 * SIGNAL_WORDS + 4 + 1 + 2 * (2 * DIGITAL_INPUTS + 1) + 3 + 3 + 2 + 1;
 
 impl Words<REPORT_WORDS> for Tier1Report {
     #[inline(never)]
@@ -622,7 +685,7 @@ impl Words<REPORT_WORDS> for Tier1Report {
         for offset in self.offsets.q8 {
             put.int(offset);
         }
-        put.int(self.q_sums[0]).int(self.q_sums[1]);
+        put.int(self.q_sums[0]).int(self.q_sums[1]).word(self.ssi_frame);
         put.words
     }
 
@@ -650,6 +713,7 @@ impl Words<REPORT_WORDS> for Tier1Report {
         let index_offset = ElectricalAngle(take.word());
         let offsets = ShuntOffsets { q8: core::array::from_fn(|_| take.int()) };
         let q_sums = [take.int(), take.int()];
+        let ssi_frame = take.word();
         let bit = |n: u32| flags >> n & 1 == 1;
         Self {
             period,
@@ -670,6 +734,7 @@ impl Words<REPORT_WORDS> for Tier1Report {
             index_offset: bit(10).then_some(index_offset),
             offsets,
             q_sums,
+            ssi_frame,
         }
     }
 }
@@ -775,6 +840,20 @@ mod tests {
             },
             ..Settings::default()
         });
+        // The SSI absolute method's format travels in the alignment's words.
+        for ssi in [
+            SsiFormat { commutation_offset: u32::MAX, ..SsiFormat::REFERENCE },
+            SsiFormat { gray: false, frame_check: false, inverted: true, align_bits: 4, ..SsiFormat::REFERENCE },
+        ] {
+            round_trip(Settings {
+                commutation: CommutationSettings {
+                    method: CommutationMethod::Absolute(ssi),
+                    encoder_present: false,
+                    ..CommutationSettings::default()
+                },
+                ..Settings::default()
+            });
+        }
     }
 
     #[test]
@@ -792,6 +871,9 @@ mod tests {
             PowerState::Fault(DriveError::Calibration(CalibrationError::Timeout)),
             PowerState::Fault(DriveError::Calibration(CalibrationError::Aborted)),
             PowerState::Fault(DriveError::Commutation(CommutationError::InvalidHallState(7))),
+            PowerState::Fault(DriveError::Commutation(CommutationError::SsiNoData)),
+            PowerState::Fault(DriveError::Commutation(CommutationError::SsiMissing)),
+            PowerState::Fault(DriveError::Commutation(CommutationError::SsiFrame)),
             PowerState::Fault(DriveError::Protection(Trip::BreakInput)),
             PowerState::Fault(DriveError::Protection(Trip::BusOverVoltage)),
             PowerState::Fault(DriveError::Protection(Trip::BusUnderVoltage)),
@@ -802,6 +884,7 @@ mod tests {
         for power in states {
             round_trip(Tier1Report { power, ..Tier1Report::default() });
         }
+        round_trip(Tier1Report { ssi_frame: 0xDEAD_BEEF, ..Tier1Report::default() });
     }
 
     #[test]
@@ -831,6 +914,7 @@ mod tests {
             index_offset: Some(ElectricalAngle(12_345)),
             offsets: ShuntOffsets { q8: [524_288, -1, i32::MAX] },
             q_sums: [i32::MIN, 123_456],
+            ssi_frame: 0x0280_0001,
         });
         for stage in [
             CommutationStage::HallSector,

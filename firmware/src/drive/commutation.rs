@@ -1,4 +1,5 @@
-//! Commutation: the rotor's electrical angle from the Hall sensors, the incremental encoder and its index.
+//! Commutation: the rotor's electrical angle from the Hall sensors, the incremental encoder and its index, or the
+//! SSI absolute encoder.
 //! The encoder's own counting (position and electrical count from the hardware counter) is [`super::encoder`].
 //!
 //! Sources: `shared/spec/control-and-protection.md` §2.6-2.9 (sensor objects, commutation, Hall and index errors
@@ -35,6 +36,9 @@
 //!   ramped and held; then the angle is zeroed at the encoder count reached. The index refines it as above.
 //! - Every index pulse re-applies the stored offset and records the correction made (for the supervision of the
 //!   fault issue: index processing and encoder resolution errors 0xFF02/0xFF03).
+//! - Start from the SSI absolute encoder alone (`CommutationMethod::Absolute`, 0x3000:03 = 0x20): the angle is the
+//!   single-turn position plus the commutation offset 0x3012:0A, times the pole pairs, from the first period
+//!   (exact to one sensor increment); the encoder counts are the sensor's 16-bit count (`crate::sensors::ssi`).
 
 use super::encoder::{Encoder, EncoderConfig};
 use crate::control::angle::{AngleDelta, ElectricalAngle};
@@ -42,11 +46,24 @@ use crate::control::frames::Amps;
 use crate::hal::power::FeedbackSample;
 use crate::power_state::{CommutationError, CommutationStage};
 use crate::sensors::hall::HallSector;
+use crate::sensors::ssi::SsiFormat;
 
 /// The Hall commutation offset 0x301A:03 (1/65536 electrical turn) as an angle.
 #[must_use]
 pub const fn hall_offset_from_od(raw: u16) -> ElectricalAngle {
     ElectricalAngle((raw as u32) << 16)
+}
+
+/// The electrical angle of an SSI sensor's position at start-up (`feedback.encoder_count` is its 16-bit count):
+/// the single-turn count in the drive's direction plus the commutation offset 0x3012:0A (position increments,
+/// IDX L4326: the offset that brings the sensor's zero to the rotor's electrical zero, EPOS4 AN ch. 8.3), times
+/// the pole pairs, modulo one revolution. Exact: a revolution is a power of two counts.
+fn absolute_angle(ssi: &SsiFormat, encoder: &Encoder, feedback: &FeedbackSample) -> ElectricalAngle {
+    let turn = ssi.counts_per_rev().wrapping_sub(1);
+    let offset = ssi.commutation_offset.wrapping_shl(u32::from(ssi.align_bits));
+    let mechanical = ssi.single_turn(feedback.encoder_count).wrapping_add(offset) & turn;
+    let electrical = mechanical.wrapping_mul(u32::from(encoder.config().pole_pairs)) & turn;
+    ElectricalAngle(encoder.raw_angle(electrical))
 }
 
 /// Forced alignment (no Halls): d current, ramp and hold times.
@@ -87,6 +104,10 @@ pub enum CommutationMethod {
     Hall,
     /// Without Halls: forced alignment with a d current.
     ForcedAlignment(AlignmentConfig),
+    /// From the SSI absolute encoder alone (0x3000:03 = 0x20, IDX L3780): the single-turn position gives the angle
+    /// at once, exact to one count; the encoder counts are the sensor's position (tier 1 feeds its 16-bit count,
+    /// [`SsiFormat::count16`]).
+    Absolute(SsiFormat),
 }
 
 /// The forced alignment's current demand for one tick: the angle to use and the d current.
@@ -177,6 +198,11 @@ impl Commutation {
                 self.last_sector = Some(sector);
                 self.set_angle_at(self.encoder.electrical_count(), sector.centre_angle(self.hall_offset));
                 self.stage = CommutationStage::HallSector;
+            }
+            CommutationMethod::Absolute(ssi) => {
+                self.last_sector = None;
+                self.set_angle_at(self.encoder.electrical_count(), absolute_angle(&ssi, &self.encoder, feedback));
+                self.stage = CommutationStage::Indexed;
             }
             CommutationMethod::ForcedAlignment(cfg) => {
                 self.last_sector = None;
@@ -415,7 +441,7 @@ mod tests {
     }
 
     fn fb(count: u16, hall: u8, index: Option<u16>) -> FeedbackSample {
-        FeedbackSample { encoder_count: count, index_latch: index, hall, digital_inputs: 0 }
+        FeedbackSample { encoder_count: count, index_latch: index, hall, digital_inputs: 0, ssi_frame: 0 }
     }
 
     /// The drive's order: update with the sample, then start from it.

@@ -137,6 +137,28 @@ impl Encoder {
         delta
     }
 
+    /// Whether `counter` continues the motion of the last update within `tolerance` counts: the step to it differs
+    /// from the last step by at most `tolerance` (no shaft changes its speed by more than a count per period; a
+    /// position from a corrupted absolute-encoder frame jumps). Always true before the first update.
+    #[inline(always)]
+    #[must_use]
+    pub fn continues(&self, counter: u16, tolerance: u32) -> bool {
+        let step = self.counts_between(self.last_counter, counter);
+        !self.synced || step.wrapping_sub(self.last_delta).unsigned_abs() <= tolerance
+    }
+
+    /// Whether the encoder has taken a first value.
+    #[must_use]
+    pub const fn synced(&self) -> bool {
+        self.synced
+    }
+
+    /// The counter value of the last update.
+    #[must_use]
+    pub const fn last_counter(&self) -> u16 {
+        self.last_counter
+    }
+
     /// Multi-turn position in increments (wrapping), relative to where the encoder started.
     #[must_use]
     pub const fn position(&self) -> i32 {

@@ -62,6 +62,7 @@ pub mod chopper;
 pub mod commutation;
 pub mod encoder;
 mod fieldbus;
+pub mod gear_ratio;
 pub mod hall_position;
 pub mod identification;
 pub mod mechanical_identification;
@@ -70,6 +71,7 @@ pub mod protection;
 pub mod regeneration;
 pub mod resonance_identification;
 pub mod scaling;
+pub mod ssi_position;
 pub mod tier1;
 pub mod tuning;
 
@@ -83,11 +85,14 @@ use crate::hal::power::PwmCommand;
 use crate::hal::reset::ResetCause;
 use crate::hal::sto::StoInputs;
 use crate::motion::axis::{Axis, AxisInputs, AxisOutputs, CurrentDemand};
+use crate::motion::dual_loop::{self, LoadFeedback};
+use crate::motion::polarity::Polarity;
 use crate::od::access::Dictionary;
 use crate::od::generated::handles as h;
-use crate::power_state::{CommutationStage, DriveError, PowerState};
+use crate::power_state::{CommutationError, CommutationStage, DriveError, PowerState};
 use crate::sensors::hall::HallSector;
 use crate::sensors::latch::PinLatches;
+use crate::sensors::ssi::SsiFormat;
 use crate::supervision::communication::LinkLoss;
 use crate::supervision::{Supervision, SupervisionInputs};
 
@@ -230,6 +235,8 @@ pub struct Drive {
     last_power_request: crate::cia402::PowerStage,
     /// Output pin levels from tier 2.
     output_pins: u8,
+    /// Tier 1's encoder carries the position (the incremental encoder or the SSI sensor); else the Halls count it.
+    position_from_encoder: bool,
     /// Tier 2: the CiA 402 machine, the modes, the loops and the motion supervision.
     axis: Axis,
     dictionary: Dictionary,
@@ -243,6 +250,8 @@ pub struct Drive {
     gain_source: GainSource,
     /// The hardware detectors (temperatures, position sensors, stall, phases).
     supervision: Supervision,
+    /// The SSI sensor's absolute position across restarts and its whole-frame check.
+    ssi_position: ssi_position::SsiPosition,
     /// The thermal derating's current limit.
     thermal_limit: Amps,
     /// The motor data the demand scale was converted from (`None`: not yet).
@@ -257,6 +266,12 @@ pub struct Drive {
     sto_inputs: StoInputs,
     /// The motor identification procedure (0x6060 = -2).
     auto_setup: auto_setup::AutoSetup,
+    /// 0x6091 and 0x3003 as last reconciled ([`gear_ratio`]).
+    gear_ratio: gear_ratio::GearRatioSeen,
+    /// The load encoder's count read at the start of this slow period ([`Self::set_load_encoder_count`]).
+    load_count: u32,
+    /// The dual loop's main sensor (`motion::dual_loop`), taken with the sensor configuration at switch-on.
+    load_feedback: Option<LoadFeedback>,
 }
 
 impl Drive {
@@ -308,13 +323,19 @@ impl Drive {
             thermal_limit: Amps::from_bits(i32::MAX),
             last_power_request: crate::cia402::PowerStage::OFF,
             output_pins: 0,
+            position_from_encoder: true,
+            ssi_position: ssi_position::SsiPosition::default(),
             bus_limiter: BusVoltageLimiter::default(),
             chopper: BrakingChopper::default(),
             event_warning_shown: false,
             sto_inputs: StoInputs::RELEASED,
             auto_setup: auto_setup::AutoSetup::default(),
+            gear_ratio: gear_ratio::GearRatioSeen::new(&dictionary),
+            load_count: 0,
+            load_feedback: None,
             dictionary,
         };
+        drive.gear_ratio.reconcile(&mut drive.dictionary);
         drive.configure_commutation();
         // The first call converts the motor data, and with it the demand.
         drive.refresh_parameters();
@@ -404,7 +425,12 @@ impl Drive {
         let i_q = match self.source {
             DemandSource::TargetTorque => {
                 let d = &self.dictionary;
-                let (permille, i_q) = self.scale.torque_to_current(d.get(h::TARGET_TORQUE), d.get(h::TORQUE_OFFSET));
+                // CST: target torque and torque offset in the motor's direction (polarity 0x607E bit 6,
+                // `motion::polarity`).
+                let polarity = Polarity::from_0x607e(d.get(h::POLARITY));
+                let (target, offset) =
+                    (polarity.torque(d.get(h::TARGET_TORQUE)), polarity.torque(d.get(h::TORQUE_OFFSET)));
+                let (permille, i_q) = self.scale.torque_to_current(target, offset);
                 self.torque_demand_permille = permille;
                 i_q
             }
@@ -447,6 +473,11 @@ impl Drive {
         }
         self.refresh_parameters();
         self.publish_actual_values();
+        if let CommutationMethod::Absolute(ssi) = self.settings.commutation.method {
+            self.ssi_background(&ssi);
+        }
+        self.gear_ratio.reconcile(&mut self.dictionary);
+        self.update_load_position();
         self.axis.refresh(&mut self.dictionary);
         self.axis.publish_velocity_actual_values(&mut self.dictionary);
         // 0x1015 EMCY inhibit time (CiA 301), taken over when it changes.
@@ -473,6 +504,24 @@ impl Drive {
         // effect").
         self.axis.prepare_motion();
         self.hold_loop_setpoint(before);
+    }
+
+    /// The load encoder's count (sensor 2, 0x3020) for this slow period, read by tier 2 at its start (target:
+    /// `board::load_encoder`, a 32-bit counter; host: the plant's load encoder), before [`Self::background`].
+    pub fn set_load_encoder_count(&mut self, count: u32) {
+        self.load_count = count;
+    }
+
+    /// Publishes 0x60E4:01/02 (the motor and load encoder counts) and, in the dual loop, hands the axis the load
+    /// position in motor increments for this slow period's step.
+    fn update_load_position(&mut self) {
+        let motor = self.report.encoder_position;
+        // `as`: the counter's bits as the INTEGER32 of 0x60E4:02 (it wraps like every position value).
+        let load = self.load_count as i32;
+        self.dictionary.set(h::POSITION_ACTUAL_VALUE_SENSOR_1, motor);
+        self.dictionary.set(h::POSITION_ACTUAL_VALUE_SENSOR_2, load);
+        let main = self.load_feedback.as_mut().map(|f| (f.update(self.load_count, motor), f.fraction()));
+        self.axis.set_main_sensor_position(main);
     }
 
     /// The braking chopper's step on tier 1's last bus sample: its gate for this slow period
@@ -677,11 +726,14 @@ impl Drive {
             Some(DriveError::Protection(t)) => {
                 protection::cause_present(t, r.break_input, r.signals.v_bus.to_millivolts())
             }
-            // Tier 1 keeps sampling the Halls in «Fault»: the invalid state persists while they still read it.
-            Some(DriveError::Commutation(_)) => HallSector::from_state(r.signals.hall).is_err(),
+            // Tier 1 keeps sampling the Halls in «Fault»: the invalid state persists while they still read it. An
+            // SSI frame error is checked again by tier 1 after the reset.
+            Some(DriveError::Commutation(CommutationError::InvalidHallState(_))) => {
+                HallSector::from_state(r.signals.hall).is_err()
+            }
             _ => false,
         };
-        let encoder_present = self.settings.commutation.encoder_present;
+        let encoder_present = self.position_from_encoder;
         let input = AxisInputs {
             encoder_position: if encoder_present { r.encoder_position } else { r.hall_position },
             encoder_window: encoder_present.then_some(r.encoder_window),
@@ -702,6 +754,14 @@ impl Drive {
             self.run_auto_setup();
         }
         self.hold_loop_setpoint(before);
+    }
+
+    /// Publishes the slow tick's positions and velocities in the master's units (0x6062, 0x6064, 0x60F4, 0x606B,
+    /// 0x606C, 0x60BA..0x60BD: polarity 0x607E and the gear, `motion::gear`). Tier 2 runs it right after
+    /// [`Self::slow_tick`], once the set-point is out (`rt::tier2`, the simulation likewise): the conversions stay
+    /// out of the slow tick's budget and a process-data cycle after the period sees the values of its slow tick.
+    pub fn publish_master_values(&mut self) {
+        self.axis.publish_master_values(&mut self.dictionary);
     }
 
     /// Carries out the axis's requests on the power stage. Requests are acted on when they change; outside
@@ -832,11 +892,14 @@ impl Drive {
             }
         }
         let d = &mut self.dictionary;
-        d.set(h::TORQUE_DEMAND_VALUE, self.shown_torque_demand);
+        // The torques as the master sees them (polarity 0x607E bit 6, `motion::polarity`); the currents keep the
+        // motor's sign.
+        let polarity = Polarity::from_0x607e(d.get(h::POLARITY));
+        d.set(h::TORQUE_DEMAND_VALUE, polarity.torque(self.shown_torque_demand));
         let permille = self.scale.current_to_permille(i_q);
         d.set(h::CURRENT_ACTUAL_VALUE_PER_MILLE, permille);
-        d.set(h::TORQUE_ACTUAL_VALUE, permille);
-        d.set(h::TORQUE_ACTUAL_VALUE_AVERAGED, self.scale.current_to_permille(avg));
+        d.set(h::TORQUE_ACTUAL_VALUE, polarity.torque(permille));
+        d.set(h::TORQUE_ACTUAL_VALUE_AVERAGED, polarity.torque(self.scale.current_to_permille(avg)));
         let mv = Volts::from_bits(self.v_bus_average).to_millivolts().max(0);
         d.set(h::DC_LINK_CIRCUIT_VOLTAGE, mv.unsigned_abs());
         d.set(h::POWER_SUPPLY_VOLTAGE, u16::try_from(mv / 100).unwrap_or(u16::MAX));
@@ -903,8 +966,10 @@ impl Drive {
         self.request(|p| p.level = PowerLevel::Off, predicted);
     }
 
-    /// CiA 402 transition 15 "fault reset": back to [`PowerState::Off`].
+    /// CiA 402 transition 15 "fault reset": back to [`PowerState::Off`]. An SSI sensor's absolute position takes
+    /// its base again from the next report (tier 1's count may have jumped while the sensor was out).
     pub fn fault_reset(&mut self) {
+        self.ssi_position.restart(self.settings.version);
         let predicted = match self.state() {
             PowerState::Fault(_) => PowerState::Off,
             other => other,
@@ -937,19 +1002,37 @@ impl Drive {
     /// settings; tier 1 rebuilds its commutation when they changed and keeps the encoder's position otherwise.
     fn configure_commutation(&mut self) {
         let d = &self.dictionary;
-        let encoder =
+        let mut encoder =
             EncoderConfig::from_od(d.get(h::ENCODER_PULSES), d.get(h::ENCODER_TYPE), d.get(h::MOTOR_POLE_PAIRS));
         // 0x3000:01 (rw, saved, power-disabled; the dictionary accepts only the combinations below): bits 23..16
-        // sensor 3 type, 4 = digital Hall sensor; bits 7..0 sensor 1, 1 = incremental encoder. Encoder + Halls:
-        // Hall start, encoder position; encoder only: forced alignment at enable; Halls only: Hall commutation and
-        // the Halls count the position (device.toml).
+        // sensor 3 type, 4 = digital Hall sensor; bits 15..8 sensor 2, 3 = SSI; bits 7..0 sensor 1, 1 = incremental
+        // encoder. Encoder + Halls: Hall start, encoder position; encoder only: forced alignment at enable; Halls
+        // only: Hall commutation and the Halls count the position; SSI only: the absolute angle commutates from the
+        // start and the SSI position is the main position (device.toml).
         let sensors = d.get(h::SENSORS_CONFIGURATION);
         let encoder_present = sensor_1_is_encoder(sensors);
-        let method = if sensor_3_is_hall(sensors) {
+        let method = if sensor_2_is_ssi(sensors) {
+            match self.ssi_format() {
+                Some(ssi) => {
+                    encoder = EncoderConfig {
+                        counts_per_rev: ssi.counts_per_rev(),
+                        pole_pairs: encoder.pole_pairs,
+                        inverted: ssi.inverted,
+                        has_index: false,
+                    };
+                    CommutationMethod::Absolute(ssi)
+                }
+                None => {
+                    self.ssi_format_unreadable();
+                    return;
+                }
+            }
+        } else if sensor_3_is_hall(sensors) {
             CommutationMethod::Hall
         } else {
             CommutationMethod::ForcedAlignment(self.config.alignment)
         };
+        let d = &self.dictionary;
         let commutation = CommutationSettings {
             method,
             encoder,
@@ -962,18 +1045,113 @@ impl Drive {
             hall_mask: if d.get(h::HALL_CONFIGURATION) & 1 != 0 { 0b111 } else { 0 },
             encoder_present,
         };
-        if encoder_present != self.settings.commutation.encoder_present {
+        let position_from_encoder = encoder_present || matches!(method, CommutationMethod::Absolute(_));
+        if position_from_encoder != self.position_from_encoder {
             self.axis.position_sensor_changed();
         }
+        self.position_from_encoder = position_from_encoder;
+        // The dual loop's main sensor (0x3000:02, 0x3020, 0x3003): a valid configuration is all the dictionary
+        // holds (`Drive::sdo_write` refuses the others); the conversion restarts from the motor position.
+        let scale = dual_loop::configuration(&self.dictionary).ok().flatten();
+        if scale != self.load_feedback.map(|f| f.scale()) {
+            self.load_feedback = scale.map(LoadFeedback::new);
+            self.axis.set_load_scale(scale);
+        }
         self.change_settings(|s| s.commutation = commutation);
+        // Tier 1 may build its commutation again with these settings (its position restarting at 0): the SSI
+        // position's base is taken again from the first report of them (the same value when it did not).
+        self.ssi_position.restart(self.settings.version);
         self.sync_sensor_objects();
+    }
+
+    /// IDX 0x7390 "missing main sensor: adapt the axis configuration": the configured SSI sensor's format (0x3012)
+    /// cannot be read. The commutation in force stays (the fault keeps the power off).
+    #[cold]
+    #[inline(never)]
+    fn ssi_format_unreadable(&mut self) {
+        let detail = self.dictionary.get::<u32>(h::SSI_DATA_BITS).cast_signed();
+        self.raise(FaultId::MissingMainSensor, detail);
+    }
+
+    /// The SSI format of 0x3012, or `None` when it is not one the drive reads.
+    fn ssi_format(&self) -> Option<SsiFormat> {
+        let d = &self.dictionary;
+        SsiFormat::from_od(
+            d.get(h::SSI_DATA_BITS),
+            d.get(h::SSI_ENCODING),
+            d.get(h::SSI_POSITION_BITS),
+            d.get(h::SSI_COMMUTATION_OFFSET),
+        )
+        .ok()
+    }
+
+    /// The board's SSI port for the configuration the drive starts with: the clocked bits per frame and the data
+    /// rate 0x3012:01; `None` without an SSI sensor.
+    #[must_use]
+    pub fn ssi_port(&self) -> Option<(u8, u32)> {
+        match self.settings.commutation.method {
+            CommutationMethod::Absolute(ssi) => {
+                Some((ssi.frame_bits, u32::from(self.dictionary.get(h::SSI_DATA_RATE))))
+            }
+            _ => None,
+        }
+    }
+
+    /// The background's SSI step ([`ssi_position`]): the raw-value objects of the reported frame, the absolute
+    /// position's base once per commutation (the axis's offset becomes base + 0x3012:0E), the whole-frame check,
+    /// and 0x3012:0E kept equal to what homing or a master made the offset.
+    #[cold]
+    #[inline(never)]
+    fn ssi_background(&mut self, ssi: &SsiFormat) {
+        let r = &self.report;
+        let frame = r.ssi_frame;
+        let faulted = matches!(r.power, PowerState::Fault(_));
+        let verdict = self.ssi_position.report(ssi, frame, r.encoder_position, r.settings_version, faulted);
+        if verdict != ssi_position::FrameVerdict::Ignored {
+            let d = &mut self.dictionary;
+            d.set(h::SSI_POSITION_RAW, ssi.position(frame));
+            // At most 16 special bits (`SsiFormat::from_od`): the conversion is exact.
+            d.set(h::SSI_SPECIAL_BITS, ssi.special(frame) as u16);
+        }
+        let saved: i32 = self.dictionary.get(h::SSI_POSITION_OFFSET);
+        match verdict {
+            ssi_position::FrameVerdict::Established { base } => {
+                self.axis.set_position_offset(base.wrapping_add(saved));
+                self.ssi_position.set_offset_applied(saved);
+                return;
+            }
+            ssi_position::FrameVerdict::Inconsistent(difference) => {
+                self.raise(FaultId::SsiFrame, difference);
+                return;
+            }
+            ssi_position::FrameVerdict::Consistent | ssi_position::FrameVerdict::Ignored => {}
+        }
+        let Some(base) = self.ssi_position.base() else { return };
+        if saved != self.ssi_position.offset_applied() {
+            // A master wrote 0x3012:0E: the position follows it.
+            self.axis.set_position_offset(base.wrapping_add(saved));
+            self.ssi_position.set_offset_applied(saved);
+        } else {
+            // Homing moved the offset: 0x3012:0E keeps what 0x1010 is to save.
+            let homed = self.axis.position_offset().wrapping_sub(base);
+            if homed != saved {
+                self.dictionary.set(h::SSI_POSITION_OFFSET, homed);
+                self.ssi_position.set_offset_applied(homed);
+            }
+        }
     }
 
     /// Writes the objects derived from 0x3000:01 and the encoder: 0x3000:03 (commutation sensors: bits 7..4 = 3
     /// with the Halls, bits 3..0 = 1 with the encoder) and 0x3000:05 (below).
     pub(crate) fn sync_sensor_objects(&mut self) {
         let sensors = self.dictionary.get(h::SENSORS_CONFIGURATION);
-        let absolute = if sensor_3_is_hall(sensors) { 0x30 } else { 0 };
+        let absolute = if sensor_3_is_hall(sensors) {
+            0x30
+        } else if sensor_2_is_ssi(sensors) {
+            0x20
+        } else {
+            0
+        };
         let relative = u32::from(sensor_1_is_encoder(sensors));
         self.dictionary.set(h::COMMUTATION_SENSORS, absolute | relative);
         self.sync_main_sensor_resolution();
@@ -988,8 +1166,12 @@ impl Drive {
     fn sync_main_sensor_resolution(&mut self) {
         let d = &self.dictionary;
         let pole_pairs = d.get(h::MOTOR_POLE_PAIRS);
-        let counts = if sensor_1_is_encoder(d.get(h::SENSORS_CONFIGURATION)) {
+        let sensors = d.get(h::SENSORS_CONFIGURATION);
+        let counts = if sensor_1_is_encoder(sensors) {
             EncoderConfig::from_od(d.get(h::ENCODER_PULSES), 0, pole_pairs).counts_per_rev
+        } else if sensor_2_is_ssi(sensors) {
+            // The SSI position's increments per revolution as tier 1 counts them (2^single-turn position bits).
+            self.ssi_format().map_or(0, |ssi| ssi.counts_per_rev())
         } else {
             u32::from(pole_pairs.max(1)).saturating_mul(6)
         };
@@ -1067,6 +1249,11 @@ impl Drive {
 /// 0x3000:01 bits 7..0, sensor 1 type: 1 = digital incremental encoder (0x3010).
 const fn sensor_1_is_encoder(sensors: u32) -> bool {
     sensors & 0xFF == 1
+}
+
+/// 0x3000:01 bits 15..8, sensor 2 type: 3 = SSI absolute encoder (0x3012, IDX L3780).
+const fn sensor_2_is_ssi(sensors: u32) -> bool {
+    (sensors >> 8) & 0xFF == 3
 }
 
 /// 0x3000:01 bits 23..16, sensor 3 type: 4 = digital Hall sensor (0x301A).

@@ -37,6 +37,7 @@ use crate::hal::flash::NorFlash;
 use crate::od::abort::SdoAbort;
 use crate::od::access::{AccessContext, ApplicationObjects, Dictionary, NoApplicationObjects, ReadOutcome, Table};
 use crate::od::entry::Entry;
+use crate::od::generated::handles as h;
 use crate::od::store::{
     LoadReport, ParamStore, Selection, StoreError, StoreObjects, RESTORE_DEFAULT_PARAMETERS, STORE_PARAMETERS,
 };
@@ -220,12 +221,27 @@ impl Drive {
         ctx: AccessContext,
         store: &mut ParamStore<F>,
     ) -> Result<(), SdoAbort> {
+        let before = DualLoopObjects::read(&self.dictionary);
+        let was_valid = crate::motion::dual_loop::configuration(&self.dictionary).is_ok();
         let mut objects = self.objects(store);
         self.dictionary.write(index, sub, data, ctx, &mut objects)?;
         // 0x3000:05 is derived from 0x3010:01 and 0x3000:01, 0x3000:03 from 0x3000:01 (a write of them, or a
         // 0x1011 restore / 0x1010 reload replacing them): they follow at once, so the velocity and acceleration
         // units of the next slow tick use the new resolution, not only after the next switch-on.
         self.sync_sensor_objects();
+        // 0x6091 and 0x3003 (and bit 12 of 0x3000:02) show one gear at once, not only after the next background step.
+        self.gear_ratio.reconcile(&mut self.dictionary);
+        // The dual loop's configuration is checked as a whole (`motion::dual_loop`): a write that leaves it without
+        // its load encoder or with the gear scaling factor out of range is taken back, 0x0604_0043 (CiA 301
+        // §7.2.4.3.17 Table 22, general parameter incompatibility). (A dictionary that was already invalid, from a
+        // parameter record of another configuration, is not held against unrelated writes; the drive then runs
+        // without the dual loop.)
+        if was_valid && crate::motion::dual_loop::configuration(&self.dictionary).is_err() {
+            before.restore(&mut self.dictionary);
+            self.sync_sensor_objects();
+            self.gear_ratio.reconcile(&mut self.dictionary);
+            return Err(SdoAbort::ParameterIncompatibility);
+        }
         Ok(())
     }
 }
@@ -318,5 +334,35 @@ impl<F: NorFlash, P: ApplicationObjects> ApplicationObjects for DriveObjects<'_,
 
     fn reload_communication(&mut self, values: &mut [u8]) {
         self.store_objects().reload_communication(values);
+    }
+}
+
+/// The objects the dual loop's configuration depends on (`motion::dual_loop::configuration`), to take a refused
+/// write back.
+#[derive(Clone, Copy, Debug)]
+struct DualLoopObjects {
+    words: [u32; 6],
+    pole_pairs: u8,
+}
+
+impl DualLoopObjects {
+    const HANDLES: [crate::od::entry::Handle<u32>; 6] = [
+        h::SENSORS_CONFIGURATION,
+        h::CONTROL_STRUCTURE,
+        h::GEAR_REDUCTION_NUMERATOR,
+        h::GEAR_REDUCTION_DENOMINATOR,
+        h::LOAD_ENCODER_PULSES,
+        h::ENCODER_PULSES,
+    ];
+
+    fn read(d: &Dictionary) -> Self {
+        Self { words: Self::HANDLES.map(|handle| d.get(handle)), pole_pairs: d.get(h::MOTOR_POLE_PAIRS) }
+    }
+
+    fn restore(&self, d: &mut Dictionary) {
+        for (handle, value) in Self::HANDLES.iter().zip(self.words) {
+            d.set(*handle, value);
+        }
+        d.set(h::MOTOR_POLE_PAIRS, self.pole_pairs);
     }
 }

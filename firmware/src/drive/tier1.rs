@@ -10,7 +10,7 @@
 
 use super::blocks::{PowerLevel, SetPoint, Settings, Tier1Report, SETPOINT_WORDS};
 use super::calibration::{Calibration, CalibrationConfig, CalibrationStatus, CALIBRATION_COMMAND};
-use super::commutation::Commutation;
+use super::commutation::{Commutation, CommutationMethod};
 use super::hall_position::HallPosition;
 use super::protection::Limits;
 use super::scaling::{self, ShuntOffsets};
@@ -22,8 +22,16 @@ use crate::control::transforms::{clarke, inverse_park, park};
 use crate::control::trig::sin_cos;
 use crate::control::velocity_estimate::PositionSum;
 use crate::hal::power::{FeedbackSample, Measurements, PwmCommand, SLOW_TICK_DIVIDER};
-use crate::power_state::{CommutationStage, DriveError, PowerState, Trip};
+use crate::power_state::{CommutationError, CommutationStage, DriveError, PowerState, Trip};
 use crate::sensors::latch::PinLatches;
+use crate::sensors::ssi::{SsiError, SsiFormat};
+
+/// Increments an SSI position may differ from the motion's continuation in one period (the step to it against
+/// the step before): two for the quantisation of the two steps and one for acceleration, which no drive reaches in
+/// one 40 us period (150,000 rpm/s is 0.016 increments per period squared at 4,096 increments per revolution).
+/// A corrupted frame that passes the frame check can move the angle by no more than this (1.8 degrees electrical
+/// at 12 single-turn bits and 7 pole pairs).
+pub const SSI_JUMP_TOLERANCE: u32 = 3;
 
 /// Tier 1's state (module documentation).
 #[derive(Clone, Debug)]
@@ -61,6 +69,8 @@ pub struct Tier1State {
     settings: Settings,
     /// The identification's q square wave ([`PowerLevel::InjectSquareQ`]).
     square: SquareWave,
+    /// The SSI frame of the last period (reported to tier 2).
+    ssi_frame: u32,
 }
 
 /// Tier 1's q-axis square wave for the identification's Lq (`super::identification`, step 3): +A for two periods,
@@ -113,6 +123,7 @@ impl Tier1State {
             q_sums: [0; 2],
             settings: *settings,
             square: SquareWave::default(),
+            ssi_frame: 0,
         };
         t1.commutation.set_hall_only(!c.encoder_present);
         t1
@@ -245,6 +256,7 @@ impl Tier1State {
             index_offset: self.commutation.index_offset(),
             offsets: self.offsets,
             q_sums: self.q_sums,
+            ssi_frame: self.ssi_frame,
         }
     }
 
@@ -270,11 +282,19 @@ impl Tier1State {
         // 2. Scaling and the position sensors (the encoder is tracked in every state).
         let mut feedback = FeedbackSample { hall: m.feedback.hall ^ self.settings.commutation.hall_mask, ..m.feedback };
         if !self.settings.commutation.encoder_present {
-            // No encoder configured: the Halls count the position, whatever the counter input shows is ignored,
-            // and the angle comes from the Halls.
-            self.hall_position.update(feedback.hall);
-            feedback.encoder_count = 0;
+            // No incremental encoder configured: whatever the counter input shows is ignored. The SSI sensor gives
+            // the position (its frame's 16-bit count stands in for the counter), or the Halls count it and give the
+            // angle.
             feedback.index_latch = None;
+            feedback.encoder_count = if let CommutationMethod::Absolute(ssi) = self.commutation.method() {
+                match self.ssi_count(&ssi, feedback.ssi_frame) {
+                    Ok(count) => count,
+                    Err(e) => return self.trip(DriveError::Commutation(e)),
+                }
+            } else {
+                self.hall_position.update(feedback.hall);
+                0
+            };
         }
         self.signals.v_bus = v_bus;
         self.signals.hall = feedback.hall;
@@ -320,6 +340,32 @@ impl Tier1State {
             },
             PowerState::Off | PowerState::SwitchedOn => PwmCommand::OFF,
         }
+    }
+
+    /// The 16-bit count of an SSI frame, checked before it reaches the angle: the frame's start and stop bits and
+    /// its constant-line test ([`SsiFormat::check`]), then the count must continue the motion within
+    /// [`SSI_JUMP_TOLERANCE`] increments (a flipped data bit that passes the frame check moves the position by
+    /// a jump no shaft makes in one period). A frame that fails is never used: the outputs go off, the frame is
+    /// kept for the report. In «Fault» (outputs off, the first cause kept) a frame that passes the frame check is
+    /// taken as it is, jump or not, so that the count follows the shaft again once the sensor is back (tier 2
+    /// takes the absolute position's base again at the fault reset); a failing one leaves the count where it was.
+    #[inline(never)]
+    fn ssi_count(&mut self, ssi: &SsiFormat, frame: u32) -> Result<u16, CommutationError> {
+        self.ssi_frame = frame;
+        let encoder = self.commutation.encoder();
+        let count = ssi.count16(frame);
+        let checked = ssi.check(frame);
+        if matches!(self.state, PowerState::Fault(_)) {
+            return Ok(if checked.is_ok() { count } else { encoder.last_counter() });
+        }
+        let tolerance = SSI_JUMP_TOLERANCE << ssi.align_bits;
+        Err(match checked {
+            Ok(()) if encoder.continues(count, tolerance) => return Ok(count),
+            Ok(()) => CommutationError::SsiFrame,
+            Err(_) if !encoder.synced() => CommutationError::SsiMissing,
+            Err(SsiError::NoData) => CommutationError::SsiNoData,
+            Err(SsiError::Frame) => CommutationError::SsiFrame,
+        })
     }
 
     /// Operation enabled: commutation start or alignment, reference, FOC step.

@@ -248,7 +248,7 @@ fn compile_image<const N: usize>(d: &Dictionary<N>, direction: Direction) -> Res
 mod tests {
     use super::*;
     use crate::od::access::{AccessContext, NoApplicationObjects, Table};
-    use crate::od::entry::{Access, ConstRef, DataType, Entry, Limits, Name, PdoMapping, Storage, WriteCondition};
+    use crate::od::entry::{Access, ConstRef, DataType, Entry, LimitsRef, Name, PdoMapping, Storage, WriteCondition};
     use crate::od::values::Values;
 
     const fn entry(index: u16, sub: u8, data_type: DataType, pdo: PdoMapping, storage: Storage) -> Entry {
@@ -261,14 +261,13 @@ mod tests {
             pdo,
             persistent: false,
             write_condition: WriteCondition::Always,
-            limits: &Limits::None,
+            limits: LimitsRef::NONE,
             storage,
-            node_id_relative: false,
         }
     }
 
     const fn ram(offset: u16, len: u16) -> Storage {
-        Storage::Ram { offset, len }
+        Storage::Ram { offset, len, node_id_relative: false }
     }
 
     // A small table with BOOLEANs (which the drive's dictionary does not map) to prove bit-level mapping.

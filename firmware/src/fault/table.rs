@@ -260,10 +260,18 @@ pub enum FaultId {
     AutoTuningMaxSpeed = 44,
     /// Motor identification: the mechanical step's samples gave no physical plant (IDX 0xFF15).
     AutoTuningSampleMismatch = 45,
+    /// The SSI absolute encoder sent no data (clock stuck, sensor unpowered or disconnected; IDX 0x738C).
+    SsiSensor = 46,
+    /// An SSI frame failed its check: start or stop bit, or a position jump no motion explains (IDX 0x738D).
+    SsiFrame = 47,
+    /// The configured main sensor cannot be used (the SSI format in 0x3012 is not one the drive reads; IDX 0x7390).
+    MissingMainSensor = 48,
+    /// The configured commutation sensor never answered (no valid SSI frame since the start; IDX 0x7391).
+    MissingCommutationSensor = 49,
 }
 
 /// Number of rows in [`FAULT_TABLE`].
-pub const FAULT_COUNT: usize = 46;
+pub const FAULT_COUNT: usize = 50;
 
 /// One row of the fault table.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -342,6 +350,10 @@ impl FaultId {
         Self::AutoTuningTorqueInvalid,
         Self::AutoTuningMaxSpeed,
         Self::AutoTuningSampleMismatch,
+        Self::SsiSensor,
+        Self::SsiFrame,
+        Self::MissingMainSensor,
+        Self::MissingCommutationSensor,
     ];
 
     /// The stable fault number (the table row; EMCY manufacturer byte 3).
@@ -935,5 +947,49 @@ pub static FAULT_TABLE: [FaultInfo; FAULT_COUNT] = [
         S::Detail,
         "Auto tuning sample mismatch error",
         "IDX L7103, L7538 (7.2.54)",
+    ),
+    row(
+        FaultId::SsiSensor,
+        0x738C,
+        REG_GENERIC | REG_PROFILE,
+        D,
+        Event,
+        Tier::CurrentLoop,
+        S::Position,
+        "SSI sensor error",
+        "IDX L7066, L7276 (7.2.21)",
+    ),
+    row(
+        FaultId::SsiFrame,
+        0x738D,
+        REG_GENERIC | REG_PROFILE,
+        D,
+        Event,
+        Tier::CurrentLoop,
+        S::Position,
+        "SSI sensor frame error",
+        "IDX L7067, L7284 (7.2.22)",
+    ),
+    row(
+        FaultId::MissingMainSensor,
+        0x7390,
+        REG_GENERIC | REG_PROFILE,
+        D,
+        Event,
+        Tier::Supervision,
+        S::Detail,
+        "Missing main sensor error",
+        "IDX L7068, L7292 (7.2.23)",
+    ),
+    row(
+        FaultId::MissingCommutationSensor,
+        0x7391,
+        REG_GENERIC | REG_PROFILE,
+        D,
+        Event,
+        Tier::CurrentLoop,
+        S::Detail,
+        "Missing commutation sensor error",
+        "IDX L7069, L7300 (7.2.24)",
     ),
 ];

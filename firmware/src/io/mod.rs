@@ -94,6 +94,11 @@ impl Io {
         state
     }
 
+    /// Publishes the touch probes' latched positions in the master's units (after the slow tick).
+    pub fn publish_probe_positions(&self, units: &crate::motion::gear::UserUnits, d: &mut Dictionary) {
+        self.touch_probes.publish_positions(units, d);
+    }
+
     /// The output half of [`Io::step`]: the output pins for the brake request and `ready`. The axis runs it after
     /// the machine, so the brake pin changes in the step the machine asks for it (the brake delays 0x3158 are
     /// counted from there).
@@ -152,8 +157,12 @@ mod rig {
             rig
         }
 
+        /// One slow tick, with the probes' positions published after it as the axis does.
         pub fn tick(&mut self) -> IoState {
-            self.io.step(&self.pins, self.offset, self.brake, self.ready, &mut self.d)
+            let state = self.io.step(&self.pins, self.offset, self.brake, self.ready, &mut self.d);
+            let units = crate::motion::gear::UserUnits::from_dictionary(&self.d);
+            self.io.publish_probe_positions(&units, &mut self.d);
+            state
         }
 
         /// Drives input `input` (0-based) to `high` at raw encoder position `position`.

@@ -27,7 +27,7 @@
 //!   probe latches the last one rather than the first.
 //! * Homing clears all probe states and positions (IDX L6362): [`TouchProbes::clear`].
 
-use crate::motion::polarity::Polarity;
+use crate::motion::gear::UserUnits;
 use crate::od::access::Dictionary;
 use crate::od::generated::handles as h;
 use crate::sensors::latch::{PinLatches, DIGITAL_INPUTS};
@@ -284,6 +284,26 @@ impl TouchProbes {
             p.negative_counter = 0;
         }
         self.publish(d);
+        // Zero is zero in any units.
+        for handle in [
+            h::TOUCH_PROBE_1_POSITIVE_VALUE,
+            h::TOUCH_PROBE_1_NEGATIVE_VALUE,
+            h::TOUCH_PROBE_2_POSITIVE_VALUE,
+            h::TOUCH_PROBE_2_NEGATIVE_VALUE,
+        ] {
+            d.set(handle, 0);
+        }
+    }
+
+    /// Publishes the latched positions in the master's units (polarity 0x607E bit 7 and the gear,
+    /// [`crate::motion::gear`]: they are positions like 0x6064). Run after the slow tick with the other master
+    /// positions, outside its budget.
+    pub fn publish_positions(&self, units: &UserUnits, d: &mut Dictionary) {
+        let [p1, p2] = &self.probes;
+        d.set(h::TOUCH_PROBE_1_POSITIVE_VALUE, units.position_to_master(p1.positive_value));
+        d.set(h::TOUCH_PROBE_1_NEGATIVE_VALUE, units.position_to_master(p1.negative_value));
+        d.set(h::TOUCH_PROBE_2_POSITIVE_VALUE, units.position_to_master(p2.positive_value));
+        d.set(h::TOUCH_PROBE_2_NEGATIVE_VALUE, units.position_to_master(p2.negative_value));
     }
 
     /// 0x60B9 as the probes see it now.
@@ -293,16 +313,11 @@ impl TouchProbes {
         u16::from_le_bytes([p1.status, p2.status])
     }
 
-    /// Publishes the probes; the positions in the master's coordinates (position polarity 0x607E bit 7,
-    /// [`crate::motion::polarity`]: they are positions like 0x6064).
+    /// Publishes the probes' status and counters (the slow tick); their positions follow in
+    /// [`Self::publish_positions`], after the slow tick.
     fn publish(&self, d: &mut Dictionary) {
         let [p1, p2] = &self.probes;
-        let polarity = Polarity::from_0x607e(d.get(h::POLARITY));
         d.set(h::TOUCH_PROBE_STATUS, self.status());
-        d.set(h::TOUCH_PROBE_1_POSITIVE_VALUE, polarity.position(p1.positive_value));
-        d.set(h::TOUCH_PROBE_1_NEGATIVE_VALUE, polarity.position(p1.negative_value));
-        d.set(h::TOUCH_PROBE_2_POSITIVE_VALUE, polarity.position(p2.positive_value));
-        d.set(h::TOUCH_PROBE_2_NEGATIVE_VALUE, polarity.position(p2.negative_value));
         d.set(h::TOUCH_PROBE_1_POSITIVE_COUNTER, p1.positive_counter);
         d.set(h::TOUCH_PROBE_1_NEGATIVE_COUNTER, p1.negative_counter);
         d.set(h::TOUCH_PROBE_2_POSITIVE_COUNTER, p2.positive_counter);

@@ -142,6 +142,8 @@ pub struct Axis {
     now: Ticks,
     /// Position actual value minus encoder position (set by homing).
     offset: i32,
+    /// The dual loop's main sensor: the load position in motor increments ([`Self::set_main_sensor_position`]).
+    main_sensor: Option<i32>,
     activity: Activity,
     /// The demand of the last step (for continuity across mode changes and stops).
     last_setpoint: Setpoint,
@@ -173,6 +175,8 @@ pub struct Axis {
     i2t_current_limit_ma: u32,
     /// The auto setup finished successfully (statusword bit 12 in 0x6060 = -2, PD4-E "aligned").
     auto_setup_done: bool,
+    /// The last step's position demand, position and velocity, for [`Axis::publish_master_values`].
+    shown: (i32, i32, Velocity),
 }
 
 impl Axis {
@@ -203,8 +207,10 @@ impl Axis {
             remote: false,
             drive_fault_seen: false,
             auto_setup_done: false,
+            shown: (0, 0, Velocity::ZERO),
             previous_controlword: Controlword(0),
             last_position: 0,
+            main_sensor: None,
             limit_seen: [false; 2],
             i2t: MotorI2t::new(),
             velocity_average: Velocity::ZERO,
@@ -236,19 +242,27 @@ impl Axis {
     }
 
     /// A master set-point arrived (SYNC, SM2 event): latches 0x607A, 0x60FF, 0x6071 and the offsets for the
-    /// cyclic modes' interpolation, in the axis's direction (polarity 0x607E: positions by bit 7, the target
-    /// velocity by bit 6, the velocity offset by the bit of the mode 0x6060 asks for, [`super::polarity`]).
+    /// cyclic modes' interpolation, in the axis's units (polarity 0x607E: positions by bit 7, the target velocity by
+    /// bit 6, the velocity and torque offsets by the bit of the mode 0x6060 asks for, [`super::polarity`]; the gear:
+    /// load increments to motor increments, load rpm through the geared scale, [`super::gear`]).
     pub fn setpoint_received(&mut self, d: &Dictionary) {
-        let (scale, polarity) = (&self.params.scale, self.params.polarity);
+        let (scale, units) = (&self.params.scale, &self.params.units);
+        let polarity = units.polarity;
+        let torque = units.torque_polarity;
         let position_mode = d.get(h::MODES_OF_OPERATION) == Mode::CyclicSyncPosition.code();
+        let (target_position, position_offset) = if units.positions_unchanged() {
+            (d.get(h::TARGET_POSITION), d.get(h::POSITION_OFFSET))
+        } else {
+            (units.position_to_axis(d.get(h::TARGET_POSITION)), units.position_to_axis(d.get(h::POSITION_OFFSET)))
+        };
         self.cyclic.push(CyclicSetpoint {
-            target_position: polarity.position(d.get(h::TARGET_POSITION)),
+            target_position,
             target_velocity: scale.velocity_from_rpm(polarity.velocity_rpm(d.get(h::TARGET_VELOCITY))),
-            target_torque: d.get(h::TARGET_TORQUE),
-            position_offset: polarity.position(d.get(h::POSITION_OFFSET)),
+            target_torque: torque.torque(d.get(h::TARGET_TORQUE)),
+            position_offset,
             velocity_offset: scale
                 .velocity_from_rpm(polarity.velocity_offset_rpm(d.get(h::VELOCITY_OFFSET), position_mode)),
-            torque_offset: d.get(h::TORQUE_OFFSET),
+            torque_offset: torque.torque_offset(d.get(h::TORQUE_OFFSET), position_mode),
         });
     }
 
@@ -281,10 +295,32 @@ impl Axis {
         &self.last_setpoint
     }
 
+    /// The dual loop's main sensor for the next step: the load position in motor increments (the coordinates of
+    /// the encoder position, `motion::dual_loop`) with its fraction of an increment (`U0F16`, for the main loop),
+    /// or `None` when the motor encoder is the main sensor. Set by the drive's background step before the step of
+    /// the same slow period (both see the same tier-1 report).
+    pub fn set_main_sensor_position(&mut self, load: Option<(i32, u16)>) {
+        self.main_sensor = load.map(|(position, _)| position);
+        self.loops.set_dual_loop(load.is_some(), load.map_or(0, |(_, fraction)| fraction));
+    }
+
+    /// The dual loop's load scale, taken with the sensor configuration at switch-on (`motion::dual_loop`).
+    pub fn set_load_scale(&mut self, scale: Option<super::dual_loop::LoadScale>) {
+        self.loops.set_load_scale(scale);
+        self.params.set_main_sensor(scale);
+    }
+
     /// Position actual value minus the encoder position.
     #[must_use]
     pub const fn position_offset(&self) -> i32 {
         self.offset
+    }
+
+    /// Sets the position offset (position actual value minus the encoder position): an absolute sensor's offset
+    /// after a restart (`crate::drive::ssi_position`). The velocity estimate restarts from the next position.
+    pub fn set_position_offset(&mut self, offset: i32) {
+        self.offset = offset;
+        self.loops.restart_estimate();
     }
 
     /// Slow ticks since start-up.
@@ -298,9 +334,14 @@ impl Axis {
         self.now = Ticks(self.now.0.wrapping_add(1));
         let now = self.now;
 
-        // 2. Feedback.
-        let position = input.encoder_position.wrapping_add(self.offset);
-        let velocity = velocity_of(self.loops.estimate(position, input.encoder_window, input.current));
+        // 2. Feedback: the velocity from the motor encoder; the position from the main sensor, the load encoder in
+        // the dual loop (EPOS4 AN ch. 10), else the motor encoder.
+        let motor = input.encoder_position.wrapping_add(self.offset);
+        let velocity = velocity_of(self.loops.estimate(motor, input.encoder_window, input.current));
+        let position = match self.main_sensor {
+            Some(load) => load.wrapping_add(self.offset),
+            None => motor,
+        };
 
         // 3. Inputs (the outputs follow the machine, below).
         let inputs = self.io.inputs(input.pins, self.offset, d);
@@ -437,6 +478,32 @@ impl Axis {
         d.set(h::VELOCITY_ACTUAL_VALUE_AVERAGED, polarity.shown_velocity(self.params.rpm(self.velocity_average)));
     }
 
+    /// Publishes the last step's positions and velocities in the master's units: 0x6062, 0x6064, 0x60F4 and the
+    /// touch-probe positions through the polarity 0x607E and the gear (load increments, [`super::gear`]), 0x606B
+    /// and 0x606C through the polarity and the geared scale (load rpm). The drive runs it after each step, once
+    /// the step's set-point is out, in the same tier-2 period: the conversions (two exact multiplications each with
+    /// a gear) are outside the step's time budget, and a process-data cycle after the period sees this step's
+    /// values as before.
+    #[inline(never)]
+    pub fn publish_master_values(&self, d: &mut Dictionary) {
+        let (demand, position, velocity) = self.shown;
+        let units = &self.params.units;
+        d.set(h::POSITION_DEMAND_VALUE, units.position_to_master(demand));
+        d.set(h::POSITION_ACTUAL_VALUE, units.position_to_master(position));
+        // The following error as the difference of the two master positions: with a gear it is then exactly what
+        // the master computes from 0x6062 and 0x6064.
+        let error = if units.positions_unchanged() {
+            demand.wrapping_sub(position)
+        } else {
+            units.position_to_master(demand).wrapping_sub(units.position_to_master(position))
+        };
+        d.set(h::FOLLOWING_ERROR_ACTUAL_VALUE, error);
+        let polarity = units.polarity;
+        d.set(h::VELOCITY_DEMAND_VALUE, polarity.shown_velocity(self.params.rpm(self.last_setpoint.velocity)));
+        d.set(h::VELOCITY_ACTUAL_VALUE, polarity.shown_velocity(self.params.rpm(velocity)));
+        self.io.publish_probe_positions(units, d);
+    }
+
     /// Plans the profile move, velocity command or buffered move the next step takes into force
     /// ([`ProfileGenerator::prepare`]); the drive runs it before each step, outside the step's time budget.
     pub fn prepare_motion(&mut self) {
@@ -448,7 +515,10 @@ impl Axis {
     pub fn refresh(&mut self, d: &mut Dictionary) {
         self.params.refresh(d);
         self.loops.refresh(d);
-        self.monitor.refresh(d);
+        if let Some(max_system_speed) = self.monitor.refresh(d, &self.params.scale, &self.params.units) {
+            // 0x3000:06 (read-only, the drive its single writer): the speed limit at the load.
+            d.set(h::MAX_SYSTEM_SPEED, max_system_speed);
+        }
         self.refresh_machine_config(d);
         let i2t = (
             d.get(h::MOTOR_NOMINAL_CURRENT),
@@ -688,7 +758,7 @@ impl Axis {
         };
         let step = match mode {
             Mode::ProfilePosition => {
-                let (target, clamped) = self.monitor.clamp_position(p.polarity.position(d.get(h::TARGET_POSITION)));
+                let (target, clamped) = self.monitor.clamp_position(p.targets.position);
                 self.internal_limit = clamped;
                 let input = PpmInput {
                     controlword: cw,
@@ -702,7 +772,7 @@ impl Axis {
             Mode::ProfileVelocity => {
                 let input = PvmInput {
                     controlword: cw,
-                    target_velocity: p.scale.velocity_from_rpm(p.polarity.velocity_rpm(d.get(h::TARGET_VELOCITY))),
+                    target_velocity: p.targets.velocity,
                     params: p.profile,
                     halt_deceleration,
                     windows: p.windows,
@@ -713,17 +783,15 @@ impl Axis {
                 step
             }
             Mode::Homing => {
-                let limit = d.get(h::HOMING_SEARCH_DISTANCE_LIMIT);
+                let limit = p.targets.search_distance_limit;
                 let input = HomingInput {
                     controlword: cw,
                     method: d.get(h::HOMING_METHOD),
                     switch_search_speed: p.homing_switch_speed,
                     zero_search_speed: p.homing_zero_speed,
                     acceleration: p.homing_acceleration,
-                    offset_move_distance: d.get(h::HOME_OFFSET_MOVE_DISTANCE),
-                    // The reference 0x6064 reads after homing, in the axis's coordinates (polarity bit 7; the
-                    // homing moves keep the motor's direction: Gamma L1659 "no influence on homing mode").
-                    home_position: p.polarity.position(d.get(h::HOME_POSITION).wrapping_add(d.get(h::HOME_OFFSET))),
+                    offset_move_distance: p.targets.home_offset_move_distance,
+                    home_position: p.targets.home_position,
                     current_threshold_ma: u32::from(d.get(h::HOMING_CURRENT_THRESHOLD)),
                     search_distance_limit: (limit != 0).then_some(limit),
                     halt_deceleration,
@@ -859,17 +927,12 @@ impl Axis {
         };
         d.set(h::STATUSWORD, Statusword::encode(out.state, flags).0);
         d.set(h::MODES_OF_OPERATION_DISPLAY, out.mode.display);
-        // The master's values through the polarity 0x607E; the internal ones (0x60FC, 0x6063) keep the motor's
-        // direction ([`super::polarity`]).
-        let polarity = self.params.polarity;
+        // The internal values keep the motor's increments and direction; the master's follow after the slow tick
+        // ([`Self::publish_master_values`]).
         let demand = self.last_setpoint.position_i32();
-        d.set(h::POSITION_DEMAND_VALUE, polarity.position(demand));
         d.set(h::POSITION_DEMAND_INTERNAL_VALUE, demand);
         d.set(h::POSITION_ACTUAL_INTERNAL_VALUE, position.wrapping_sub(self.offset));
-        d.set(h::POSITION_ACTUAL_VALUE, polarity.position(position));
-        d.set(h::FOLLOWING_ERROR_ACTUAL_VALUE, polarity.position(demand.wrapping_sub(position)));
-        d.set(h::VELOCITY_DEMAND_VALUE, polarity.shown_velocity(self.params.rpm(self.last_setpoint.velocity)));
-        d.set(h::VELOCITY_ACTUAL_VALUE, polarity.shown_velocity(self.params.rpm(velocity)));
+        self.shown = (demand, position, velocity);
         self.faults.publish(d);
     }
 }

@@ -8,11 +8,17 @@
 //! newly active controller's integrator is preset with the last current, so the output does not jump (bumpless
 //! transfer).
 //!
+//! In the dual loop (0x3000:02 main sensor 2, [`super::dual_loop`]; EPOS4 AN ch. 10) the position demands run
+//! through the main loop instead ([`MainLoop`], 0x30AE): the load position's error, scheduled gain, plus the
+//! demand's velocity, is the velocity loop's demand, and the velocity loop closes on the motor encoder as in the
+//! velocity modes; the axis hands the loops the load position (in motor increments) as the position.
+//!
 //! Gains are converted when their dictionary values change ([`Loops::refresh`] compares the raw values, a few
 //! loads and compares per tick), never per tick.
 
 use super::LoopDemand;
 use crate::control::demand::DemandScale;
+use crate::control::dual_loop::{MainLoop, MainLoopGains};
 use crate::control::frames::Amps;
 use crate::control::observer::{ObserverGains, VelocityObserver};
 use crate::control::position::{Increments, PositionController, PositionGains};
@@ -54,10 +60,13 @@ struct GainObjects {
     torque_constant: u32,
     inc_per_rev: u32,
     structure: u32,
+    /// 0x30AE:01..03 and the load scale they are converted with (0 / 0: no dual loop).
+    main_loop: [u32; 3],
+    load_scale: (i64, i64),
 }
 
 impl GainObjects {
-    fn read(d: &Dictionary) -> Self {
+    fn read(d: &Dictionary, load_scale: (i64, i64)) -> Self {
         Self {
             position: [
                 d.get(h::POSITION_CONTROLLER_P_GAIN),
@@ -83,6 +92,12 @@ impl GainObjects {
             torque_constant: d.get(h::MOTOR_TORQUE_CONSTANT),
             inc_per_rev: d.get(h::MAIN_SENSOR_RESOLUTION),
             structure: d.get(h::CONTROL_STRUCTURE),
+            main_loop: [
+                d.get(h::DUAL_LOOP_GAIN_LOW),
+                d.get(h::DUAL_LOOP_GAIN_HIGH),
+                d.get(h::DUAL_LOOP_SCHEDULING_WEIGHT),
+            ],
+            load_scale,
         }
     }
 }
@@ -117,6 +132,13 @@ pub struct Loops {
     observer: VelocityObserver,
     position: PositionController,
     velocity: VelocityController,
+    /// The dual loop's main loop; it runs while [`Self::set_dual_loop`] says the position is the load's.
+    main_loop: MainLoop,
+    dual_loop: bool,
+    /// The load position's fraction of a motor increment (`U0F16`), beyond the position the axis hands the step.
+    load_fraction: u16,
+    /// The dual loop's load scale (`super::dual_loop::LoadScale` as num/den; 0/0 without it).
+    load_scale: (i64, i64),
     active: Active,
     last_current: Amps,
     velocity_estimate: IncPerTick,
@@ -137,6 +159,10 @@ impl Loops {
             observer: VelocityObserver::new(ObserverGains::default()),
             position: PositionController::new(PositionGains::default()),
             velocity: VelocityController::new(VelocityGains::ZERO),
+            main_loop: MainLoop::new(MainLoopGains::default()),
+            dual_loop: false,
+            load_fraction: 0,
+            load_scale: (0, 0),
             active: Active::None,
             last_current: Amps::ZERO,
             velocity_estimate: IncPerTick::ZERO,
@@ -149,7 +175,7 @@ impl Loops {
 
     /// Re-reads 0x30A1, 0x30A2, 0x30A3, 0x3000:02/:05 and 0x3001:05 and converts them when they changed.
     pub fn refresh(&mut self, d: &Dictionary) {
-        let o = GainObjects::read(d);
+        let o = GainObjects::read(d, self.load_scale);
         if o == self.objects {
             return;
         }
@@ -163,6 +189,10 @@ impl Loops {
         }
         let [lt, lw, ll, fr, j] = o.observer;
         self.observer.set_gains(ObserverGains::from_idx_0x30a3(lt, lw, ll, fr, j, o.torque_constant, n));
+        let [k_low, k_high, weight] = o.main_loop;
+        let (num, den) = o.load_scale;
+        let (num, den) = (u64::try_from(num).unwrap_or(1), u64::try_from(den).unwrap_or(1));
+        self.main_loop = MainLoop::new(MainLoopGains::from_idx_0x30ae(k_low, k_high, weight, num, den));
         let estimate = VelocityEstimate::from_control_structure(o.structure);
         if o.inc_per_rev != self.objects.inc_per_rev || estimate != self.estimate {
             self.restart_estimate = true;
@@ -213,6 +243,20 @@ impl Loops {
         self.estimate
     }
 
+    /// The position the axis hands [`Self::step`] is the load's (the dual loop's main sensor): position demands
+    /// run through the main loop and the velocity loop.
+    /// `fraction` is the load position's fraction of a motor increment beyond that position (`U0F16`).
+    pub fn set_dual_loop(&mut self, on: bool, fraction: u16) {
+        self.dual_loop = on;
+        self.load_fraction = fraction;
+    }
+
+    /// The dual loop's load scale (taken with the sensor configuration): the main loop's gain scheduling counts
+    /// load increments through it (converted at the next [`Self::refresh`]).
+    pub fn set_load_scale(&mut self, scale: Option<super::dual_loop::LoadScale>) {
+        self.load_scale = scale.map_or((0, 0), |s| (s.num, s.den));
+    }
+
     /// Clears the controllers (drive function disabled).
     pub fn reset(&mut self) {
         self.position.reset();
@@ -250,6 +294,7 @@ impl Loops {
             scale.torque_to_current(clamped, 0).1
         };
         let (current, saturated, following_error, active) = match *demand {
+            LoopDemand::Position(sp) if self.dual_loop => self.step_dual_loop(&sp, position, torque, limit),
             LoopDemand::Position(sp) => {
                 if self.active != Active::Position {
                     self.position.reset();
@@ -288,6 +333,30 @@ impl Loops {
         self.active = active;
         self.last_current = current;
         LoopOutput { current, saturated, following_error }
+    }
+
+    /// The dual loop's step (EPOS4 AN ch. 10.3/10.4): the main loop turns the load position's error into the
+    /// velocity demand of the velocity loop, which closes on the motor encoder's estimate with the demand's
+    /// acceleration as feedforward. The velocity controller is the one of the velocity modes, preset bumplessly
+    /// when the position control begins.
+    #[inline(never)]
+    fn step_dual_loop(
+        &mut self,
+        sp: &crate::control::trajectory::Setpoint,
+        load_position: i32,
+        torque: Amps,
+        limit: Amps,
+    ) -> (Amps, bool, i32, Active) {
+        if self.active != Active::Position {
+            self.velocity.reset();
+            self.velocity.set_integral(self.last_current);
+        }
+        let w_ref = IncPerTick::from_bits(sp.velocity.to_inc_per_tick_q16());
+        let a = IncPerTick2::from_bits(sp.acceleration.to_inc_per_tick2_q16());
+        let w =
+            self.main_loop.step(Increments(sp.position_i32()), Increments(load_position), self.load_fraction, w_ref);
+        let i = self.velocity.step_with_torque(w, self.velocity_estimate, a, torque, limit);
+        (i, self.velocity.saturated(), self.main_loop.following_error(), Active::Position)
     }
 }
 

@@ -14,10 +14,13 @@
 //! Files: [`profile_position`] (PPM, 0x6060 = 1), [`profile_velocity`] (PVM, 3), [`homing`] (HMM, 6) hold the
 //! modes; [`axis`] ties them, the cyclic modes (8, 9, 10), the stops of the CiA 402 machine, the position and
 //! velocity loops and the monitoring together for [`crate::drive::Drive::slow_tick`]; [`torque_ramp`] is CST's
-//! slow-down ramp (torque slope 0x6087); [`polarity`] is 0x607E, the sign of the values exchanged with the master.
+//! slow-down ramp (torque slope 0x6087); [`dual_loop`] is the dual loop's configuration and its
+//! load-encoder position; [`polarity`] is 0x607E, the sign of the values exchanged with the master.
 
 pub mod axis;
 pub mod cyclic;
+pub mod dual_loop;
+pub mod gear;
 pub mod homing;
 pub mod loops;
 pub mod monitor;

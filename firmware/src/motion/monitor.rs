@@ -10,9 +10,13 @@
 //!   Inactive in homing (IDX L5971).
 //! - Standstill: |velocity| within 0x30E0:01 for 0x30E0:02; 0xFFFFFFFF switches the window off, so standstill is
 //!   the end of the stop trajectory (the CiA 402 machine applies the timeout 0x30E0:03).
-//! - Speed: velocity demands beyond 0x6080 (and 0x3000:06) are clamped, with bit 11.
+//! - Speed: velocity demands beyond 0x6080 (and, with a gear, the max gear input speed 0x3003:03, both motor rpm)
+//!   are clamped, with bit 11; 0x3000:06 shows the same limit at the load (IDX L3898-3939).
+//!
+//! Units: with a gear ([`super::gear`]) 0x6065, 0x607D and 0x30E0:01 are the load's (increments, rpm) and convert to
+//! the axis's motor increments here, when they change.
 
-use super::polarity::Polarity;
+use super::gear::{Gear, UserUnits};
 use crate::cia402::Ticks;
 use crate::control::trajectory::{MotionScale, Velocity};
 use crate::od::access::Dictionary;
@@ -35,13 +39,14 @@ struct MonitorObjects {
     limit_min: i32,
     limit_max: i32,
     max_motor_speed: u32,
-    max_system_speed: u32,
     inc_per_rev: u32,
     polarity: u8,
+    gear: Gear,
 }
 
 impl MonitorObjects {
-    fn read(d: &Dictionary) -> Self {
+    /// The objects of `d`, with the gear in effect as the motion parameters read it.
+    fn read(d: &Dictionary, gear: Gear) -> Self {
         Self {
             following_error_window: d.get(h::FOLLOWING_ERROR_WINDOW),
             following_error_timeout: d.get(h::FOLLOWING_ERROR_TIMEOUT),
@@ -50,9 +55,9 @@ impl MonitorObjects {
             limit_min: d.get(h::SOFTWARE_POSITION_LIMIT_MIN),
             limit_max: d.get(h::SOFTWARE_POSITION_LIMIT_MAX),
             max_motor_speed: d.get(h::MAX_MOTOR_SPEED),
-            max_system_speed: d.get(h::MAX_SYSTEM_SPEED),
             inc_per_rev: d.get(h::MAIN_SENSOR_RESOLUTION),
             polarity: d.get(h::POLARITY),
+            gear,
         }
     }
 }
@@ -69,9 +74,9 @@ pub struct MonitorConfig {
     /// 0x30E0:02.
     pub standstill_time: Ticks,
     /// 0x607D (min, max) in the axis's coordinates (mirrored by the position polarity 0x607E bit 7:
-    /// [`Polarity::limits`]), `None` when both are 0.
+    /// [`super::polarity::Polarity::limits`], through the gear), `None` when both are 0.
     pub software_limits: Option<(i32, i32)>,
-    /// min(0x6080, 0x3000:06), magnitude.
+    /// min(0x6080, 0x3003:03 with a gear), motor speed, magnitude.
     pub max_speed: Velocity,
 }
 
@@ -97,28 +102,35 @@ impl Monitor {
     pub fn new(d: &Dictionary) -> Self {
         let mut m = Self::default();
         m.objects.inc_per_rev = u32::MAX;
-        m.refresh(d);
+        let _ = m.refresh(d, &MotionScale::new(4096), &UserUnits::NONE);
+        // Converted once more by the axis's first refresh, with the load's scale, which publishes 0x3000:06 from the
+        // stored parameters.
+        m.objects.inc_per_rev = u32::MAX;
         m
     }
 
-    /// Re-reads the objects and converts them when they changed.
-    pub fn refresh(&mut self, d: &Dictionary) {
-        let o = MonitorObjects::read(d);
+    /// Re-reads the objects and converts them when they changed; `Some(0x3000:06)` then (max system speed, load
+    /// rpm, for the caller to publish). `load` and `units` are the motion parameters' conversions of the same
+    /// objects (`super::params::MotionParams`, refreshed first): the scale of the load's rpm and the positions'.
+    pub fn refresh(&mut self, d: &Dictionary, load: &MotionScale, units: &UserUnits) -> Option<u32> {
+        let o = MonitorObjects::read(d, units.gear);
         if o == self.objects {
-            return;
+            return None;
         }
-        let scale = MotionScale::new(o.inc_per_rev.max(1));
+        let motor = MotionScale::new(o.inc_per_rev.max(1));
         self.config = MonitorConfig {
-            following_error_window: (o.following_error_window != u32::MAX).then_some(o.following_error_window),
+            following_error_window: (o.following_error_window != u32::MAX)
+                .then(|| units.distance_to_axis(o.following_error_window)),
             following_error_timeout: ticks_from_ms(u32::from(o.following_error_timeout)),
             standstill_window: (o.standstill_window != u32::MAX)
-                .then(|| scale.velocity_from_rpm(i64::from(o.standstill_window))),
+                .then(|| load.velocity_from_rpm(i64::from(o.standstill_window))),
             standstill_time: ticks_from_ms(u32::from(o.standstill_time)),
             software_limits: (o.limit_min != 0 || o.limit_max != 0)
-                .then(|| Polarity::from_0x607e(o.polarity).limits(o.limit_min, o.limit_max)),
-            max_speed: scale.velocity_from_rpm(i64::from(o.max_motor_speed.min(o.max_system_speed))),
+                .then(|| units.limits_to_axis(o.limit_min, o.limit_max)),
+            max_speed: motor.velocity_from_rpm(i64::from(o.max_motor_speed.min(o.gear.max_input_speed))),
         };
         self.objects = o;
+        Some(o.gear.max_system_speed(o.max_motor_speed))
     }
 
     /// The limits in force.
@@ -213,6 +225,27 @@ impl Monitor {
 mod tests {
     use super::*;
 
+    /// With a 5:1 gear (0x3003 + 0x3000:02 bit 12) the following-error window 0x6065 and the software limits 0x607D
+    /// are load increments: 100 load inc = 500 motor inc; [-1000, 2000] = [-5000, 10000]; the speed limit is
+    /// min(0x6080, 0x3003:03) at the motor and 0x3000:06 = 1,000 / 5 = 200 load rpm.
+    #[test]
+    fn gear_scales_windows_limits_and_speed() {
+        let mut d = Dictionary::new(1);
+        d.set(h::GEAR_REDUCTION_NUMERATOR, 5);
+        d.set(h::MAX_GEAR_INPUT_SPEED, 1_000);
+        d.set(h::CONTROL_STRUCTURE, d.get(h::CONTROL_STRUCTURE) | crate::motion::gear::GEAR_MOUNTED);
+        d.set(h::FOLLOWING_ERROR_WINDOW, 100);
+        d.set(h::SOFTWARE_POSITION_LIMIT_MIN, -1000);
+        d.set(h::SOFTWARE_POSITION_LIMIT_MAX, 2000);
+        let mut m = Monitor::default();
+        let load = MotionScale::geared(4096, 5, 1);
+        let shown = m.refresh(&d, &load, &UserUnits::from_dictionary(&d));
+        assert_eq!(shown, Some(200));
+        assert_eq!(m.config().following_error_window, Some(500));
+        assert_eq!(m.config().software_limits, Some((-5000, 10_000)));
+        assert_eq!(m.config().max_speed, MotionScale::new(4096).velocity_from_rpm(1_000));
+    }
+
     #[test]
     fn ms_to_ticks_rounds_up() {
         assert_eq!(ticks_from_ms(0), Ticks(0));
@@ -233,7 +266,7 @@ mod tests {
         assert!(m.following_error(-101, true, Ticks(6)).exceeded);
         assert!(!m.following_error(-101, false, Ticks(7)).exceeded);
         d.set(h::FOLLOWING_ERROR_WINDOW, u32::MAX);
-        m.refresh(&d);
+        let _ = m.refresh(&d, &MotionScale::new(4096), &UserUnits::from_dictionary(&d));
         assert!(!m.following_error(i32::MIN, true, Ticks(100)).exceeded);
     }
 
@@ -244,7 +277,7 @@ mod tests {
         assert_eq!(m.clamp_position(i32::MAX), (i32::MAX, false));
         d.set(h::SOFTWARE_POSITION_LIMIT_MIN, -1000);
         d.set(h::SOFTWARE_POSITION_LIMIT_MAX, 5000);
-        m.refresh(&d);
+        let _ = m.refresh(&d, &MotionScale::new(4096), &UserUnits::from_dictionary(&d));
         assert_eq!(m.clamp_position(6000), (5000, true));
         assert_eq!(m.clamp_position(-1001), (-1000, true));
         assert_eq!(m.clamp_position(0), (0, false));

@@ -1,4 +1,4 @@
-//! Polarity 0x607E: the sign of the position and velocity values the master exchanges with the drive.
+//! Polarity 0x607E: the sign of the position, velocity and torque values the master exchanges with the drive.
 //!
 //! Bit layout and meaning after Glentek Gamma (L1656-1672: "indicates if the position demand value shall be
 //! multiplied by 1 or by -1"; bit 7 position polarity, used in PPM and CSP; bit 6 velocity polarity, used in PVM
@@ -15,13 +15,19 @@
 //! - bit 6 (velocities): target velocity 0x60FF (PVM, CSV) and the actual values 0x606C, 0x606B, 0x6069, 0x30D3:01;
 //! - velocity offset 0x60B1 takes the bit of the cyclic mode it feeds: bit 7 in CSP (it is the position command's
 //!   feed-forward: Gamma "the position polarity bit is used for ... cyclic synchronous position mode"), bit 6 in
-//!   CSV.
+//!   CSV;
+//! - torques (0x6071 target torque, 0x60B2 torque offset, 0x6077 torque actual, 0x6074 torque demand) take bit 6,
+//!   the velocity bit: a torque is the rate of change of the velocity it drives, so a master that inverts its
+//!   velocities gets a positive target torque that accelerates in its positive velocity direction and reads the
+//!   torque that does so as positive; 0x60B2 in CSP takes bit 7, as 0x60B1 does there (it is the position
+//!   command's acceleration feed-forward), bit 6 in CSV and CST. Neither seed gives a torque bit; this rule keeps
+//!   the three quantities of one master direction consistent (with 0x607E = 0xC0 every value reverses together).
 //!
-//! Not inverted: torques (0x6071, 0x60B2 also where it is CSP's and CSV's torque feedforward, 0x6077, 0x6074:
-//! neither seed gives a torque bit, so a master inverting positions sends the feedforward in the motor's
-//! direction), the internal values
+//! Not inverted: the internal values
 //! 0x6063 and 0x60FC (motor increments; CiA 402 places the polarity beside the position factor, before the
 //! internal units **[std, not in seeds]**), windows and speeds that are magnitudes (0x6065, 0x6067, 0x6081, 0x6099).
+//! The gear direction 0x3003:04 bit 0 combines with bits 7 and 6 for positions and velocities
+//! ([`super::gear`]), not for torques (they stay the motor's torque).
 //!
 //! Changing it: 0x607E is writable only with the power stage off (device.toml `power-disabled`), so the axis never
 //! sees a set-point or actual value change sign under its feet; while disabled the demand follows the actual
@@ -94,6 +100,28 @@ impl Polarity {
         value.saturating_mul(self.velocity)
     }
 
+    /// A torque of the master's, per mille (0x6071, 0x60B2 in CSV/CST), in the motor's direction, or the
+    /// motor's (0x6077, 0x6074) as the master sees it: bit 6 (module documentation); saturating.
+    #[must_use]
+    pub const fn torque(self, permille: i16) -> i16 {
+        if self.velocity < 0 {
+            permille.saturating_neg()
+        } else {
+            permille
+        }
+    }
+
+    /// A torque offset 0x60B2 for the cyclic mode it feeds: bit 7 in CSP (as 0x60B1), bit 6 otherwise.
+    #[must_use]
+    pub const fn torque_offset(self, permille: i16, position_mode: bool) -> i16 {
+        let sign = if position_mode { self.position } else { self.velocity };
+        if sign < 0 {
+            permille.saturating_neg()
+        } else {
+            permille
+        }
+    }
+
     /// The software position limits 0x607D (min, max) in the axis's coordinates: with the position inverted the
     /// range mirrors, [-max, -min] (saturating at the ends of the range).
     #[must_use]
@@ -130,6 +158,16 @@ mod tests {
         assert_eq!((pos.velocity_offset_rpm(50, true), pos.velocity_offset_rpm(50, false)), (-50, 50));
         let vel = Polarity::from_0x607e(0x40);
         assert_eq!((vel.velocity_offset_rpm(50, true), vel.velocity_offset_rpm(50, false)), (50, -50));
+    }
+
+    /// Torques take bit 6 (0x6071, 0x6077), the torque offset bit 7 in CSP; -i16::MIN saturates.
+    #[test]
+    fn torques_follow_the_velocity_bit() {
+        let vel = Polarity::from_0x607e(0x40);
+        assert_eq!((vel.torque(300), vel.torque_offset(50, true), vel.torque_offset(50, false)), (-300, 50, -50));
+        let pos = Polarity::from_0x607e(0x80);
+        assert_eq!((pos.torque(300), pos.torque_offset(50, true), pos.torque_offset(50, false)), (300, -50, 50));
+        assert_eq!(Polarity::from_0x607e(0xC0).torque(i16::MIN), i16::MAX);
     }
 
     /// Edges: i32::MIN has no negation (velocity saturates to i32::MAX; positions wrap as the count does; the

@@ -18,7 +18,7 @@
 
 use super::abort::SdoAbort;
 use super::entry::{DataType, Entry, Handle, Limits, Object, Storage, WriteCondition};
-use super::generated::{ENTRIES, OBJECTS, VALUE_BYTES};
+use super::generated::{ENTRIES, LIMITS, OBJECTS, VALUE_BYTES};
 use super::pdo_map;
 use super::values::{Scalar, Values};
 
@@ -28,16 +28,28 @@ use super::values::{Scalar, Values};
 pub struct Table {
     entries: &'static [Entry],
     objects: &'static [Object],
+    limits: &'static [Limits],
 }
 
 impl Table {
     /// The dictionary od-gen generated from `firmware/device.toml`.
-    pub const GENERATED: Table = Table { entries: &ENTRIES, objects: &OBJECTS };
+    pub const GENERATED: Table = Table { entries: &ENTRIES, objects: &OBJECTS, limits: &LIMITS };
 
-    /// A table over `entries` (sorted by (index, sub)) and `objects` (sorted by index). Lookups on an unsorted
-    /// table give wrong answers but never panic.
+    /// A table over `entries` (sorted by (index, sub)) and `objects` (sorted by index), whose entries' limits are
+    /// positions in the generated list (`LIMITS`). Lookups on an unsorted table give wrong answers but never panic.
     pub const fn new(entries: &'static [Entry], objects: &'static [Object]) -> Self {
-        Self { entries, objects }
+        Self { entries, objects, limits: &LIMITS }
+    }
+
+    /// [`Table::new`] with a list of limits of its own: each entry's [`Entry::limits`] is a position in `limits`.
+    pub const fn with_limits(entries: &'static [Entry], objects: &'static [Object], limits: &'static [Limits]) -> Self {
+        Self { entries, objects, limits }
+    }
+
+    /// The limits of `entry`, `None` when its position is outside the table's list (never for a generated table:
+    /// od-gen writes every position it uses).
+    pub fn limits_of(&self, entry: &Entry) -> Option<&'static Limits> {
+        self.limits.get(usize::from(entry.limits.0))
     }
 
     /// Every entry, sorted by (index, sub-index).
@@ -308,12 +320,13 @@ fn zero_extend(data: &[u8]) -> u64 {
     u64::from_le_bytes(wide)
 }
 
-/// Checks a fixed-size value against the entry's limits (CiA 301 Table 22, 0x0609_0030..0x0609_0032).
-fn check_value(entry: &Entry, value: i128) -> Result<(), SdoAbort> {
+/// Checks a fixed-size value against the entry's limits (CiA 301 Table 22, 0x0609_0030..0x0609_0032). An entry
+/// whose limits the table does not hold refuses every value (0x0604_0047), so that no write goes unchecked.
+fn check_value(table: &Table, entry: &Entry, value: i128) -> Result<(), SdoAbort> {
     if entry.data_type == DataType::Boolean && !(0..=1).contains(&value) {
         return Err(SdoAbort::InvalidValue);
     }
-    let (min, max) = match *entry.limits {
+    let (min, max) = match *table.limits_of(entry).ok_or(SdoAbort::InternalIncompatibility)? {
         Limits::None => return Ok(()),
         Limits::Signed { min, max } => (i128::from(min), i128::from(max)),
         Limits::Unsigned { min, max } => (i128::from(min), i128::from(max)),
@@ -459,7 +472,7 @@ impl<const N: usize> Dictionary<N> {
         check_length(entry, data.len())?;
         let value = decode(entry.data_type, data);
         if let Some(value) = value {
-            check_value(entry, value)?;
+            check_value(&self.table, entry, value)?;
         }
         match entry.storage {
             Storage::Const(_) => Err(SdoAbort::ReadOnly),
@@ -564,7 +577,7 @@ impl<const N: usize> Dictionary<N> {
                     if last {
                         check_length(entry, end)?;
                         if let Some(value) = decode(entry.data_type, download.staged.get(..end).unwrap_or_default()) {
-                            check_value(entry, value)?;
+                            check_value(&self.table, entry, value)?;
                         }
                     }
                 }
@@ -603,7 +616,7 @@ impl<const N: usize> Dictionary<N> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::od::entry::{Access, ConstRef, Name, ObjectCode, PdoMapping};
+    use crate::od::entry::{Access, ConstRef, LimitsRef, Name, ObjectCode, PdoMapping};
 
     const fn entry(index: u16, sub: u8, data_type: DataType, access: Access, storage: Storage) -> Entry {
         Entry {
@@ -615,14 +628,13 @@ mod tests {
             pdo: PdoMapping::No,
             persistent: false,
             write_condition: WriteCondition::Always,
-            limits: &Limits::None,
+            limits: LimitsRef::NONE,
             storage,
-            node_id_relative: false,
         }
     }
 
     const fn ram(offset: u16, len: u16) -> Storage {
-        Storage::Ram { offset, len }
+        Storage::Ram { offset, len, node_id_relative: false }
     }
 
     const fn mapping(index: u16, sub: u8, offset: u16) -> Entry {
@@ -631,7 +643,7 @@ mod tests {
         let mut e = entry(index, sub, data_type, Access::ReadWrite, ram(offset, len));
         e.write_condition = WriteCondition::PreOperational;
         if sub == 0 {
-            e.limits = &Limits::Unsigned { min: 0, max: 2 };
+            e.limits = LimitsRef(1);
         }
         e
     }
@@ -641,7 +653,7 @@ mod tests {
         e
     }
 
-    const fn limited(mut e: Entry, limits: &'static Limits) -> Entry {
+    const fn limited(mut e: Entry, limits: LimitsRef) -> Entry {
         e.limits = limits;
         e
     }
@@ -657,12 +669,9 @@ mod tests {
         entry(0x2101, 0, DataType::OctetString, Access::ReadWrite, ram(19, 4)),
         pdo(entry(0x6040, 0, DataType::Unsigned16, Access::ReadWrite, ram(23, 2)), PdoMapping::Rx),
         pdo(entry(0x6041, 0, DataType::Unsigned16, Access::ReadOnly, ram(25, 2)), PdoMapping::Tx),
-        limited(entry(0x605A, 0, DataType::Integer16, Access::ReadWrite, ram(27, 2)), &Limits::OneOf(&[0, 1, 2, 5, 6])),
+        limited(entry(0x605A, 0, DataType::Integer16, Access::ReadWrite, ram(27, 2)), LimitsRef(2)),
         pdo(
-            limited(
-                entry(0x607A, 0, DataType::Integer32, Access::ReadWrite, ram(29, 4)),
-                &Limits::Signed { min: -1000, max: 1000 },
-            ),
+            limited(entry(0x607A, 0, DataType::Integer32, Access::ReadWrite, ram(29, 4)), LimitsRef(3)),
             PdoMapping::Rx,
         ),
     ];
@@ -670,6 +679,14 @@ mod tests {
     const fn object(index: u16, first_entry: u16, entry_count: u16) -> Object {
         Object { index, name: Name::EMPTY, object_code: ObjectCode::Var, max_sub: 0, first_entry, entry_count }
     }
+
+    /// The test table's limits, by the positions its entries name.
+    static LIMITS: [Limits; 4] = [
+        Limits::None,
+        Limits::Unsigned { min: 0, max: 2 },
+        Limits::OneOf(&[0, 1, 2, 5, 6]),
+        Limits::Signed { min: -1000, max: 1000 },
+    ];
 
     static OBJECTS: [Object; 9] = [
         object(0x1008, 0, 1),
@@ -722,7 +739,7 @@ mod tests {
         bytes[0] = 1;
         bytes[1..5].copy_from_slice(&0x6040_0010u32.to_le_bytes());
         bytes[27..29].copy_from_slice(&6i16.to_le_bytes());
-        Dictionary::with_table(Table::new(&ENTRIES, &OBJECTS), Values::from_bytes(bytes))
+        Dictionary::with_table(Table::with_limits(&ENTRIES, &OBJECTS, &LIMITS), Values::from_bytes(bytes))
     }
 
     #[test]
@@ -753,6 +770,21 @@ mod tests {
         assert_eq!(buf[0], b'D');
         assert_eq!(dict.read(0x1008, 0, 9, &mut buf, &mut app), Ok(ReadOutcome { len: 0, total_len: 3 }));
         assert_eq!(dict.read(0x1010, 1, 0, &mut buf, &mut app), Ok(ReadOutcome { len: 4, total_len: 4 }));
+    }
+
+    #[test]
+    fn a_write_to_an_entry_whose_limits_the_table_lacks_is_refused_and_changes_nothing() {
+        // 0x605A names limits position 2; a table whose list stops before it answers 0x0604_0047 (CiA 301
+        // Table 22) instead of storing an unchecked value, and the stored 6 stays.
+        let mut bytes = [0u8; 40];
+        bytes[27..29].copy_from_slice(&6i16.to_le_bytes());
+        let table = Table::with_limits(&ENTRIES, &OBJECTS, &[Limits::None]);
+        let mut dict = Dictionary::with_table(table, Values::from_bytes(bytes));
+        let app = &mut App::default();
+        assert_eq!(dict.write(0x605A, 0, &[1, 0], OP, app), Err(SdoAbort::InternalIncompatibility));
+        assert_eq!(dict.values().bytes()[27..29], [6, 0]);
+        // Entries without limits (position 0) still take any value.
+        assert_eq!(dict.write(0x6040, 0, &[0x0F, 0], OP, app), Ok(()));
     }
 
     #[test]

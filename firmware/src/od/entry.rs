@@ -10,7 +10,9 @@ use core::marker::PhantomData;
 
 pub use od_types::{Access, DataType, ObjectCode, PdoMapping, WriteCondition};
 
-/// The value range a write must fall in (CiA 301 aborts 0x0609_0030..0x0609_0032 when it does not).
+/// The value range a write must fall in (CiA 301 aborts 0x0609_0030..0x0609_0032 when it does not). 32-bit bounds:
+/// no 64-bit entry of the dictionary has limits (od-gen refuses one whose bounds do not fit), and 12 bytes a range
+/// instead of 24 keep the table's list small.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Limits {
     /// Any value the data type can hold.
@@ -18,19 +20,19 @@ pub enum Limits {
     /// Inclusive range for a signed type.
     Signed {
         /// Lowest accepted value.
-        min: i64,
+        min: i32,
         /// Highest accepted value.
-        max: i64,
+        max: i32,
     },
     /// Inclusive range for an unsigned type.
     Unsigned {
         /// Lowest accepted value.
-        min: u64,
+        min: u32,
         /// Highest accepted value.
-        max: u64,
+        max: u32,
     },
     /// Only these values are accepted (option codes such as 0x605A); sorted ascending.
-    OneOf(&'static [i64]),
+    OneOf(&'static [i32]),
 }
 
 /// Where an entry's value lives.
@@ -42,6 +44,9 @@ pub enum Storage {
         offset: u16,
         /// Capacity in bytes (the type size, or the maximum length of a string).
         len: u16,
+        /// The default is the declared value plus the node-ID (CiA 301 `$NODEID+` defaults of COB-IDs). Only a
+        /// RAM value has a default to add to; kept here, beside the tag's byte, it costs the entry no byte.
+        node_id_relative: bool,
     },
     /// A constant in flash (device name, version strings, constant identity fields), [`ConstRef`].
     Const(ConstRef),
@@ -84,8 +89,7 @@ impl ConstRef {
 /// The name of an object or entry: its place in the generated text of every name, `NAMES` (od-gen writes each
 /// name once, and a name that is part of another one not at all). Three bytes instead of a `&str`'s eight in each
 /// entry and object. The CANopen image serves no names (build.rs sets `od_no_names`): there `NAMES` is empty
-/// and a name takes no bytes at all, which makes an object 8 bytes instead of 12 and, with the entry's packing
-/// of 2, an entry 22 bytes instead of 24.
+/// and a name takes no bytes at all, which makes an object 8 bytes instead of 12 and an entry 16 instead of 18.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg(not(od_no_names))]
 pub struct Name([u8; 3]);
@@ -135,10 +139,21 @@ impl core::fmt::Display for Name {
     }
 }
 
+/// Which [`Limits`] an entry has: its position in the table's list of limits (od-gen's `LIMITS`, where 0 is
+/// [`Limits::None`]; [`crate::od::access::Table`]). One byte instead of a 4-byte reference in each of the several
+/// hundred entries: the dictionary has a few dozen distinct ranges.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LimitsRef(pub u8);
+
+impl LimitsRef {
+    /// No limits: position 0 of every list of limits holds [`Limits::None`].
+    pub const NONE: Self = Self(0);
+}
+
 /// One sub-object of the dictionary. The generated table holds one per (index, sub-index), sorted. Packed to 2
-/// bytes: of its 22 bytes (19 in an image without names, where the name takes none, [`Name`]) the alignment of the
-/// limits' reference would make 24; the access layer reads entries on no fast path, and the Cortex-M4 loads a word
-/// from any half-word address.
+/// bytes: 16 bytes in an image without names (where the name takes none, [`Name`]), 18 with them (15 and 18
+/// bytes of fields); the access layer reads entries on no fast path, and the Cortex-M4 loads a word from any half-word
+/// address.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[repr(Rust, packed(2))]
 pub struct Entry {
@@ -158,18 +173,29 @@ pub struct Entry {
     pub persistent: bool,
     /// When writes are accepted.
     pub write_condition: WriteCondition,
-    /// Range for writes. A reference: most entries share a few ranges, and a 4-byte pointer instead of the
-    /// 24-byte enum in each of the several hundred entries saves about 8.5 KB of flash (56 to 36 bytes an entry;
-    /// the thin [`Storage::Const`], the three-byte [`Name`] and the object code left to [`Object`] then 24; the
-    /// 6-byte [`Storage`] and the packing then 22, 20 without names).
-    pub limits: &'static Limits,
+    /// Range for writes: a position in the table's list of limits (most entries share a few ranges; the 24-byte
+    /// enum in each entry took about 8.5 KB, a 4-byte reference to it 2 KB).
+    pub limits: LimitsRef,
     /// Where the value lives.
     pub storage: Storage,
-    /// The default is the declared value plus the node-ID (CiA 301 `$NODEID+` defaults of COB-IDs).
-    pub node_id_relative: bool,
 }
 
 impl Entry {
+    /// Whether the default is the declared value plus the node-ID (CiA 301 `$NODEID+` defaults of COB-IDs): a
+    /// mark of RAM storage ([`Storage::Ram`]).
+    #[must_use]
+    pub const fn node_id_relative(&self) -> bool {
+        matches!(self.storage, Storage::Ram { node_id_relative: true, .. })
+    }
+
+    /// The limits this entry names in the generated list (`LIMITS`), as the generated table's entries mean them;
+    /// [`Limits::None`] for a position outside it. A hand-made table's entries name positions in the table's own
+    /// list ([`crate::od::access::Table::limits_of`]).
+    #[must_use]
+    pub fn generated_limits(&self) -> &'static Limits {
+        super::generated::LIMITS.get(usize::from(self.limits.0)).unwrap_or(&Limits::None)
+    }
+
     /// Size of the value in bits as a PDO mapping entry states it, or `None` for types that cannot be mapped.
     pub const fn bit_size(&self) -> Option<u16> {
         match self.data_type.fixed_size() {
@@ -222,5 +248,23 @@ impl<T> Handle<T> {
     /// Byte offset of the value in the value storage.
     pub const fn offset(self) -> usize {
         self.offset as usize
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_entry_is_its_fields_packed_to_two_bytes() {
+        // 16 bytes on the target without names, 18 with them: the node-ID mark sits beside the storage's tag and
+        // the limits take a one-byte position (flash: several hundred entries in every image). A wider field or a
+        // new one fails here. The storage is its tag byte, the node-ID mark and a thin pointer or two half-words.
+        let storage = core::mem::size_of::<Storage>();
+        assert_eq!(storage, 2 + core::mem::size_of::<&u8>());
+        assert_eq!(core::mem::size_of::<LimitsRef>(), 1);
+        // index, sub, data type, access, PDO, persistent, write condition, limits: 9 bytes; then name and storage.
+        let fields = 9 + core::mem::size_of::<Name>() + storage;
+        assert_eq!(core::mem::size_of::<Entry>(), fields + fields % 2);
     }
 }

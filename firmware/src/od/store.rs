@@ -615,7 +615,7 @@ impl<F: NorFlash> ParamStore<F> {
                 continue;
             };
             let target = match entry.storage {
-                Storage::Ram { offset, len } if len == item.len => {
+                Storage::Ram { offset, len, .. } if len == item.len => {
                     let start = usize::from(offset);
                     start.checked_add(usize::from(len)).and_then(|end| values.get_mut(start..end))
                 }
@@ -712,7 +712,7 @@ impl<F: NorFlash> ParamStore<F> {
             // ...and the current values of the replaced groups.
             if let Some((entries, values)) = fresh {
                 for e in entries.iter().filter(|e| e.persistent && replace.contains(store_group_of(e.index))) {
-                    let Storage::Ram { offset, len } = e.storage else { continue };
+                    let Storage::Ram { offset, len, .. } = e.storage else { continue };
                     let start = usize::from(offset);
                     let bytes = start
                         .checked_add(usize::from(len))

@@ -172,7 +172,7 @@ fn channel(value: u32) -> Result<(u8, Option<&'static Entry>), SdoAbort> {
 /// The value of a RAM or constant entry (up to 4 bytes, sign-extended for signed types) from the value storage.
 fn entry_value(entry: &Entry, values: &[u8]) -> i32 {
     let bytes = match entry.storage {
-        Storage::Ram { offset, len } => {
+        Storage::Ram { offset, len, .. } => {
             let start = usize::from(offset);
             values.get(start..start.saturating_add(usize::from(len))).unwrap_or_default()
         }

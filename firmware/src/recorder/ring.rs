@@ -19,6 +19,8 @@ use crate::hal::power::PwmCommand;
 
 /// Words of one snapshot: thirteen used, the slot padded to a power of two so that tier 1 finds it with one shift.
 pub const SAMPLE_WORDS: usize = 16;
+/// Words of a snapshot tier 1 writes (the rest of the slot is padding).
+pub const SNAPSHOT_WORDS: usize = 13;
 /// Slots of the ring: a power of two (the slot is the count's low bits): 5.1 ms, 12.8 slow periods for tier 3 to
 /// drain it in (8 KiB of RAM).
 pub const RING_SLOTS: usize = 128;
@@ -75,30 +77,31 @@ impl SampleRing {
 
     /// Tier 1, every period after the command is decided: copies `t1`'s published values and `pwm` into the next
     /// slot. A fixed sequence of loads and stores (thirteen stores and the count), never a branch on what is recorded.
+    /// The target's tier 1 stores the same words with `rt::tier1`'s block copy ([`Self::writer_slot`],
+    /// [`Self::commit`]); this one stores them word by word (host tests and tools).
     #[inline(always)]
     pub fn push(&self, t1: &Tier1State, pwm: &PwmCommand) {
-        let n = self.written.load(Ordering::Relaxed);
-        let s = t1.signals();
-        let [duty_a, duty_b, duty_c] = pwm.duty;
-        // The mask keeps the index within the array: the bounds check folds away.
-        if let Some([i_a, i_b, i_c, i_d, i_q, i_ref_d, i_ref_q, v_d, v_q, v_bus, duty_ab, duty_c_word, position, ..]) =
-            self.slots.get(n as usize & (RING_SLOTS - 1))
-        {
-            let bits = |x: i32| x.cast_unsigned();
-            i_a.store(bits(s.i_abc.a.to_bits()), Ordering::Relaxed);
-            i_b.store(bits(s.i_abc.b.to_bits()), Ordering::Relaxed);
-            i_c.store(bits(s.i_abc.c.to_bits()), Ordering::Relaxed);
-            i_d.store(bits(s.i_dq.d.to_bits()), Ordering::Relaxed);
-            i_q.store(bits(s.i_dq.q.to_bits()), Ordering::Relaxed);
-            i_ref_d.store(bits(s.i_ref.d.to_bits()), Ordering::Relaxed);
-            i_ref_q.store(bits(s.i_ref.q.to_bits()), Ordering::Relaxed);
-            v_d.store(bits(s.v_dq.d.to_bits()), Ordering::Relaxed);
-            v_q.store(bits(s.v_dq.q.to_bits()), Ordering::Relaxed);
-            v_bus.store(bits(s.v_bus.to_bits()), Ordering::Relaxed);
-            duty_ab.store(u32::from(duty_a) | (u32::from(duty_b) << 16), Ordering::Relaxed);
-            duty_c_word.store(u32::from(duty_c), Ordering::Relaxed);
-            position.store(bits(t1.commutation().encoder().position()), Ordering::Relaxed);
+        let (n, slot) = self.writer_slot();
+        if let Some(slot) = slot {
+            for (to, from) in slot.iter().zip(sample_words(t1, pwm)) {
+                to.store(from, Ordering::Relaxed);
+            }
         }
+        self.commit(n);
+    }
+
+    /// The writer's next snapshot number and its slot (tier 1 alone: it is the only writer of the count).
+    #[inline(always)]
+    #[must_use]
+    pub fn writer_slot(&self) -> (u32, Option<&[AtomicU32; SAMPLE_WORDS]>) {
+        let n = self.written.load(Ordering::Relaxed);
+        // The mask keeps the index within the array: the bounds check folds away (never `None`).
+        (n, self.slots.get(n as usize & (RING_SLOTS - 1)))
+    }
+
+    /// The writer has filled the slot of snapshot `n`: readers may take it.
+    #[inline(always)]
+    pub fn commit(&self, n: u32) {
         // Release: the slot's words before the count that makes them readable.
         self.written.store(n.wrapping_add(1), Ordering::Release);
     }
@@ -157,6 +160,31 @@ impl SampleRing {
         let sample = core::array::from_fn(|w| slot.get(w).map_or(0, |x| x.load(Ordering::Relaxed)));
         (!self.overwritten(n)).then_some(sample)
     }
+}
+
+/// The words of one snapshot ([`word`]) from `t1`'s published values and `pwm`: the signals in the order
+/// `FastSignals` holds them (so that they load in runs), the duties, the encoder position.
+#[inline(always)]
+#[must_use]
+pub fn sample_words(t1: &Tier1State, pwm: &PwmCommand) -> [u32; SNAPSHOT_WORDS] {
+    let s = t1.signals();
+    let [duty_a, duty_b, duty_c] = pwm.duty;
+    let bits = |x: i32| x.cast_unsigned();
+    [
+        bits(s.i_abc.a.to_bits()),
+        bits(s.i_abc.b.to_bits()),
+        bits(s.i_abc.c.to_bits()),
+        bits(s.i_dq.d.to_bits()),
+        bits(s.i_dq.q.to_bits()),
+        bits(s.i_ref.d.to_bits()),
+        bits(s.i_ref.q.to_bits()),
+        bits(s.v_dq.d.to_bits()),
+        bits(s.v_dq.q.to_bits()),
+        bits(s.v_bus.to_bits()),
+        u32::from(duty_a) | (u32::from(duty_b) << 16),
+        u32::from(duty_c),
+        bits(t1.commutation().encoder().position()),
+    ]
 }
 
 impl Default for SampleRing {

@@ -84,23 +84,25 @@ pub fn fast_tick(
     settings_epoch: &mut u32,
     setpoint_epoch: &mut u32,
 ) -> FastTick {
-    if super::tier1::SETTINGS.epoch() != *settings_epoch {
+    // Each epoch is loaded once: its block is the one of that epoch (`Command::block_of`), as `front` would give
+    // with a second load and barrier.
+    let epoch = super::tier1::SETTINGS.epoch();
+    if epoch != *settings_epoch {
         // The words loaded straight into the decoder's input: `Command::read` zeroes an array, loads the words in a
         // loop and copies them again into its result, about 100 instructions more in the period that takes new
         // settings, tier 1's longest (the room the data recorder's copy below takes).
-        let front = super::tier1::SETTINGS.front();
-        let words = front.block.each_ref().map(|cell| cell.load(Ordering::Relaxed));
-        *settings_epoch = front.epoch;
+        let words = super::tier1::SETTINGS.block_of(epoch).each_ref().map(|cell| cell.load(Ordering::Relaxed));
+        *settings_epoch = epoch;
         t1.apply_settings(&<Settings as Words<15>>::from_words(&words));
     }
-    if super::tier1::SETPOINT.epoch() != *setpoint_epoch {
-        let setpoint = super::tier1::SETPOINT.front();
+    let epoch = super::tier1::SETPOINT.epoch();
+    if epoch != *setpoint_epoch {
         // The words of `SetPoint::to_words`. A block for a later period stays unread (its epoch not taken) until
         // that period: read again then.
-        let [version, power, i_q, i_d, apply_from] = setpoint.block;
+        let [version, power, i_q, i_d, apply_from] = super::tier1::SETPOINT.block_of(epoch);
         let apply_from = apply_from.load(Ordering::Relaxed);
         if t1.setpoint_due(apply_from) {
-            *setpoint_epoch = setpoint.epoch;
+            *setpoint_epoch = epoch;
             let (version, power, i_q, i_d) = (
                 version.load(Ordering::Relaxed),
                 power.load(Ordering::Relaxed),

@@ -660,6 +660,14 @@ pub async fn bench() {
          shaft; and find_resonance on a two-mass response (the sweep's last tick runs it)\n\
          insn.resonance_step_max={resonance_step}\ninsn.resonance_estimate={resonance_estimate}\n"
     ));
+    // Last, after every part: the deepest the stack has been since start-up (tier 3's bench task with tiers 2
+    // and 1 preempting it), against the room between `.bss` and the top of the SRAM.
+    let (stack_used, stack_size) = (super::stack::high_water(), super::stack::size());
+    print(format_args!(
+        "source.stack_used_max=rt::stack: the stack's high-water mark since start-up (the pattern painted at \
+         start-up, found untouched below it) and stack_size, the SRAM between the end of .bss and the stack's top\n\
+         bytes.stack_used_max={stack_used}\nbytes.stack_size={stack_size}\n"
+    ));
 
     let mut ok = true;
     let mut check = |cond: bool, what: &str| {
@@ -696,6 +704,10 @@ pub async fn bench() {
         recording == Some(crate::recorder::RecorderState::Waiting) && lost == 0,
         "the data recorder was still sampling (waiting for its trigger) after both parts, no snapshot lost",
     );
+    check(
+        stack_used.saturating_add(STACK_HEADROOM) <= stack_size,
+        "the stack stayed STACK_HEADROOM (8 KiB) or more above the statics",
+    );
     check(ecat.is_some(), "the default PDO mapping compiles and the process-data cycle ran");
     check(
         can.is_some_and(|c| c.complete),
@@ -703,6 +715,10 @@ pub async fn bench() {
     );
     exit(if ok { EXIT_OK } else { EXIT_CHECK_FAILED });
 }
+
+/// Room the stack must keep between its deepest point and `.bss` in the bench: the bench does not reach every
+/// path of the board image (the EtherCAT slave, a CANopen SDO block transfer), whose frames may go deeper.
+const STACK_HEADROOM: u32 = 8 * 1024;
 
 /// The recorder's channels in the bench: the six currents of 0x3303, the bus voltage, the position actual value.
 const RECORDER_CHANNELS: [u32; 8] =
@@ -762,7 +778,7 @@ fn recorder_drain_cost(channels: &[u32]) -> Option<u32> {
     Some(least)
 }
 
-/// Tier 1's copy for the recorder alone ([`crate::recorder::ring::SampleRing::push`] into a ring of its own,
+/// Tier 1's copy for the recorder alone (`tier1::record` into a ring of its own,
 /// from a tier-1 state of the drive's settings), the least of a few runs less an empty measurement.
 fn recorder_copy_cost() -> u32 {
     use crate::hal::power::PwmCommand;
@@ -777,7 +793,7 @@ fn recorder_copy_cost() -> u32 {
         let start = counter::now();
         core::sync::atomic::compiler_fence(Ordering::SeqCst);
         if push {
-            RING.push(black_box(&t1), &pwm);
+            super::tier1::record(&RING, black_box(&t1), &pwm);
         }
         core::sync::atomic::compiler_fence(Ordering::SeqCst);
         counter::now().wrapping_sub(start)

@@ -58,6 +58,7 @@ pub mod log;
 mod panic;
 pub mod program;
 pub mod signal;
+pub mod stack;
 pub mod tier1;
 pub mod tier2;
 pub mod tier3;
@@ -75,18 +76,29 @@ pub const TIER1_PRIORITY: u8 = 0x00;
 /// NVIC priority of tier 2's executor interrupt: below tier 1, above thread mode.
 pub const TIER2_PRIORITY: u8 = 0x40;
 
-/// Half-words of the data recorder's sample memory: 64 KiB of the F405's 128 KiB SRAM. The image's other RAM is
-/// about 12 KiB (`.bss`, `.data`) and the stack, so more than 40 KiB remain. 64 KiB hold 2,048 samples of 8
-/// channels of 32 bits (82 ms at 25 kHz) or 32,768 of one 16-bit channel (1.3 s). Not in the CCM RAM: the linker
-/// script places nothing there, and the bootloader links the same memory map.
+/// Half-words of the data recorder's sample memory: on the board the whole 64 KiB CCM RAM, which holds 2,048
+/// samples of 8 channels of 32 bits (82 ms at 25 kHz) or 32,768 of one 16-bit channel (1.3 s).
+///
+/// In the CCM, not the SRAM: the SRAM's top is the stack, which grows down towards `.bss` with nothing to stop it
+/// ([`stack`]); with a 64 KiB buffer in `.bss` the QEMU bench's stack ran into the statics below it. Only the core
+/// reads and writes the buffer (the CCM is not on the DMA's bus matrix, RM0090 section 2.3.1).
+#[cfg(not(feature = "qemu"))]
 pub const RECORDER_BUFFER_HALVES: usize = 32 * 1024;
+/// Half-words of the data recorder's sample memory in the QEMU image: 16 KiB in the SRAM, as QEMU's
+/// `netduinoplus2` has no CCM RAM (a store to 0x1000_0000 is a bus fault there). The recorder's code is the
+/// board's; only the number of samples a recording holds is smaller.
+#[cfg(feature = "qemu")]
+pub const RECORDER_BUFFER_HALVES: usize = 8 * 1024;
 
-/// The data recorder's sample memory (`crate::recorder`), given to it at start-up.
+/// The data recorder's sample memory (`crate::recorder`), given to it at start-up. On the board in `.ccmram`
+/// (`memory.x`), which start-up does not zero: [`run`] clears it before the recorder gets it.
+#[cfg_attr(not(feature = "qemu"), link_section = ".ccmram.recorder")]
 static RECORDER_BUFFER: [core::sync::atomic::AtomicU16; RECORDER_BUFFER_HALVES] =
     [const { core::sync::atomic::AtomicU16::new(0) }; RECORDER_BUFFER_HALVES];
 
 /// Brings the board up and runs the three tiers forever. Called from the application's entry point.
 pub fn run() -> ! {
+    stack::paint();
     let board = match board::init() {
         Ok(board) => board,
         Err(_e) => {
@@ -130,6 +142,10 @@ pub fn run() -> ! {
     {
         crate::rt_info!("reset cause: {}", defmt::Debug2Format(&reset_cause));
         boot.drive.report_reset(reset_cause);
+        // The SSI port, when the stored configuration has an SSI sensor (the QEMU image runs on the encoder).
+        if let Some((frame_bits, rate_kbit)) = boot.drive.ssi_port() {
+            board::ssi::init(frame_bits, rate_kbit);
+        }
     }
     // Program control for the image that runs (0x1F5x, FoE; its confirmation runs in tier 3). The QEMU image
     // has no flash interface to drive it.
@@ -157,6 +173,11 @@ pub fn run() -> ! {
     let tier1_state = crate::drive::tier1::Tier1State::new(boot.drive.settings());
     tier2::place_drive(boot.drive);
     let mut recorder = crate::recorder::Recorder::new();
+    // The CCM's contents after a reset are whatever they were (`RECORDER_BUFFER`): the recorder starts on zeros.
+    // (In the QEMU image the buffer is in `.bss`, already zero.)
+    for half in &RECORDER_BUFFER {
+        half.store(0, core::sync::atomic::Ordering::Relaxed);
+    }
     recorder.attach(&RECORDER_BUFFER);
     tier2::RECORDER.place(recorder);
     let _ = tier2::start();

@@ -154,6 +154,9 @@ pub unsafe extern "C" fn on_adc() {
         return;
     };
     let measurements = t.power.read();
+    // The measurements complete before the cost counter starts: without the barrier the compiler may compute part
+    // of them (the QEMU image's simulated power stage) after the first counter read, inside the fast tick's cost.
+    core::hint::black_box(&measurements);
     let start = counter::now();
     let lost = t.lost_periods(start);
     compiler_fence(Ordering::SeqCst);
@@ -178,7 +181,7 @@ pub unsafe extern "C" fn on_adc() {
     // `FAST_TICK_MAX` is tier 1's cost with the recorder; without it tier 1 pays one load here.
     let cost = if RECORDER_RING.enabled() {
         let before = counter::now();
-        RECORDER_RING.push(&t.fast, &pwm);
+        record(&RECORDER_RING, &t.fast, &pwm);
         cost.saturating_add(counter::now().wrapping_sub(before))
     } else {
         cost
@@ -196,6 +199,52 @@ pub unsafe extern "C" fn on_adc() {
         SLOW_TICK_RAISED_AT.store(FAST_TICKS.load(Ordering::Relaxed), Ordering::Relaxed);
         super::tier2::SLOW_TICK.raise();
     }
+}
+
+/// Words of [`crate::drive::FastSignals`] the recorder takes, from its start: the phase currents, the d/q
+/// currents, the d/q references, the d/q voltages and the bus voltage (`recorder::ring::word` 0..9).
+const SIGNAL_WORDS: usize = 10;
+
+// The block copy below reads the signals as words: each of the ten `I16F16` values where `sample_words` takes it.
+const _: () = {
+    use crate::drive::FastSignals;
+    use core::mem::{offset_of, size_of};
+    assert!(size_of::<crate::control::frames::Amps>() == 4 && size_of::<crate::control::frames::Volts>() == 4);
+    assert!(offset_of!(FastSignals, i_abc.a) == 0 && offset_of!(FastSignals, i_abc.b) == 4);
+    assert!(offset_of!(FastSignals, i_abc.c) == 8 && offset_of!(FastSignals, i_dq.d) == 12);
+    assert!(offset_of!(FastSignals, i_dq.q) == 16 && offset_of!(FastSignals, i_ref.d) == 20);
+    assert!(offset_of!(FastSignals, i_ref.q) == 24 && offset_of!(FastSignals, v_dq.d) == 28);
+    assert!(offset_of!(FastSignals, v_dq.q) == 32 && offset_of!(FastSignals, v_bus) == 36);
+};
+
+/// The data recorder's copy of this period's values into [`RECORDER_RING`]: the words of
+/// `recorder::ring::sample_words` (what `SampleRing::push` stores). The ten signal words are one block copy
+/// (multiple-register loads and stores, `ldm`/`stm`) instead of ten loads and ten single stores (the ring's atomic
+/// stores are never merged).
+/// The QEMU bench measures the same copy into a ring of its own (`insn.recorder_tier1_copy`).
+#[inline(always)]
+pub(crate) fn record(ring: &SampleRing, t1: &FastState, pwm: &crate::hal::power::PwmCommand) {
+    let (n, slot) = ring.writer_slot();
+    if let Some(slot) = slot {
+        let [.., duty_ab, duty_c, position] = crate::recorder::ring::sample_words(t1, pwm);
+        let from = core::ptr::from_ref(t1.signals()).cast::<[u32; SIGNAL_WORDS]>();
+        let to = core::ptr::from_ref(slot).cast::<[u32; SIGNAL_WORDS]>().cast_mut();
+        // SAFETY: `from`: the signals' first ten words are the ten `I16F16` values in `sample_words`' order (the
+        // assertions above), read through a live reference; tier 1's state and the ring are distinct objects, so
+        // the two do not overlap. `to`: the slot's first ten cells, `AtomicU32` (the
+        // size and alignment of `u32`, interior mutability), so a plain write through a pointer to them is
+        // allowed. Tier 1 is the ring's only writer and no reader runs while it does: the reader is tier 3, on
+        // the same core, which tier 1 preempts; it takes a slot only below the count `commit` publishes (release)
+        // and asks `overwritten` after its copy whether this writer came round to it meanwhile.
+        unsafe { core::ptr::copy_nonoverlapping(from, to, 1) };
+        let tail = slot.get(SIGNAL_WORDS..SIGNAL_WORDS + 3);
+        if let Some([ab, c, p]) = tail {
+            ab.store(duty_ab, Ordering::Relaxed);
+            c.store(duty_c, Ordering::Relaxed);
+            p.store(position, Ordering::Relaxed);
+        }
+    }
+    ring.commit(n);
 }
 
 /// Periods between two period starts `elapsed` counter units apart, less one: the periods skipped (the elapsed time

@@ -218,12 +218,13 @@ async fn slow_loop() {
             let _ = with_drive(|drive| drive.motion_loop_overrun(missed));
         }
         // The report of the period that raised this tick (tier 1 published it before the raise); both steps read it.
-        // The STO inputs are read here, in tier 2, for the same period: the hardware already gates the bridge, the
-        // drive only has to follow within the slow period (`supervision::safe_torque_off`).
+        // The STO inputs and the load encoder are read here, in tier 2, for the same period: the hardware already
+        // gates the bridge, the drive only has to follow within the slow period (`supervision::safe_torque_off`).
         let _ = with_drive_timed(
             |drive| {
                 take_report(drive);
                 drive.set_sto_inputs(crate::board::sto::read());
+                drive.set_load_encoder_count(crate::board::load_encoder::read());
                 app::background(drive);
             },
             &BACKGROUND_MAX,
@@ -234,6 +235,9 @@ async fn slow_loop() {
             &SETPOINT_PERIODS_LATE_MAX,
             super::tier1::FAST_TICKS.load(Ordering::Relaxed).wrapping_sub(raised_at),
         );
+        // The master's positions and velocities of this slow tick in its units (polarity, gear), once the set-point
+        // is out; before the recorder and the process data read them.
+        let _ = with_drive(crate::drive::Drive::publish_master_values);
         // The data recorder's object channels of this slow period: after the set-point is published.
         let _ = with_drive(record_objects);
         // The free-run process-data cycle (EtherCAT, feature `ethercat`): after the slow tick, as the other cycle

@@ -130,11 +130,13 @@ async fn supervisor(params: &'static mut Option<app::Params>, program: &'static 
         if since_report >= REPORT_EVERY {
             since_report = 0;
             crate::rt_info!(
-                "alive: fast max {=u32} {=str}, overrun {=bool}, slow missed {=u32}",
+                "alive: fast max {=u32} {=str}, overrun {=bool}, slow missed {=u32}, stack {=u32} of {=u32} bytes",
                 super::tier1::FAST_TICK_MAX.load(Ordering::Relaxed),
                 crate::board::counter::UNIT,
                 super::tier1::OVERRUN.load(Ordering::Relaxed),
-                super::tier2::SLOW_MISSED.load(Ordering::Relaxed)
+                super::tier2::SLOW_MISSED.load(Ordering::Relaxed),
+                super::stack::high_water(),
+                super::stack::size()
             );
         }
     }

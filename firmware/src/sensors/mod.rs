@@ -4,4 +4,5 @@
 
 pub mod hall;
 pub mod latch;
+pub mod ssi;
 pub mod temperature;

@@ -26,7 +26,10 @@ mod cli;
 mod progress;
 
 use clap::{CommandFactory, FromArgMatches};
-use cli::{Cli, Command, CspScenario, CurrentLoopScenario, EthercatArgs, FaultMatrixScenario, IdentifyArgs, Scenario};
+use cli::{
+    Cli, Command, CspScenario, CurrentLoopScenario, DualLoopScenario, EthercatArgs, FaultMatrixScenario, IdentifyArgs,
+    Scenario, SsiArgs,
+};
 use progress::Progress;
 
 use hal_sim::esc::pcap::PcapWriter;
@@ -260,6 +263,64 @@ fn csp(args: &CspScenario, dir: &Path) -> Result<(), String> {
     println!("following_error_peak_inc={:.1}", f.following_error_peak_inc);
     println!("following_error_rms_inc={:.2}", f.following_error_rms_inc);
     println!("settle_error_inc={:.0}", f.settle_error_inc);
+    Ok(())
+}
+
+fn dual_loop(args: &DualLoopScenario, dir: &Path) -> Result<(), String> {
+    use hal_sim::scenarios::dual_loop::{self as dual, DualLoopConfig};
+    let cfg = DualLoopConfig {
+        seed: args.scenario.common.seed,
+        dual_loop: !args.motor_encoder_only,
+        main_loop_gains: args.main_loop_gains,
+        ..DualLoopConfig::default()
+    };
+    let closed_by = if cfg.dual_loop {
+        "the load encoder (dual loop: 0x3000:01 = 0x00040201, 0x3000:02 = 0x04021111, main loop 0x30AE)"
+    } else {
+        "the motor encoder alone (PID 0x30A1; the load encoder only measured)"
+    };
+    println!(
+        "dual-loop: plant (seed {}), CiA 402 CSP, a {:.0} deg move of the load, set-points every {:.1} ms, up to \
+         {:.0} rpm and {:.0} rpm/s at the motor, held {:.1} s; position loop closed by {closed_by}",
+        cfg.seed,
+        cfg.load_degrees,
+        cfg.cycle_periods as f64 * 0.04,
+        cfg.max_rpm,
+        cfg.peak_rpm_per_s,
+        cfg.hold_s,
+    );
+    let (f, trace) = dual::dual_loop(scenarios::scenario_plant(), &cfg).map_err(|e| e.to_string())?;
+    println!("  move: {:.3} s; the gear's backlash is {:.1} load increments", f.move_s, f.backlash_inc);
+    println!("  load following error peak during the move   {:7.1} load inc", f.load_following_error_peak_inc);
+    println!(
+        "  |load target - load| over the last {:.0} ms      {:7.1} load inc",
+        dual::SETTLE_WINDOW_S * 1000.0,
+        f.load_settle_error_inc
+    );
+    println!("  |motor / gear - load| peak                   {:7.3} deg at the load", f.motor_load_deviation_peak_deg);
+    println!(
+        "  the drive's 0x60F4 peak during the move       {:7.1} inc (the master's units)",
+        f.drive_following_error_peak_inc
+    );
+    let mut plot = seconds_plot(
+        &trace,
+        if cfg.dual_loop { "Dual loop: CSP move of the load" } else { "Motor encoder alone: CSP move of the load" },
+        &[
+            ("load_following_error_inc", "load following error [load inc]"),
+            ("motor_load_deviation_deg", "motor / gear - load [0.01 deg]"),
+        ],
+        "load increments",
+    );
+    if let Some(s) = plot.series.get_mut(1) {
+        for p in &mut s.points {
+            p.1 *= 100.0;
+        }
+    }
+    write(&trace, &plot, dir, "dual-loop")?;
+    println!();
+    println!("load_following_error_peak_inc={:.1}", f.load_following_error_peak_inc);
+    println!("load_settle_error_inc={:.1}", f.load_settle_error_inc);
+    println!("motor_load_deviation_peak_deg={:.3}", f.motor_load_deviation_peak_deg);
     Ok(())
 }
 
@@ -532,6 +593,52 @@ fn duty_cycle(seed: u64, dir: &Path) -> Result<(), String> {
     Ok(())
 }
 
+/// `drive-sim ssi`: the SSI absolute encoder as the only sensor (`hal_sim::scenarios::ssi`).
+fn ssi(args: &SsiArgs) -> Result<(), String> {
+    use hal_sim::scenarios::ssi;
+    let seed = args.common.seed;
+    let params = args.common.plant.as_ref().map_or_else(ssi::reference_ssi_plant, |f| f.params.clone());
+    if params.ssi_single_turn_bits == 0 {
+        return Err(
+            "ssi: the plant has no SSI sensor (ssi_single_turn_bits = 0; see hal-sim/presets/reference-ssi.toml)"
+                .into(),
+        );
+    }
+    if args.common.plant.is_none() {
+        println!("plant: reference motor with an SSI sensor (hal-sim/presets/reference-ssi.toml)");
+    }
+    println!(
+        "ssi: plant (seed {seed}) with a {} + {}-bit SSI sensor ({}), Halls stuck at 000 and the encoder's lines broken: \
+         SSI only (0x3000:01 = 0x0000_0300)",
+        params.ssi_multi_turn_bits,
+        params.ssi_single_turn_bits,
+        if params.ssi_gray { "Gray" } else { "binary" }
+    );
+    let f = ssi::run(&params, seed)?;
+    println!("  start-up commutation in PPM at rest, shaft at {:.3} rad", ssi::START_ANGLE_RAD);
+    println!("  move of {} revolutions: |0x6064 - target| = {} inc", ssi::MOVE_REVOLUTIONS, f.move_error_inc);
+    println!(
+        "  homing method 37 with 0x607C = {}: 0x6064 = {}, 0x3012:0E = {} (saved with 0x1010)",
+        ssi::HOME_POSITION,
+        f.homed_position_inc,
+        f.saved_offset_inc
+    );
+    println!(
+        "  power cycle, shaft turned {:.1} revolutions by hand meanwhile: 0x6064 {} before, {} after, no homing",
+        ssi::TURNED_WHILE_OFF_RAD / core::f64::consts::TAU,
+        f.position_before_inc,
+        f.position_after_inc
+    );
+    println!();
+    println!("commutation_error_deg={:.3}", f.commutation_error_deg);
+    println!("move_error_inc={}", f.move_error_inc);
+    println!("absolute_position_error_inc={}", f.absolute_position_error_inc);
+    println!("flipped_bit_code={:#06x}", f.flipped_bit_code);
+    println!("stuck_clock_code={:#06x}", f.stuck_clock_code);
+    println!("missing_sensor_code={:#06x}", f.missing_sensor_code);
+    Ok(())
+}
+
 /// `drive-sim identify`: the motor identification run by a master over SDO, its results against the plant's truth.
 fn identify(args: &IdentifyArgs) -> Result<(), String> {
     let seed = args.common.seed;
@@ -641,10 +748,32 @@ fn bench(seconds: f64, drives: usize) -> Result<(), String> {
     Ok(())
 }
 
+/// The `--pcap` capture of the EtherCAT servers, if one was asked for.
+type Capture = Option<PcapWriter<std::io::BufWriter<std::fs::File>>>;
+
+/// Opens the `--pcap` file of `drive-sim ethercat` (one drive or a line).
+fn open_pcap(path: Option<&Path>) -> Result<Capture, String> {
+    let Some(path) = path else { return Ok(None) };
+    let file = std::fs::File::create(path).map_err(|err| format!("--pcap {}: {err}", path.display()))?;
+    Ok(Some(PcapWriter::new(std::io::BufWriter::new(file)).map_err(|err| format!("--pcap: {err}"))?))
+}
+
+/// Writes `frame` to the capture, stamped with the wall clock, as a capture on the interface would be.
+fn capture(pcap: &mut Capture, frame: &[u8]) -> std::io::Result<()> {
+    match pcap.as_mut() {
+        Some(w) => {
+            let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default();
+            w.write_frame(now, frame)
+        }
+        None => Ok(()),
+    }
+}
+
 /// `drive-sim ethercat`: the drive as an EtherCAT slave on a network interface until `--seconds` (wall clock)
 /// pass, the master falls silent for `--idle-exit-ms` after its first frame, or the process is stopped.
 fn ethercat(e: &EthercatArgs) -> Result<(), String> {
-    if e.slaves > 1 || !e.plant_for.is_empty() {
+    // Real time runs the frame path apart from the drives (hal_sim::sim::ethercat_line, "Real time"), one drive too.
+    if e.slaves > 1 || !e.plant_for.is_empty() || !e.lock_step {
         return ethercat_line(e);
     }
     let iface = e.iface.as_str();
@@ -661,6 +790,9 @@ fn ethercat(e: &EthercatArgs) -> Result<(), String> {
         println!("note: a debug build; real masters' timeouts want `cargo run --release`");
     }
     let mut runner = EthercatRunner::with_plant(config, scenarios::scenario_plant())?;
+    if let Some(path) = &e.trace {
+        runner.node.trace = Some(hal_sim::sim::current_trace::CurrentTrace::create(path)?);
+    }
     if e.sto_open {
         runner.node.sim.plant.set_sto_inputs(firmware::hal::sto::StoInputs::DEMANDED);
         println!("  STO-IN1 and STO-IN2 de-energised (Safe Torque Off active from power-up)");
@@ -689,21 +821,8 @@ fn ethercat(e: &EthercatArgs) -> Result<(), String> {
     let idle_exit = e.idle_exit_ms.map(std::time::Duration::from_millis);
     let mut last_frames = 0;
     let mut last_frame_at = start;
-    let mut pcap = match &e.pcap {
-        Some(path) => {
-            let file = std::fs::File::create(path).map_err(|err| format!("--pcap {}: {err}", path.display()))?;
-            Some(PcapWriter::new(std::io::BufWriter::new(file)).map_err(|err| format!("--pcap: {err}"))?)
-        }
-        None => None,
-    };
-    // Frames are stamped with the wall clock, as a capture on the interface would be.
-    let tap = |_: Direction, frame: &[u8]| match pcap.as_mut() {
-        Some(w) => {
-            let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default();
-            w.write_frame(now, frame)
-        }
-        None => Ok(()),
-    };
+    let mut pcap = open_pcap(e.pcap.as_deref())?;
+    let tap = |_: Direction, frame: &[u8]| capture(&mut pcap, frame);
     runner
         .serve_tapped(iface, std::time::Duration::from_millis(1), tap, |stats| {
             let now = std::time::Instant::now();
@@ -838,7 +957,17 @@ fn ethercat_line(e: &EthercatArgs) -> Result<(), String> {
              cyclic frame (LRW/LRD/LWR)",
             e.cycle_us
         ),
-        ClockMode::RealTime => println!("ethercat: serving {n} simulated drives in a line on {iface}, real time"),
+        ClockMode::RealTime => {
+            println!(
+                "ethercat: serving {n} simulated drives in a line on {iface}, real time: frames answered on their \
+                 own thread, the drives on {} threads",
+                hal_sim::sim::ethercat_line::REAL_TIME_WORKERS.min(n)
+            );
+            // The priority the line was started at (`chrt -f P`): the frame path's; the workers step one below.
+            let (policy, priority) = hal_sim::sim::host_priority::current();
+            println!("realtime_policy={policy}");
+            println!("realtime_priority={priority}");
+        }
     }
     println!(
         "  ESC clocks {:+} ppm, spread +-{} ppm over the slaves; port-to-port delays {}..{} ns",
@@ -852,21 +981,9 @@ fn ethercat_line(e: &EthercatArgs) -> Result<(), String> {
     let idle_exit = e.idle_exit_ms.map(std::time::Duration::from_millis);
     let mut last_frames = 0;
     let mut last_frame_at = start;
-    let mut pcap = match &e.pcap {
-        Some(path) => {
-            let file = std::fs::File::create(path).map_err(|err| format!("--pcap {}: {err}", path.display()))?;
-            Some(PcapWriter::new(std::io::BufWriter::new(file)).map_err(|err| format!("--pcap: {err}"))?)
-        }
-        None => None,
-    };
-    let tap = |_: Direction, frame: &[u8]| match pcap.as_mut() {
-        Some(w) => {
-            let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default();
-            w.write_frame(now, frame)
-        }
-        None => Ok(()),
-    };
-    line.serve_tapped(iface, std::time::Duration::from_millis(1), tap, |stats| {
+    let mut pcap = open_pcap(e.pcap.as_deref())?;
+    let tap = |_: Direction, frame: &[u8]| capture(&mut pcap, frame);
+    let stop = |stats: &hal_sim::sim::ethercat_line::LineStats| {
         let now = std::time::Instant::now();
         if stats.frames != last_frames {
             last_frames = stats.frames;
@@ -875,7 +992,12 @@ fn ethercat_line(e: &EthercatArgs) -> Result<(), String> {
         let timed_out = limit.is_some_and(|l| now.duration_since(start) >= l);
         let silent = idle_exit.is_some_and(|d| stats.frames > 0 && now.duration_since(last_frame_at) >= d);
         timed_out || silent
-    })
+    };
+    let poll = std::time::Duration::from_millis(1);
+    match config.clock {
+        ClockMode::LockStep => line.serve_tapped(iface, poll, tap, stop),
+        ClockMode::RealTime => line.serve_real_time(iface, poll, tap, stop),
+    }
     .map_err(|err| err.to_string())?;
     if let Some(w) = pcap {
         println!("pcap_packets={}", w.packets());
@@ -905,6 +1027,16 @@ fn ethercat_line(e: &EthercatArgs) -> Result<(), String> {
     println!("cycles_min={}", all.iter().map(|s| s.cycles).min().unwrap_or(0));
     println!("cycles_max={}", all.iter().map(|s| s.cycles).max().unwrap_or(0));
     println!("sync0_pulses_min={}", all.iter().map(|s| s.sync0_pulses).min().unwrap_or(0));
+    if config.clock == ClockMode::RealTime {
+        println!("answer_max_us={:.1}", ls.answer_max_ns as f64 / 1_000.0);
+        println!("answers_over_100us={}", ls.answers_over_100us);
+        println!("answers_over_1ms={}", ls.answers_over_1ms);
+        println!("esc_wait_max_us={:.1}", ls.esc_wait_max_ns as f64 / 1_000.0);
+        // The output writes each ESC held until its drive's time reached their stamp.
+        println!("outputs_delivered_total={}", all.iter().map(|s| s.outputs_delivered).sum::<u64>());
+        println!("output_overflows_total={}", all.iter().map(|s| s.output_overflows).sum::<u64>());
+        println!("outputs_held_max={}", all.iter().map(|s| s.outputs_held_max).max().unwrap_or(0));
+    }
     println!("sync0_samples={}", ls.sync0_samples);
     println!("sync0_spread_max_ns={}", ls.sync0_spread_max_ns);
     println!("system_time_spread_ns={}", line.system_time_spread_ns());
@@ -917,8 +1049,9 @@ fn ethercat_line(e: &EthercatArgs) -> Result<(), String> {
         let reg32 = |a: u16| u32::from_le_bytes([a, a + 1, a + 2, a + 3].map(|x| s.esc.register(x)));
         println!(
             "slave{k}: serial={} clock_error_ppm={:+.3} hop_ns={} state_reached={} state_final={:?} cycles={} \
-             sync0_pulses={} sync0_missed={} sm_event_missed={} lag_events={} cia402_state_final={:?} \
-             dc_activation=0x{:02x} sync0_cycle_ns={} system_time_delay_ns={} pll_state={:?}",
+             sync0_pulses={} sync0_missed={} sm_event_missed={} sm2_writes={} lag_events={} cia402_state_final={:?} \
+             dc_activation=0x{:02x} sync0_cycle_ns={} system_time_delay_ns={} pll_state={:?} al_status_code=0x{:04x} \
+             al_error_ns={} left_operation_enabled={:?}",
             {
                 let mut b = [0u8; 4];
                 let _ = s.node.sim.drive.dictionary().read(
@@ -938,12 +1071,16 @@ fn ethercat_line(e: &EthercatArgs) -> Result<(), String> {
             st.sync0_pulses,
             st.sync0_missed,
             s.sm_event_missed(),
+            st.sm2_writes,
             st.lag_events,
             s.node.sim.cia402_state(),
             s.esc.register(0x0981),
             reg32(0x09A0),
             reg32(0x0928),
             s.sync_pll().state,
+            s.esc.register_u16(0x0134),
+            st.al_error_ns.map_or(-1, |t| t as i64),
+            st.left_operation_enabled,
         );
     }
     Ok(())
@@ -988,6 +1125,13 @@ fn main() -> ExitCode {
             print_plant(args.common.plant.as_ref());
             scenarios::with_plant(plant(args.common.plant.as_ref()), || identify(args))
         }
+        Command::Ssi(args) => {
+            // The default is the SSI preset's plant, not the reference: printed by `ssi` itself.
+            if args.common.plant.is_some() {
+                print_plant(args.common.plant.as_ref());
+            }
+            ssi(args)
+        }
         Command::Ethercat(args) => {
             print_plant(args.common.plant.as_ref());
             scenarios::with_plant(plant(args.common.plant.as_ref()), || ethercat(args))
@@ -999,6 +1143,7 @@ fn main() -> ExitCode {
             })
         }
         Command::Csp(args) => simulated(&args.scenario, &scenario, |dir| csp(args, dir)),
+        Command::DualLoop(args) => simulated(&args.scenario, &scenario, |dir| dual_loop(args, dir)),
         Command::FaultMatrix(args) => simulated(&args.scenario, &scenario, |dir| fault_matrix(args, dir)),
         Command::CsvSweep(args) => simulated(args, &scenario, |dir| csv_sweep(args.common.seed, dir)),
         Command::Ppm(args) => simulated(args, &scenario, |dir| ppm(args.common.seed, dir)),

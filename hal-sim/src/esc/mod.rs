@@ -87,6 +87,40 @@ pub struct Esc {
     port1_open: bool,
     /// Simulation (ideal) time of the latest SYNC0 pulse, ns.
     last_sync0_elapsed: Option<u64>,
+    /// Output writes held for a PDI side that runs behind the frames ([`Esc::hold_output_writes`]).
+    held: Option<HeldOutputs>,
+}
+
+/// A master's write of an output (buffered, master-written) sync manager, held until the PDI side's time
+/// reaches it ([`Esc::hold_output_writes`]).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct StampedWrite {
+    /// The ESC's DC system time at which the frame wrote the buffer, ns.
+    pub system_time: u64,
+    /// The sync manager.
+    pub sm: usize,
+    /// Its configuration then (a reconfigured sync manager drops what was written for the old one).
+    pub config: SmConfig,
+    /// The buffer's content.
+    pub data: Vec<u8>,
+}
+
+/// The output writes an ESC holds, and their counters.
+#[derive(Clone, Debug, Default)]
+pub struct HeldOutputs {
+    /// Most writes held at once.
+    pub depth: usize,
+    /// The system time of the frame being processed (set by the frame's path for each frame).
+    pub stamp: Option<u64>,
+    /// The writes not yet delivered, oldest first.
+    pub queue: std::collections::VecDeque<StampedWrite>,
+    /// Writes delivered to the PDI side.
+    pub delivered: u64,
+    /// Writes dropped because the queue was full (the oldest goes; the PDI side lagged by more than `depth`
+    /// writes).
+    pub overflows: u64,
+    /// The most writes held at once so far.
+    pub held_max: usize,
 }
 
 impl Esc {
@@ -111,6 +145,7 @@ impl Esc {
             arrival_ns: 0,
             port1_open: false,
             last_sync0_elapsed: None,
+            held: None,
         };
         registers::reset_registers(&mut esc.regs);
         esc.load_config_area();
@@ -155,6 +190,68 @@ impl Esc {
         self.note_sync0(pulses);
         self.run_watchdogs();
         self.refresh();
+    }
+
+    /// Holds the master's writes of output sync managers (buffered, master-written: SM2) for a PDI side that
+    /// runs behind the frames, as the real-time line's drives do (`crate::sim::ethercat_line`, "Real time"):
+    /// a write made while [`Esc::set_write_stamp`] names the frame's system time is kept, with a copy of the
+    /// buffer, in a queue of at most `depth` (the oldest dropped and counted when full: a real ESC's three
+    /// buffers keep the newest), and reaches the PDI side (buffer, status bit 0, SM event, watchdog) only when
+    /// [`Esc::deliver_held_writes`] is called with a system time at or past the stamp. So each SYNC0 cycle of
+    /// a drive that lags the wall clock sees the outputs of the frame that arrived in it, as the PDI of a real
+    /// ESC does. `depth` 0 switches holding off (the default: writes complete at once).
+    pub fn hold_output_writes(&mut self, depth: usize) {
+        self.held = (depth > 0).then(|| HeldOutputs { depth, ..HeldOutputs::default() });
+    }
+
+    /// The DC system time at which the frame about to be processed reaches this ESC (`None` after it): the
+    /// stamp of the output writes it makes while holding is on.
+    pub fn set_write_stamp(&mut self, system_time: Option<u64>) {
+        if let Some(h) = self.held.as_mut() {
+            h.stamp = system_time;
+        }
+    }
+
+    /// The held output writes and their counters, if holding is on.
+    pub fn held_outputs(&self) -> Option<&HeldOutputs> {
+        self.held.as_ref()
+    }
+
+    /// Completes, in order, the held output writes stamped at or before system time `up_to` (see
+    /// [`Esc::hold_output_writes`]). Returns how many reached the PDI side.
+    pub fn deliver_held_writes(&mut self, up_to: u64) -> usize {
+        let mut n = 0;
+        while let Some(w) = self.held.as_mut().and_then(|h| {
+            let due = h.queue.front().is_some_and(|w| w.system_time <= up_to);
+            if due {
+                h.queue.pop_front()
+            } else {
+                None
+            }
+        }) {
+            let Some(sm) = self.sms.get_mut(w.sm) else { continue };
+            if sm.config != w.config || !sm.config.is_active() {
+                continue;
+            }
+            sm.deliver(&w.data);
+            self.completed(w.sm, Side::Ecat, sm::Completion::Written);
+            if let Some(h) = self.held.as_mut() {
+                h.delivered += 1;
+            }
+            n += 1;
+        }
+        if n > 0 {
+            self.refresh();
+        }
+        n
+    }
+
+    /// The DC system time at ideal (simulation) time `elapsed`, from the clock as it stands now: the local
+    /// clock's rate error applied to the distance, the offset as it is.
+    pub fn system_time_at(&self, elapsed: u64) -> u64 {
+        let ahead = i128::from(elapsed) - i128::from(self.clock.elapsed);
+        let local = ahead + ahead * i128::from(self.clock.error_ppb) / 1_000_000_000;
+        self.clock.system_time().wrapping_add_signed(i64::try_from(local).unwrap_or(0))
     }
 
     /// Opens port 1 towards a following ESC (an ESC inside a line) or closes it (the last one, or alone): DL
@@ -446,6 +543,31 @@ impl Esc {
         })
     }
 
+    /// Whether `addr` lies in the window of a sync manager the master enabled (0x0806 + 8n bit 0) and the PDI
+    /// deactivated (0x0807 + 8n bit 0): "SyncManager deactivated and reset, SyncManager locks access to memory
+    /// area" (ESC datasheet section II, 0x0807 bit 0). The master's reads and writes there are refused and
+    /// count no working counter (ETG.1000.4 §5.4: a slave increments the working counter only for memory it
+    /// accessed), which is how a slave that left OP on a local error shows it (SAFE-OP: inputs only). A sync
+    /// manager the master disabled (0x0806 bit 0 = 0) leaves its window plain memory ("access to memory without
+    /// SyncManager control").
+    fn sm_locked(&self, addr: u16) -> bool {
+        self.sms.iter().any(|s| {
+            let c = &s.config;
+            c.activate & 0x01 != 0 && c.pdi_control & 0x01 != 0 && c.length > 0 && c.offset_of(addr).is_some()
+        })
+    }
+
+    /// Keeps a held output write (see [`Esc::hold_output_writes`]); a full queue drops its oldest.
+    fn hold(&mut self, write: StampedWrite) {
+        let Some(h) = self.held.as_mut() else { return };
+        if h.queue.len() >= h.depth {
+            h.queue.pop_front();
+            h.overflows += 1;
+        }
+        h.queue.push_back(write);
+        h.held_max = h.held_max.max(h.queue.len());
+    }
+
     /// The RAM window of sync manager `n` (clipped to the RAM).
     fn sm_window<'a>(ram: &'a mut [u8], cfg: &SmConfig) -> &'a mut [u8] {
         let start = usize::from(cfg.start).saturating_sub(usize::from(reg::RAM_START)).min(ram.len());
@@ -466,6 +588,9 @@ impl Esc {
             return None;
         }
         let Some((n, off)) = self.sm_at(addr) else {
+            if side == Side::Ecat && self.sm_locked(addr) {
+                return None;
+            }
             return self.ram.get(ram_off).copied();
         };
         let cfg = self.sms[n].config;
@@ -514,6 +639,9 @@ impl Esc {
             return false;
         }
         let Some((n, off)) = self.sm_at(addr) else {
+            if side == Side::Ecat && self.sm_locked(addr) {
+                return false;
+            }
             self.ram[ram_off] = v;
             return true;
         };
@@ -525,6 +653,14 @@ impl Esc {
             self.opened(n, side);
         }
         let window = Self::sm_window(&mut self.ram, &cfg);
+        let stamp = self.held.as_ref().and_then(|h| h.stamp);
+        if let (Some(system_time), Side::Ecat, false) = (stamp, side, cfg.is_mailbox()) {
+            let (ok, done) = self.sms[n].write_held(off, v, window);
+            if let Some(data) = done {
+                self.hold(StampedWrite { system_time, sm: n, config: cfg, data });
+            }
+            return ok;
+        }
         let (ok, done) = self.sms[n].write(off, v, window);
         if let Some(c) = done {
             self.completed(n, side, c);

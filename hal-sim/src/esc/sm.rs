@@ -143,19 +143,57 @@ impl SmRuntime {
     /// A write of `v` at window offset `off` by the writer side. `ram` is the window in the process RAM (used
     /// in mailbox mode). Returns whether the byte was accepted, and the completion it caused.
     pub fn write(&mut self, off: u16, v: u8, ram: &mut [u8]) -> (bool, Option<Completion>) {
-        let len = self.config.length;
+        match self.store(off, v, ram) {
+            None => (false, None),
+            Some(false) => (true, None),
+            Some(true) => {
+                self.publish();
+                (true, Some(Completion::Written))
+            }
+        }
+    }
+
+    /// [`Self::write`] in buffered mode for an ESC whose PDI side runs behind (a real-time line, see
+    /// [`super::Esc::hold_output_writes`]): the byte goes into the writer's buffer as usual, but the buffer the
+    /// last byte completes is handed back (its content) and freed instead of becoming the newest; it reaches
+    /// the reader later through [`Self::deliver`]. Returns whether the byte was accepted.
+    pub fn write_held(&mut self, off: u16, v: u8, ram: &mut [u8]) -> (bool, Option<Vec<u8>>) {
+        match self.store(off, v, ram) {
+            None => (false, None),
+            Some(false) => (true, None),
+            Some(true) => {
+                let data = self.write_open.take().and_then(|w| self.bufs.get(w)).cloned().unwrap_or_default();
+                (true, Some(data))
+            }
+        }
+    }
+
+    /// A buffer written earlier ([`Self::write_held`]) completes now, as if the master had written it at this
+    /// instant: it goes into a free buffer and becomes the newest (status bit 0, the write counter). Buffered
+    /// mode only; `data` is cut or padded to the window's length.
+    pub fn deliver(&mut self, data: &[u8]) {
+        let free = (0..3).find(|i| Some(*i) != self.latest && Some(*i) != self.read_open).unwrap_or(0);
+        if let Some(b) = self.bufs.get_mut(free) {
+            let n = b.len().min(data.len());
+            b[..n].copy_from_slice(&data[..n]);
+        }
+        self.write_open = Some(free);
+        self.publish();
+    }
+
+    /// Stores one byte of the writer side. `None`: refused; otherwise whether it was the window's last byte
+    /// (the buffer is complete; `write_open` still names it).
+    fn store(&mut self, off: u16, v: u8, ram: &mut [u8]) -> Option<bool> {
         let o = usize::from(off);
         if self.config.is_mailbox() {
             if self.full {
-                return (false, None);
+                return None;
             }
             if off == 0 {
                 self.write_open = Some(0);
                 self.irq_read = false;
             }
-            if self.write_open.is_none() {
-                return (false, None);
-            }
+            self.write_open?;
             if let Some(b) = ram.get_mut(o) {
                 *b = v;
             }
@@ -165,25 +203,24 @@ impl SmRuntime {
                 self.write_open = Some(free);
                 self.irq_read = false;
             }
-            let Some(w) = self.write_open else {
-                return (false, None);
-            };
+            let w = self.write_open?;
             if let Some(b) = self.bufs.get_mut(w).and_then(|b| b.get_mut(o)) {
                 *b = v;
             }
         }
-        if off + 1 == len {
-            if self.config.is_mailbox() {
-                self.full = true;
-            } else {
-                self.latest = self.write_open;
-            }
-            self.write_open = None;
-            self.irq_write = true;
-            self.writes += 1;
-            return (true, Some(Completion::Written));
+        Some(off + 1 == self.config.length)
+    }
+
+    /// The open write buffer is complete: the mailbox is full, or the buffer becomes the newest.
+    fn publish(&mut self) {
+        if self.config.is_mailbox() {
+            self.full = true;
+        } else {
+            self.latest = self.write_open;
         }
-        (true, None)
+        self.write_open = None;
+        self.irq_write = true;
+        self.writes += 1;
     }
 
     /// A read at window offset `off` by the reader side. `None` = refused (an empty mailbox towards the

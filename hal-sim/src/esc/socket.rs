@@ -5,8 +5,9 @@
 //! Opening the socket needs `CAP_NET_RAW`. Tests run it inside a private network namespace on one end of a
 //! veth pair (`unshare --net` as root; see the spec file, "What works here").
 //!
-//! The only `unsafe` code of the emulator lives in the private `sys` module: six libc calls, each wrapped so
-//! that its pointer and length arguments come from a Rust slice or a local struct.
+//! The emulator's `unsafe` code lives in two private `sys` modules: this one, seven libc calls, each wrapped so
+//! that its pointer and length arguments come from a Rust slice or a local struct, and the scheduling calls of
+//! [`crate::sim::host_priority`].
 
 use std::io;
 use std::ops::ControlFlow;
@@ -71,6 +72,14 @@ impl RawSocket {
                 Err(e) => return Err(e),
             }
         }
+    }
+
+    /// The kernel's receive time of the frame [`Self::recv`] returned last (`SIOCGSTAMPNS`, `socket(7)`): when
+    /// it reached the interface, independent of when this thread got to it. The first call switches the
+    /// kernel's time-stamping on and may return the current time. `None` if the kernel gives none.
+    pub fn last_receive_time(&self) -> Option<std::time::SystemTime> {
+        let (secs, nanos) = sys::last_receive_time(&self.fd).ok()?;
+        std::time::UNIX_EPOCH.checked_add(Duration::new(secs, nanos))
     }
 
     /// Sends one frame out of the interface.
@@ -166,7 +175,7 @@ impl AsRawFd for RawSocket {
     }
 }
 
-/// The socket FFI: the only `unsafe` in the emulator. Every call passes pointers to live locals or slices
+/// The socket FFI (see the module documentation). Every call passes pointers to live locals or slices
 /// with their true lengths, and checks the return value.
 #[allow(unsafe_code)]
 mod sys {
@@ -245,6 +254,21 @@ mod sys {
         }
         let outgoing = from.sll_pkttype == libc::PACKET_OUTGOING;
         Ok((usize::try_from(n).unwrap_or(0).min(buf.len()), outgoing))
+    }
+
+    /// `ioctl(SIOCGSTAMPNS)`: the receive time of the last packet, seconds and nanoseconds (`CLOCK_REALTIME`).
+    pub fn last_receive_time(fd: &OwnedFd) -> io::Result<(u64, u32)> {
+        /// `SIOCGSTAMPNS` (`linux/sockios.h`, the `timespec` with native `time_t`); not in the libc crate.
+        const SIOCGSTAMPNS: libc::c_ulong = 0x8907;
+        let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+        // SAFETY: the request writes one `timespec` to the pointer, which points at a live local of that type.
+        let r = unsafe { libc::ioctl(fd.as_raw_fd(), SIOCGSTAMPNS as _, &raw mut ts) };
+        if r < 0 {
+            return Err(io::Error::last_os_error());
+        }
+        let secs = u64::try_from(ts.tv_sec).unwrap_or(0);
+        let nanos = u32::try_from(ts.tv_nsec).unwrap_or(0).min(999_999_999);
+        Ok((secs, nanos))
     }
 
     /// `send` on the bound socket.

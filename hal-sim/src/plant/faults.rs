@@ -35,4 +35,11 @@ pub struct PlantFaults {
     /// The motor temperature channel reads this code whatever the winding temperature: `Some(0)` a sensor not
     /// connected (the input's pull-down), `Some(4095)` a sensor line shorted to the supply.
     pub motor_temperature_code_stuck: Option<u16>,
+    /// The SSI clock line is stuck (or the sensor lost its supply): the sensor never shifts, its data line stays at
+    /// the idle level and every clocked bit reads 1.
+    pub ssi_clock_stuck: bool,
+    /// No SSI sensor answers (not connected: the receiver's fail-safe reads 1 on every bit).
+    pub ssi_missing: bool,
+    /// Flip this bit (0 = the last clocked) of the next SSI frame, once (a disturbed transmission).
+    pub ssi_flip_bit_once: Option<u32>,
 }

@@ -89,7 +89,8 @@ impl PlantParams {
     /// linkage, the rotor inertia, the bus capacitance and the ratings positive; pole pairs at least 1; the gear
     /// ratio positive, its efficiency in (0, 1]; stiffness, damping, frictions, load inertia and backlash not
     /// negative; backlash only with a compliant coupling, a compliant coupling only with a load inertia; the
-    /// encoder a multiple of 4 counts (quadrature), the index on one of them; at least one integration sub-step.
+    /// encoder a multiple of 4 counts (quadrature), the index on one of them; an SSI sensor of 6..=16 single-turn
+    /// bits and at most 32 clocked bits; at least one integration sub-step.
     pub fn validate(&self) -> Result<(), (&'static str, String)> {
         let positive: [(&'static str, f64); 15] = [
             ("source_voltage_v", self.source_voltage_v),
@@ -177,6 +178,20 @@ impl PlantParams {
             return Err((
                 "load_encoder_counts_per_rev",
                 format!("must be 0 (none) or a multiple of 4 (quadrature), got {}", self.load_encoder_counts_per_rev),
+            ));
+        }
+        if self.ssi_single_turn_bits != 0 && !(6..=16).contains(&self.ssi_single_turn_bits) {
+            return Err((
+                "ssi_single_turn_bits",
+                format!("must be 0 (no SSI sensor) or 6..=16, got {}", self.ssi_single_turn_bits),
+            ));
+        }
+        let ssi_clocked =
+            self.ssi_single_turn_bits + self.ssi_multi_turn_bits + if self.ssi_frame_check { 2 } else { 0 };
+        if self.ssi_single_turn_bits != 0 && ssi_clocked > 32 {
+            return Err((
+                "ssi_multi_turn_bits",
+                format!("the SSI frame has at most 32 clocked bits (frame bits included), got {ssi_clocked}"),
             ));
         }
         if self.substeps_per_period < 1 {

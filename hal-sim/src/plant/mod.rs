@@ -270,6 +270,9 @@ pub struct Plant {
     /// the counts missed while the A/B lines were broken ([`faults::PlantFaults`]). Zero for a healthy encoder.
     encoder_error: i64,
     pending_index: Option<u16>,
+    /// The SSI frame latched at the last sample: the drive reads it one period later (the board's transfer runs
+    /// during the period after the PWM centre that latched it).
+    ssi_latched: u32,
     period: u64,
     at_sample: PlantState,
     averages: PeriodAverages,
@@ -329,6 +332,7 @@ impl Plant {
             last_count: 0,
             encoder_error: 0,
             pending_index: None,
+            ssi_latched: 0,
             period: 0,
             at_sample: PlantState::default(),
             averages: PeriodAverages::default(),
@@ -343,6 +347,7 @@ impl Plant {
             params,
         };
         plant.last_count = plant.count_now();
+        plant.ssi_latched = plant.ssi_frame_now();
         plant.at_sample = plant.state();
         plant
     }
@@ -604,6 +609,7 @@ impl Plant {
         self.stretch_acceleration = 0.0;
         self.follow_motor(self.params.gear_ratio);
         self.last_count = self.count_now();
+        self.ssi_latched = self.ssi_frame_now();
         self.pending_index = None;
     }
 
@@ -615,7 +621,7 @@ impl Plant {
     }
 
     /// The total count of the load encoder now (`PlantParams::load_encoder_counts_per_rev` counts per output turn,
-    /// count 0 at load angle 0), or `None` without one. The drive does not read it yet (dual-loop work to come).
+    /// count 0 at load angle 0), or `None` without one: the drive's sensor 2 (0x3020, the dual loop's main sensor).
     pub fn load_encoder_count(&self) -> Option<i64> {
         let cpr = self.params.load_encoder_counts_per_rev;
         (cpr > 0).then(|| sensors::encoder_count(self.theta_l, cpr, 0))

@@ -128,6 +128,20 @@ pub struct PlantParams {
     /// Electrical angle at which Hall 1 rises (for positive rotation), in rad; Hall 2 and Hall 3 follow at
     /// +120 and +240 degrees electrical.
     pub hall_offset_rad: f64,
+    /// Single-turn bits of an SSI absolute encoder on the motor shaft (`2^bits` increments per revolution); 0 = no
+    /// SSI sensor fitted. Its frame ([`super::sensors::ssi_frame`]) is in the drive's format
+    /// (`firmware::sensors::ssi`): start bit, multi-turn and single-turn bits MSB first, stop bit.
+    pub ssi_single_turn_bits: u32,
+    /// Multi-turn bits of the SSI encoder (the revolutions it counts, kept without power: its position is absolute).
+    pub ssi_multi_turn_bits: u32,
+    /// The SSI encoder sends Gray code (else binary).
+    pub ssi_gray: bool,
+    /// The SSI master clocks the frame's start and stop bits (the drive's 0x3012:03 bit 8).
+    pub ssi_frame_check: bool,
+    /// The SSI encoder's position at mechanical angle 0, in its increments (where its zero and its multi-turn
+    /// count sit on the shaft; a multiple of `2^single-turn bits` leaves it aligned with the rotor, as a maxon
+    /// encoder is from the factory).
+    pub ssi_offset_counts: i64,
 
     // ---- ADC ----
     /// Shunt-channel gains (phases A, B, C), in LSB per A of phase current (negative for an inverting amplifier).
@@ -241,6 +255,11 @@ impl PlantParams {
             index_count: 0,
             load_encoder_counts_per_rev: 0,
             hall_offset_rad: 0.0,
+            ssi_single_turn_bits: 0,
+            ssi_multi_turn_bits: 0,
+            ssi_gray: true,
+            ssi_frame_check: true,
+            ssi_offset_counts: 0,
             shunt_gain_lsb_per_a: [4096.0 / 33.0; 3],
             shunt_offset_lsb: [37.0, -24.0, 12.0],
             shunt_noise_lsb_rms: 2.0,

@@ -42,6 +42,43 @@ impl Plant {
         }
     }
 
+    /// The SSI frame the drive reads in this period: the one latched at the last sample (one period's sampling
+    /// delay), with the injected SSI faults; the frame of the rotor's angle now is latched for the next period.
+    /// Without an SSI sensor, 0.
+    pub(super) fn ssi_frame(&mut self) -> u32 {
+        let p = &self.params;
+        if p.ssi_single_turn_bits == 0 {
+            return 0;
+        }
+        let frame_bits = p.ssi_single_turn_bits + p.ssi_multi_turn_bits + if p.ssi_frame_check { 2 } else { 0 };
+        let now = self.ssi_frame_now();
+        let mut delivered = core::mem::replace(&mut self.ssi_latched, now);
+        if self.faults.ssi_clock_stuck || self.faults.ssi_missing {
+            // The data line idles high: every clocked bit reads 1.
+            delivered = u32::MAX >> (32 - frame_bits);
+        }
+        if let Some(bit) = self.faults.ssi_flip_bit_once.take() {
+            delivered ^= 1 << bit;
+        }
+        delivered
+    }
+
+    /// The SSI frame of the rotor's true angle now (0 without an SSI sensor).
+    pub(super) fn ssi_frame_now(&self) -> u32 {
+        let p = &self.params;
+        if p.ssi_single_turn_bits == 0 {
+            return 0;
+        }
+        sensors::ssi_frame(
+            self.theta_m,
+            p.ssi_single_turn_bits,
+            p.ssi_multi_turn_bits,
+            p.ssi_gray,
+            p.ssi_frame_check,
+            p.ssi_offset_counts,
+        )
+    }
+
     /// The total encoder count of the rotor's true angle now, without the injected sensor faults.
     pub(super) fn count_now(&self) -> i64 {
         sensors::encoder_count(self.theta_m, self.params.encoder_counts_per_rev, self.params.encoder_offset_counts)
@@ -123,6 +160,7 @@ impl Plant {
             index_latch: self.pending_index.take(),
             hall,
             digital_inputs: self.io.input_levels(&p.io, self.last_count),
+            ssi_frame: self.ssi_frame(),
         };
         let mut state = self.state_with(t, i_abc);
         state.shunt_currents_a = shunt;

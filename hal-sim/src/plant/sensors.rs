@@ -51,6 +51,22 @@ pub fn index_entry(previous: i64, now: i64, counts_per_rev: u32, index_count: u3
     }
 }
 
+/// The SSI absolute encoder's position at mechanical angle `theta_m_rad` (`floor(theta_m / 2pi * 2^st) +
+/// offset`, modulo its `2^(mt + st)` increments) and the frame it clocks out for it: start bit 1, the position
+/// MSB first (Gray coded when `gray`: `b ^ (b >> 1)`), stop bit 0 (the frame bits only with `frame_check`).
+pub fn ssi_frame(theta_m_rad: f64, st: u32, mt: u32, gray: bool, frame_check: bool, offset: i64) -> u32 {
+    let bits = st + mt;
+    let count = (theta_m_rad / (2.0 * PI) * f64::from(1u32 << st)).floor() as i64 + offset;
+    // The position wraps at 2^(mt + st) (<= 32 bits with the frame bits): the truncation is the sensor's.
+    let position = (count.rem_euclid(1i64 << bits)) as u32;
+    let data = if gray { position ^ (position >> 1) } else { position };
+    if frame_check {
+        (1 << (bits + 1)) | (data << 1)
+    } else {
+        data
+    }
+}
+
 /// Hall state (bit 0 = H1, bit 1 = H2, bit 2 = H3) at electrical angle `theta_e_rad`.
 ///
 /// Each sensor is high for 180 degrees electrical: H1 on `[offset, offset + 180)`, H2 on `[offset + 120,

@@ -16,6 +16,7 @@
 //! current loop works in the true rotor frame. Figures are computed from the plant's true currents at the sample
 //! instants (what the motor carries, free of ADC noise), except where a figure is about the drive's own estimate.
 
+pub mod dual_loop;
 pub mod duty_cycle;
 pub mod faults;
 pub mod homing;
@@ -23,6 +24,7 @@ pub mod identification;
 pub mod motion;
 pub mod profile;
 pub mod regeneration;
+pub mod ssi;
 
 use core::f64::consts::PI;
 use std::cell::RefCell;

@@ -31,11 +31,18 @@ pub fn prepare_motion(seed: u64, mode: i8) -> Result<Simulation, SimError> {
 /// [`prepare_motion`] on the plant `params` (the drive's encoder objects follow its encoder,
 /// [`Simulation::new`]).
 pub fn prepare_motion_on(params: PlantParams, seed: u64, mode: i8) -> Result<Simulation, SimError> {
+    let mut sim = prepare_plant_for_motion(params, seed)?;
+    sim.enable_through_controlword(mode)?;
+    Ok(sim)
+}
+
+/// [`prepare_motion_on`] up to the enabling: commissioned, the rotor at rest, the power stage off (where a master
+/// writes the objects that are writable only then).
+pub fn prepare_plant_for_motion(params: PlantParams, seed: u64) -> Result<Simulation, SimError> {
     let (mut sim, _) = prepare_plant(params, &Setup { seed, ..Setup::default() })?;
     let theta = sim.plant.state().theta_m_rad;
     sim.plant.set_rotor_state(theta, 0.0);
     sim.run(250);
-    sim.enable_through_controlword(mode)?;
     Ok(sim)
 }
 

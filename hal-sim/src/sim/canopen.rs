@@ -196,7 +196,7 @@ pub struct CanDrive {
     outbox: Vec<CanFrame>,
     /// The simulator's own trace of tier 1's q current (`drive-sim canopen --trace FILE`): one CSV line every
     /// current-loop period, the reference a recording of the drive's data recorder is checked against.
-    pub trace: Option<std::io::BufWriter<std::fs::File>>,
+    pub trace: Option<super::current_trace::CurrentTrace>,
     /// Frames the fallback services answered or sent since power-on (boot-ups, answers, timeouts).
     fallback_frames: u64,
     /// What the drive's CAN controller reports (an injected error state): the node reads it before every slow
@@ -381,21 +381,7 @@ impl CanDrive {
         }
         self.sim.step();
         if let Some(trace) = self.trace.as_mut() {
-            use std::io::Write as _;
-            // What tier 1 measured and was asked for (rounded to mA as the recorder rounds them), and the plant's
-            // true q current at the sample; flushed every slow tick, so that a killed simulator leaves it whole.
-            let s = self.sim.tier1().signals();
-            let true_ma = self.sim.plant.state_at_sample().i_dq_a[1] * 1000.0;
-            let _ = writeln!(
-                trace,
-                "{},{},{},{true_ma:.1}",
-                self.sim.ticks(),
-                s.i_dq.q.to_milliamps(),
-                s.i_ref.q.to_milliamps()
-            );
-            if slow {
-                let _ = trace.flush();
-            }
+            trace.record(&self.sim, slow);
         }
         if !slow {
             return;
@@ -859,7 +845,7 @@ mod reset_tests {
             d.table()
                 .entries()
                 .iter()
-                .filter(|e| (0x1000..=0x1FFF).contains(&e.index) && e.persistent && !e.node_id_relative)
+                .filter(|e| (0x1000..=0x1FFF).contains(&e.index) && e.persistent && !e.node_id_relative())
                 .filter(|e| matches!(e.storage, Storage::Ram { .. }) && e.data_type.fixed_size().is_some())
                 .copied()
                 .collect()
@@ -874,8 +860,8 @@ mod reset_tests {
             let mut bytes = [0u8; 8];
             bytes[..raw.len()].copy_from_slice(raw);
             let value = u64::from_le_bytes(bytes);
-            let max = match *e.limits {
-                Limits::Unsigned { max, .. } => max,
+            let max = match *e.generated_limits() {
+                Limits::Unsigned { max, .. } => u64::from(max),
                 _ => u64::MAX >> (64 - 8 * raw.len() as u32),
             };
             let new = if value < max { value + 1 } else { value - 1 };
@@ -891,7 +877,7 @@ mod reset_tests {
             nmt(&mut r, command);
             let now = r.drives[0].sim.drive.dictionary().values().bytes().to_vec();
             for e in &entries {
-                let Storage::Ram { offset, len } = e.storage else { continue };
+                let Storage::Ram { offset, len, .. } = e.storage else { continue };
                 let range = usize::from(offset)..usize::from(offset) + usize::from(len);
                 assert_eq!(now[range.clone()], saved[range], "{:#06x}:{} after NMT {command:#x}", e.index, e.sub);
             }

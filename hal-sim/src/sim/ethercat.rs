@@ -155,6 +155,13 @@ pub struct RunnerStats {
     /// Simulated time the CiA 402 state last left «Operation enabled», ns, and the state it went to (the
     /// reaction of a fault such as 0x6007 on a communication loss).
     pub left_operation_enabled: Option<(u64, State)>,
+    /// Real-time line: output writes held by the ESC until the drive's time reached their stamp, delivered
+    /// ([`Esc::hold_output_writes`]).
+    pub outputs_delivered: u64,
+    /// Real-time line: held output writes dropped because the drive lagged by more than the queue's depth.
+    pub output_overflows: u64,
+    /// Real-time line: the most output writes held at once (how many frames the drive lagged behind).
+    pub outputs_held_max: u64,
 }
 
 /// The drive as an EtherCAT slave on the simulated plant. See the module documentation.
@@ -187,6 +194,8 @@ pub struct SlaveNode {
     /// Whether an image on trial confirms itself once the slave reaches PRE-OP after its start (default on; off
     /// for the test that an image that never confirms is reverted).
     pub auto_confirm: bool,
+    /// The simulator's own trace of tier 1's q current (`drive-sim ethercat --trace FILE`), one line a period.
+    pub trace: Option<super::current_trace::CurrentTrace>,
     stats: RunnerStats,
     /// Simulated time not yet run because it is less than one PWM period, ns.
     owed_ns: u64,
@@ -228,6 +237,7 @@ impl EthercatRunner {
             last_boot,
             resets: 0,
             auto_confirm: true,
+            trace: None,
             stats: RunnerStats::default(),
             owed_ns: 0,
             origin: None,
@@ -291,7 +301,13 @@ impl EthercatRunner {
 
     /// The counters.
     pub fn stats(&self) -> RunnerStats {
-        self.node.stats
+        let mut stats = self.node.stats;
+        if let Some(h) = self.esc.held_outputs() {
+            stats.outputs_delivered = h.delivered;
+            stats.output_overflows = h.overflows;
+            stats.outputs_held_max = h.held_max as u64;
+        }
+        stats
     }
 
     /// The firmware's ESM state.
@@ -494,6 +510,58 @@ impl SlaveNode {
 
     /// Real-time mode: runs the plant up to the wall clock (at most [`MAX_CATCH_UP_PERIODS`] at once).
     fn catch_up(&mut self, esc: &mut Esc) {
+        self.catch_up_at_most(esc, MAX_CATCH_UP_PERIODS);
+    }
+
+    /// The real-time line's frame path ([`super::ethercat_line::EthercatLine::serve_real_time`]): counts a frame
+    /// the ESC answered; the firmware sees its effects at the drive's next [`Self::service_real_time`].
+    pub(crate) fn count_frame(&mut self, report: &FrameReport) {
+        self.stats.frames = self.stats.frames.saturating_add(1);
+        if report.datagrams.iter().any(|(c, _)| matches!(c, Command::Lrw | Command::Lrd | Command::Lwr)) {
+            self.stats.cyclic_frames = self.stats.cyclic_frames.saturating_add(1);
+        }
+    }
+
+    /// The real-time line's drive side, called by a worker thread again and again (the ESC's PDI side): the
+    /// SM2 event of the frames since the last call (the SM-synchronous cycle), the firmware's poll (AL control,
+    /// mailbox, watchdog), then simulated time towards the wall clock, at most `chunk` PWM periods so that the
+    /// ESC is not held from the frame path for longer. Returns whether the drive is still behind the wall clock.
+    pub(crate) fn service_real_time(&mut self, esc: &mut Esc, chunk: u64) -> bool {
+        self.service_before_step(esc);
+        self.catch_up_at_most(esc, chunk)
+    }
+
+    /// [`Self::service_real_time`] with `periods` PWM periods instead of the wall clock's: the drive's side of
+    /// the real-time line stepped by a caller that decides how late it runs (tests).
+    #[cfg(test)]
+    pub(crate) fn service_periods(&mut self, esc: &mut Esc, periods: u64) {
+        self.service_before_step(esc);
+        for _ in 0..periods {
+            self.step(esc);
+        }
+    }
+
+    fn service_before_step(&mut self, esc: &mut Esc) {
+        let sm2_written = self.take_sm2_write(esc);
+        self.poll(esc);
+        if sm2_written && self.sync_type() == sync_type::SM_SYNCHRONOUS {
+            self.cycle(esc);
+        }
+    }
+
+    /// The real-time line's frame path: the ESC's DC system time at which a frame that arrived at wall-clock
+    /// `arrived` reaches this drive's ESC, `port_delay_ns` after the line's first port: the arrival on this
+    /// drive's simulated time (whose origin is the wall clock's, [`Self::catch_up_at_most`]) mapped to the ESC's
+    /// clock ([`Esc::system_time_at`]). The stamp of the output writes the frame makes.
+    pub(crate) fn write_stamp(&mut self, esc: &Esc, arrived: Instant, port_delay_ns: u64) -> u64 {
+        let origin = *self.origin.get_or_insert(arrived);
+        let since = u64::try_from(arrived.saturating_duration_since(origin).as_nanos()).unwrap_or(u64::MAX);
+        esc.system_time_at(since.saturating_add(port_delay_ns))
+    }
+
+    /// Runs the plant towards the wall clock, at most `limit` PWM periods now; a lag beyond
+    /// [`MAX_CATCH_UP_PERIODS`] is given up and counted. Returns whether periods remain to be run.
+    fn catch_up_at_most(&mut self, esc: &mut Esc, limit: u64) -> bool {
         let origin = *self.origin.get_or_insert_with(Instant::now);
         let wall_ns = u64::try_from(origin.elapsed().as_nanos()).unwrap_or(u64::MAX);
         let behind = wall_ns.saturating_sub(esc.elapsed().saturating_add(self.owed_ns));
@@ -506,15 +574,19 @@ impl SlaveNode {
             self.origin = Some(origin + Duration::from_nanos(skipped));
             periods = MAX_CATCH_UP_PERIODS;
         }
-        for _ in 0..periods {
+        for _ in 0..periods.min(limit) {
             self.step(esc);
         }
+        periods > limit
     }
 
     /// One PWM period: plant and drive, the ESC's time (SYNC0, watchdogs), and the cycle SYNC0 or free run
     /// starts.
     fn step(&mut self, esc: &mut Esc) {
         self.sim.step();
+        if let Some(trace) = self.trace.as_mut() {
+            trace.record(&self.sim, self.sim.ticks().is_multiple_of(u64::from(SLOW_TICK_DIVIDER)));
+        }
         let state = self.sim.cia402_state();
         let enabled = state == State::OperationEnabled;
         if self.stats.operation_enabled && !enabled {
@@ -524,13 +596,22 @@ impl SlaveNode {
         esc.advance(self.drive_clock.next_period_ns());
         let sync = self.sync_type();
         self.drive_clock.follow_dc_mode(esc, sync == sync_type::DC_SYNC0);
+        // Held output writes (the real-time line; none in lock-step) reach the PDI when this period passes
+        // their stamp: those before a SYNC0 pulse are the outputs of its cycle, the rest wait for the next.
+        let mut delivered = 0;
         if let Some(pulse) = esc.take_sync0() {
             self.stats.sync0_pulses = self.stats.sync0_pulses.saturating_add(u64::from(pulse.count));
             self.stats.sync0_missed = self.stats.sync0_missed.saturating_add(u64::from(pulse.count.saturating_sub(1)));
+            delivered += esc.deliver_held_writes(pulse.system_time);
             if sync == sync_type::DC_SYNC0 {
                 self.drive_clock.on_sync0(esc, pulse.system_time);
                 self.cycle(esc);
             }
+        }
+        delivered += esc.deliver_held_writes(esc.system_time());
+        if delivered > 0 && self.take_sm2_write(esc) && sync == sync_type::SM_SYNCHRONOUS {
+            // The SM2 event starts the SM-synchronous cycle when the write reaches the PDI.
+            self.cycle(esc);
         }
         if sync == sync_type::FREE_RUN && self.sim.ticks().is_multiple_of(u64::from(SLOW_TICK_DIVIDER)) {
             self.cycle(esc);
@@ -791,5 +872,230 @@ mod tests {
         // At least the 20 ms slept (minus one period of rounding); at most the catch-up bound.
         assert!(t >= 20_000_000 - PERIOD_NS, "{t}");
         assert!(t <= MAX_CATCH_UP_PERIODS * PERIOD_NS * 2, "{t}");
+    }
+
+    /// The runner with an in-process master, brought to OP in DC mode (SYNC0 every 1 ms, 0x1C32:01 = 2) in
+    /// lock-step, as the multi-axis tests' masters do.
+    struct DcRig {
+        r: EthercatRunner,
+        image: Vec<u8>,
+    }
+
+    const STATION: u16 = 0x1001;
+    const LOGICAL: u32 = 0x0001_0000;
+    const CYCLE_NS: u64 = 1_000_000;
+
+    impl DcRig {
+        fn op() -> Self {
+            use firmware::ecat::process_data::ProcessDataLayout;
+            use firmware::od::generated as g;
+            let mut rig = Self { r: lock_step(CYCLE_NS, 0), image: Vec::new() };
+            rig.fpwr_ap(0x0010, &STATION.to_le_bytes());
+            rig.sm(0, g::MAILBOX_OUT_START, g::MAILBOX_OUT_SIZE, 0x26);
+            rig.sm(1, g::MAILBOX_IN_START, g::MAILBOX_IN_SIZE, 0x22);
+            assert_eq!(rig.request(0x0002), (0x0002, 0), "PRE-OP");
+            let layout = ProcessDataLayout::compile(rig.r.node.sim.drive.dictionary()).expect("default mapping");
+            let (out_len, in_len) = (layout.output_bytes, layout.input_bytes);
+            rig.sm(2, g::PROCESS_OUT_START, out_len, 0x64);
+            rig.sm(3, g::PROCESS_IN_START, in_len, 0x20);
+            rig.fmmu(0, LOGICAL, out_len, g::PROCESS_OUT_START, 0x02);
+            rig.fmmu(1, LOGICAL + u32::from(out_len), in_len, g::PROCESS_IN_START, 0x01);
+            rig.image = vec![0; usize::from(out_len + in_len)];
+            rig.r.node.sim.drive.dictionary_mut().set(h::SM2_SYNC_TYPE, sync_type::DC_SYNC0);
+            rig.r.node.sim.drive.dictionary_mut().set(h::SM3_SYNC_TYPE, sync_type::DC_SYNC0);
+            rig.fpwr(0x09A0, &(CYCLE_NS as u32).to_le_bytes());
+            let start = rig.r.esc.system_time() + CYCLE_NS / 2;
+            rig.fpwr(0x0990, &start.to_le_bytes());
+            rig.fpwr(0x0981, &[0x03]);
+            assert_eq!(rig.request(0x0004), (0x0004, 0), "SAFE-OP in DC");
+            for _ in 0..3 {
+                rig.lock_step_cycle();
+            }
+            assert_eq!(rig.request(0x0008), (0x0008, 0), "OP");
+            for _ in 0..10 {
+                rig.lock_step_cycle();
+            }
+            rig
+        }
+
+        fn datagram(&mut self, cmd: Command, adp: u16, ado: u16, data: &[u8]) -> (Vec<u8>, u16) {
+            let mut f = FrameBuilder::new().push(cmd, adp, ado, data).build();
+            self.r.frame(&mut f).expect("a well-formed frame");
+            let frame = crate::esc::datagram::Frame::new_checked(&f).expect("parses");
+            let d = frame.datagram(0).expect("one datagram");
+            (d.data().to_vec(), d.wkc())
+        }
+
+        fn fpwr_ap(&mut self, ado: u16, data: &[u8]) {
+            assert_eq!(self.datagram(Command::Apwr, 0, ado, data).1, 1);
+        }
+
+        fn fpwr(&mut self, ado: u16, data: &[u8]) {
+            assert_eq!(self.datagram(Command::Fpwr, STATION, ado, data).1, 1, "FPWR 0x{ado:04X}");
+        }
+
+        fn sm(&mut self, n: u16, start: u16, len: u16, control: u8) {
+            let [s0, s1] = start.to_le_bytes();
+            let [l0, l1] = len.to_le_bytes();
+            self.fpwr(0x0800 + 8 * n, &[s0, s1, l0, l1, control, 0, 0x01, 0]);
+        }
+
+        fn fmmu(&mut self, n: u16, logical: u32, len: u16, physical: u16, kind: u8) {
+            let mut regs = logical.to_le_bytes().to_vec();
+            regs.extend_from_slice(&len.to_le_bytes());
+            regs.extend_from_slice(&[0, 7]);
+            regs.extend_from_slice(&physical.to_le_bytes());
+            regs.extend_from_slice(&[0, kind, 1, 0, 0, 0]);
+            self.fpwr(0x0600 + 16 * n, &regs);
+        }
+
+        fn request(&mut self, control: u16) -> (u16, u16) {
+            self.fpwr(0x0120, &control.to_le_bytes());
+            let (d, _) = self.datagram(Command::Fprd, STATION, 0x0130, &[0; 6]);
+            (u16::from_le_bytes([d[0], d[1]]), u16::from_le_bytes([d[4], d[5]]))
+        }
+
+        /// AL status and AL status code as the ESC shows them, without a frame.
+        fn al(&self) -> (u16, u16) {
+            (self.r.esc.register_u16(0x0130), self.r.esc.register_u16(0x0134))
+        }
+
+        fn lock_step_cycle(&mut self) {
+            let mut f = FrameBuilder::new().push_logical(Command::Lrw, LOGICAL, &self.image).build();
+            self.r.frame(&mut f).expect("a well-formed frame");
+        }
+
+        /// The real-time frame path: an LRW processed by the ESC at once (the drive not stepped), its output
+        /// write stamped with `system_time` (ignored unless the ESC holds output writes). Returns the working
+        /// counter.
+        fn frame_at(&mut self, system_time: u64) -> u16 {
+            let mut f = FrameBuilder::new().push_logical(Command::Lrw, LOGICAL, &self.image).build();
+            self.r.esc.set_write_stamp(Some(system_time));
+            let report = self.r.esc.process_frame(&mut f).expect("a well-formed frame");
+            self.r.esc.set_write_stamp(None);
+            self.r.node.count_frame(&report);
+            crate::esc::datagram::Frame::new_checked(&f).expect("parses").datagram(0).expect("LRW").wkc()
+        }
+    }
+
+    /// What a late-stepped run saw.
+    #[derive(Debug)]
+    struct LateRun {
+        /// SYNC0 pulses after the first frame.
+        pulses: u64,
+        /// Pulses at which the outputs delivered so far were not exactly the frames stamped before the pulse.
+        pulses_off_by_frames: u64,
+        /// 0x1C32:0B at the end.
+        sm_event_missed: u16,
+        /// AL status and code at the end.
+        al: (u16, u16),
+        /// Output writes delivered and dropped.
+        delivered: u64,
+        overflows: u64,
+        /// LRW frames whose working counter was not 3 (outputs written, inputs read).
+        wkc_not_3: u64,
+    }
+
+    /// 1,000 cycles of the real-time line's pattern without the wall clock: frame `k` arrives (its stamp)
+    /// 100..=800 us before SYNC0 pulse `k`, spread over the cycle; the frame path processes every frame at
+    /// once; the drive is stepped late and in chunks of 5 PWM periods: only at every third frame, and then only
+    /// up to 0..=900 us before that frame's arrival, so that it runs 0 to 3.9 cycles behind the frames.
+    /// `hold`: the ESC holds the output writes for the drive (the real-time line) or publishes them at once.
+    fn late_run(hold: bool) -> LateRun {
+        let mut rig = DcRig::op();
+        assert_eq!(rig.al(), (0x0008, 0));
+        rig.r.esc.hold_output_writes(if hold { 16 } else { 0 });
+        let first_pulse = rig.r.esc.system_time() + rig.r.esc.next_sync0_in().expect("SYNC0 armed");
+        let pulses0 = rig.r.stats().sync0_pulses;
+        let mut stamps: Vec<u64> = Vec::new();
+        let mut off = 0;
+        let mut wkc_not_3 = 0;
+        let mut last_pulses = pulses0;
+        for k in 0..1_000u64 {
+            let stamp = first_pulse + k * CYCLE_NS - 100_000 - (k * 37 % 8) * 100_000;
+            if k % 3 == 0 {
+                let target = stamp.saturating_sub((k * 7_919 % 10) * 100_000);
+                while rig.r.esc.system_time() + PERIOD_NS <= target {
+                    let behind = (target - rig.r.esc.system_time()) / PERIOD_NS;
+                    // Period by period within the chunk, to look at every pulse as it fires.
+                    for _ in 0..behind.min(5) {
+                        rig.r.node.service_periods(&mut rig.r.esc, 1);
+                        let s = rig.r.stats();
+                        if s.sync0_pulses != last_pulses {
+                            last_pulses = s.sync0_pulses;
+                            let pulse = first_pulse + (s.sync0_pulses - pulses0 - 1) * CYCLE_NS;
+                            let due = stamps.iter().filter(|&&t| t <= pulse).count() as u64;
+                            let seen = if hold { s.outputs_delivered } else { stamps.len() as u64 };
+                            if seen != due {
+                                off += 1;
+                            }
+                        }
+                    }
+                }
+            }
+            if rig.frame_at(stamp) != 3 {
+                wkc_not_3 += 1;
+            }
+            stamps.push(stamp);
+        }
+        let s = rig.r.stats();
+        LateRun {
+            pulses: s.sync0_pulses - pulses0,
+            pulses_off_by_frames: off,
+            sm_event_missed: rig.r.sm_event_missed(),
+            al: rig.al(),
+            delivered: s.outputs_delivered,
+            overflows: s.output_overflows,
+            wkc_not_3,
+        }
+    }
+
+    #[test]
+    fn held_output_writes_give_a_late_stepped_drive_exactly_the_frame_of_each_sync0_cycle_and_no_0x001a() {
+        // ETG.1020 0x1C32:0B counts a SYNC0 without fresh outputs; the sync error 0x001A (ETG.1000.6 AL status
+        // codes) follows when the counter passes 0x10F1:02. With the writes held until the drive's time passes
+        // their stamps, every pulse finds exactly the frames that arrived before it, whatever the lag.
+        let run = late_run(true);
+        assert!(run.pulses >= 990, "the drive ran (nearly) all 1,000 cycles: {run:?}");
+        assert_eq!(run.pulses_off_by_frames, 0, "each pulse saw exactly the frames stamped before it: {run:?}");
+        assert_eq!(run.sm_event_missed, 0, "no SM event missed (0x1C32:0B): {run:?}");
+        assert_eq!(run.al, (0x0008, 0x0000), "still OP, no AL status code: {run:?}");
+        assert_eq!(run.overflows, 0, "a lag of under 4 cycles fits the queue of 16: {run:?}");
+        assert!(run.delivered >= run.pulses, "one write delivered per pulse: {run:?}");
+        assert_eq!(run.wkc_not_3, 0, "every LRW counted 3: {run:?}");
+    }
+
+    #[test]
+    fn without_holding_the_same_late_stepped_drive_misses_sm_events_and_leaves_op_with_0x001a() {
+        // The behaviour before the stamps: outputs published when the frame path writes them reach a lagging
+        // drive together, so one SYNC0 finds several frames' outputs and the next none.
+        let run = late_run(false);
+        assert!(run.pulses_off_by_frames > 0, "{run:?}");
+        assert!(run.sm_event_missed > 0, "{run:?}");
+        assert_eq!(run.al, (0x0014, 0x001A), "SAFE-OP + error, sync error 0x001A: {run:?}");
+        // The firmware deactivated SM2 (0x0817 bit 0) on the error: the ESC refuses the outputs from then on
+        // and the LRW counts 1 (inputs read), how the master sees the slave's error (ETG.1000.4 §5.4).
+        assert!(run.wkc_not_3 > 0, "{run:?}");
+    }
+
+    #[test]
+    fn a_held_queue_that_overflows_counts_it_and_delivers_the_newest() {
+        // A real ESC's three buffers keep the newest write: so does the queue when the drive lags by more than
+        // its depth.
+        let mut rig = DcRig::op();
+        rig.r.esc.hold_output_writes(4);
+        let now = rig.r.esc.system_time();
+        for k in 0..6u64 {
+            rig.image[0] = k as u8 + 1;
+            rig.frame_at(now + 100_000 + k * 10_000);
+        }
+        let s = rig.r.stats();
+        assert_eq!((s.output_overflows, s.outputs_held_max), (2, 4));
+        rig.r.node.service_periods(&mut rig.r.esc, 10);
+        let s = rig.r.stats();
+        assert_eq!(s.outputs_delivered, 4);
+        let sm2 = rig.r.esc.sm_runtime(2).expect("SM2");
+        let newest = sm2.latest.and_then(|b| sm2.bufs.get(b)).expect("a complete buffer");
+        assert_eq!(newest[0], 6, "the newest frame's outputs are the last delivered");
     }
 }

@@ -28,11 +28,31 @@
 //!
 //! **Stepping**: after the frame passed the line, each drive runs its firmware and plant as a single drive does
 //! ([`EthercatRunner`]'s lock-step or real-time rules). The drives share nothing, so with several slaves the
-//! cyclic frames (and, in real time, every event) step them on two threads; each drive's result does not depend
-//! on the order, so lock-step stays deterministic.
+//! cyclic frames step them on two threads; each drive's result does not depend on the order, so lock-step stays
+//! deterministic.
+//!
+//! **Real time** ([`EthercatLine::serve_real_time`], what `drive-sim ethercat` serves without `--lock-step`): as
+//! a real ESC processes the frame in hardware on the fly while its microcontroller (the PDI side) runs on its
+//! own, the frame path and the drives run apart. The serving thread owns the socket and answers every frame as
+//! soon as it arrives, from the ESCs as they stand (registers, SyncManager buffers, process image, DC times);
+//! [`REAL_TIME_WORKERS`] worker threads (the machine's two cores) run the drives: each drive in turn takes the
+//! SM2 event of the frames since its last turn (the SM-synchronous cycle), runs the firmware's poll, and
+//! advances simulated time towards the wall clock (its SYNC0 pulses and DC cycles with it) by at most
+//! [`REAL_TIME_CHUNK_PERIODS`] PWM periods. A drive's simulated time lags the wall clock by a varying amount
+//! (up to its worker's round over the drives), so the frame path does not hand the outputs it writes to the
+//! drive at once: each ESC stamps an SM2 write with its DC system time at the frame's arrival (the kernel's
+//! receive time of the frame on the drive's time, plus the port delays before it) and holds it, with a copy of the buffer, in a queue of
+//! [`OUTPUT_QUEUE_DEPTH`] ([`crate::esc::Esc::hold_output_writes`]); the drive's stepping delivers each write
+//! (buffer, SM2 event) in the PWM period in which its simulated time passes the stamp, before or after that
+//! period's SYNC0 pulse as the stamp says. So every SYNC0 cycle sees the outputs of the frame that arrived in
+//! it, as a real ESC's PDI does, however late the drive is stepped (within the queue's depth). Each slave sits behind its own lock, which the frame path takes
+//! for the few microseconds of a frame and a drive's turn for one chunk, so a frame waits for at most one
+//! chunk of each of the two drives being stepped; a worker gives way while a frame waits.
 
 use std::io;
-use std::time::Duration;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Mutex, MutexGuard, PoisonError};
+use std::time::{Duration, Instant};
 
 use super::ethercat::{ClockMode, EthercatConfig, EthercatRunner, RunnerStats};
 use crate::esc::datagram::{Command, FrameReport};
@@ -40,6 +60,21 @@ use crate::esc::socket::{Direction, RawSocket, MAX_FRAME};
 
 /// Most slaves on one line (`drive-sim ethercat --slaves`).
 pub const MAX_SLAVES: usize = 64;
+
+/// Threads that run the drives in real time (the machine's two cores; the frame path has its own thread).
+pub const REAL_TIME_WORKERS: usize = 2;
+
+/// Most PWM periods a drive runs in real time before the frame path may have its ESC again (200 us of simulated
+/// time, some tens of microseconds of the host's).
+pub const REAL_TIME_CHUNK_PERIODS: u64 = 5;
+
+/// Output writes an ESC holds for its drive in real time ([`crate::esc::Esc::hold_output_writes`]): 16 frames,
+/// 16 ms at a 1 ms cycle, more than a drive lags unless the host stalls it (then the oldest are dropped and
+/// counted, [`RunnerStats::output_overflows`]).
+pub const OUTPUT_QUEUE_DEPTH: usize = 16;
+
+/// How long a real-time worker sleeps when all its drives have reached the wall clock.
+const REAL_TIME_IDLE_SLEEP: Duration = Duration::from_micros(100);
 
 /// Port-to-port delay of the first slave, ns: an ESC with MII PHYs forwards a frame in roughly half a
 /// microsecond (ESC datasheet section I, "Frame processing": the PHYs' delays dominate), plus a few metres of
@@ -77,6 +112,14 @@ pub struct LineStats {
     pub sync0_samples: u64,
     /// The largest spread of the slaves' latest SYNC0 pulses over those samples, simulated ns.
     pub sync0_spread_max_ns: u64,
+    /// Real time: the longest time from a frame's arrival to its answer being sent, ns.
+    pub answer_max_ns: u64,
+    /// Real time: answers sent more than 100 us after their frame arrived.
+    pub answers_over_100us: u64,
+    /// Real time: answers sent more than 1 ms after their frame arrived.
+    pub answers_over_1ms: u64,
+    /// Real time: the longest wait of a frame for the ESCs (a worker's chunk in progress), ns.
+    pub esc_wait_max_ns: u64,
 }
 
 /// N simulated drives in a line. See the module documentation.
@@ -156,30 +199,8 @@ impl EthercatLine {
     /// report, or `None` for a dropped frame (not to be answered). The drives do not run yet: see
     /// [`Self::after_frame`].
     pub fn pass(&mut self, frame: &mut [u8]) -> Option<Vec<FrameReport>> {
-        let n = self.slaves.len();
-        // Arrival of the frame at each slave after slave 0, ns.
-        let mut arrival = Vec::with_capacity(n);
-        let mut t = 0u64;
-        for k in 0..n {
-            arrival.push(t);
-            t += self.hop(k);
-        }
-        let last = arrival.last().copied().unwrap_or(0);
-        let now = self.slaves.first().map_or(0, |s| s.esc.elapsed());
-        let mut reports = Vec::with_capacity(n);
-        let mut dropped = false;
-        for (k, s) in self.slaves.iter_mut().enumerate() {
-            // The frame's instant is slave 0's time; this ESC's clock may stand a little apart from it.
-            let skew = i128::from(now) - i128::from(s.esc.elapsed());
-            let at = i64::try_from(skew + i128::from(arrival[k])).unwrap_or(0);
-            let back =
-                (k + 1 < n).then(|| i64::try_from(skew + 2 * i128::from(last) - i128::from(arrival[k])).unwrap_or(0));
-            match s.esc.process_frame_at(frame, at, back) {
-                Ok(r) => reports.push(r),
-                Err(_) => dropped = true,
-            }
-        }
-        (!dropped).then_some(reports)
+        let mut runners: Vec<&mut EthercatRunner> = self.slaves.iter_mut().collect();
+        pass_through(&mut runners, &self.hops, frame)
     }
 
     /// In-process master: [`Self::pass`], then every drive runs ([`Self::after_frame`] or, dropped,
@@ -301,6 +322,118 @@ impl EthercatLine {
         }
     }
 
+    /// Serves the line in real time on `iface` (see the module documentation, "Real time") until `stop` says so
+    /// (asked after every frame and idle poll of `poll`); every frame received and every answer sent goes to
+    /// `tap`. The drives run on [`REAL_TIME_WORKERS`] threads meanwhile; their clock mode should be
+    /// [`ClockMode::RealTime`].
+    pub fn serve_real_time(
+        &mut self,
+        iface: &str,
+        poll: Duration,
+        mut tap: impl FnMut(Direction, &[u8]) -> io::Result<()>,
+        mut stop: impl FnMut(&LineStats) -> bool,
+    ) -> io::Result<()> {
+        let socket = RawSocket::bind(iface)?;
+        socket.set_read_timeout(Some(poll.max(Duration::from_micros(1))))?;
+        for s in &mut self.slaves {
+            s.esc.hold_output_writes(OUTPUT_QUEUE_DEPTH);
+        }
+        let slaves: Vec<Mutex<EthercatRunner>> = std::mem::take(&mut self.slaves).into_iter().map(Mutex::new).collect();
+        let workers = REAL_TIME_WORKERS.min(slaves.len());
+        let frame_waiting = AtomicBool::new(false);
+        let quit = AtomicBool::new(false);
+        let result = std::thread::scope(|scope| {
+            for first in 0..workers {
+                let (slaves, frame_waiting, quit) = (&slaves, &frame_waiting, &quit);
+                scope.spawn(move || run_drives(slaves, first, workers, frame_waiting, quit));
+            }
+            let r = self.answer_frames(&socket, &slaves, &frame_waiting, &mut tap, &mut stop);
+            quit.store(true, Ordering::Relaxed);
+            r
+        });
+        self.slaves = slaves.into_iter().map(|m| m.into_inner().unwrap_or_else(PoisonError::into_inner)).collect();
+        result
+    }
+
+    /// The frame path of [`Self::serve_real_time`]: every frame through the ESCs and straight back.
+    fn answer_frames(
+        &mut self,
+        socket: &RawSocket,
+        slaves: &[Mutex<EthercatRunner>],
+        frame_waiting: &AtomicBool,
+        tap: &mut impl FnMut(Direction, &[u8]) -> io::Result<()>,
+        stop: &mut impl FnMut(&LineStats) -> bool,
+    ) -> io::Result<()> {
+        let mut buf = [0u8; MAX_FRAME];
+        loop {
+            match socket.recv(&mut buf)? {
+                None => self.stats.idle += 1,
+                Some(n) => {
+                    let arrived = Instant::now();
+                    // The instant the frame reached the interface (the kernel's receive time), not when this
+                    // thread got to it: on a loaded host the two lie up to milliseconds apart, and a real ESC
+                    // processes the frame as it passes.
+                    let on_wire = socket.last_receive_time().and_then(|t| {
+                        let age = std::time::SystemTime::now().duration_since(t).ok()?;
+                        arrived.checked_sub(age.min(Duration::from_millis(100)))
+                    });
+                    let on_wire = on_wire.unwrap_or(arrived);
+                    let frame = &mut buf[..n.min(MAX_FRAME)];
+                    tap(Direction::Received, frame)?;
+                    frame_waiting.store(true, Ordering::Release);
+                    let reports = {
+                        let mut guards: Vec<MutexGuard<'_, EthercatRunner>> = slaves.iter().map(lock).collect();
+                        frame_waiting.store(false, Ordering::Release);
+                        let waited = u64::try_from(arrived.elapsed().as_nanos()).unwrap_or(u64::MAX);
+                        self.stats.esc_wait_max_ns = self.stats.esc_wait_max_ns.max(waited);
+                        let mut runners: Vec<&mut EthercatRunner> = guards.iter_mut().map(|g| &mut **g).collect();
+                        // Each ESC stamps the outputs the frame writes with its system time at the frame's
+                        // arrival there (the wall clock on its drive's time, plus the ports before it).
+                        let mut port_delay = 0;
+                        for (k, s) in runners.iter_mut().enumerate() {
+                            let stamp = s.node.write_stamp(&s.esc, on_wire, port_delay);
+                            s.esc.set_write_stamp(Some(stamp));
+                            port_delay += self.hops.get(k).copied().unwrap_or(0);
+                        }
+                        let reports = pass_through(&mut runners, &self.hops, frame);
+                        for s in runners.iter_mut() {
+                            s.esc.set_write_stamp(None);
+                        }
+                        for (s, r) in runners.iter_mut().zip(reports.iter().flatten()) {
+                            s.node.count_frame(r);
+                        }
+                        reports
+                    };
+                    match reports {
+                        Some(reports) => {
+                            socket.send(frame)?;
+                            let took = u64::try_from(arrived.elapsed().as_nanos()).unwrap_or(u64::MAX);
+                            self.stats.answer_max_ns = self.stats.answer_max_ns.max(took);
+                            if took > 100_000 {
+                                self.stats.answers_over_100us += 1;
+                            }
+                            if took > 1_000_000 {
+                                self.stats.answers_over_1ms += 1;
+                            }
+                            tap(Direction::Sent, frame)?;
+                            self.stats.frames += 1;
+                            let cyclic = reports.first().is_some_and(|r| {
+                                r.datagrams.iter().any(|(c, _)| matches!(c, Command::Lrw | Command::Lrd | Command::Lwr))
+                            });
+                            if cyclic {
+                                self.stats.cyclic_frames += 1;
+                            }
+                        }
+                        None => self.stats.dropped += 1,
+                    }
+                }
+            }
+            if stop(&self.stats) {
+                return Ok(());
+            }
+        }
+    }
+
     /// The drives' counters, in line order.
     pub fn slave_stats(&self) -> Vec<RunnerStats> {
         self.slaves.iter().map(EthercatRunner::stats).collect()
@@ -327,6 +460,67 @@ impl EthercatLine {
         let (Some(max), Some(min)) = (times.iter().max(), times.iter().min()) else { return 0 };
         u64::try_from(max - min).unwrap_or(u64::MAX)
     }
+}
+
+/// A slave's lock; a panic elsewhere (which ends the run anyway) does not hide the slave.
+fn lock(slave: &Mutex<EthercatRunner>) -> MutexGuard<'_, EthercatRunner> {
+    slave.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+/// A real-time worker: drives `first`, `first + step`, ... of `slaves` in turn, each one chunk towards the wall
+/// clock (see the module documentation), giving way while a frame waits for the ESCs; sleeps when all of them
+/// have reached the wall clock; ends when `quit` is set.
+fn run_drives(
+    slaves: &[Mutex<EthercatRunner>],
+    first: usize,
+    step: usize,
+    frame_waiting: &AtomicBool,
+    quit: &AtomicBool,
+) {
+    // Below the frame path when the line runs at a real-time priority (`chrt`): a frame preempts the stepping.
+    super::host_priority::step_below_inherited();
+    while !quit.load(Ordering::Relaxed) {
+        let mut behind = false;
+        for slave in slaves.iter().skip(first).step_by(step.max(1)) {
+            while frame_waiting.load(Ordering::Acquire) {
+                std::thread::yield_now();
+            }
+            let mut guard = lock(slave);
+            let runner = &mut *guard;
+            behind |= runner.node.service_real_time(&mut runner.esc, REAL_TIME_CHUNK_PERIODS);
+        }
+        if !behind {
+            std::thread::sleep(REAL_TIME_IDLE_SLEEP);
+        }
+    }
+}
+
+/// [`EthercatLine::pass`] over `runners` (the line's slaves in order, with port-to-port delays `hops`).
+fn pass_through(runners: &mut [&mut EthercatRunner], hops: &[u64], frame: &mut [u8]) -> Option<Vec<FrameReport>> {
+    let n = runners.len();
+    // Arrival of the frame at each slave after slave 0, ns.
+    let mut arrival = Vec::with_capacity(n);
+    let mut t = 0u64;
+    for k in 0..n {
+        arrival.push(t);
+        t += hops.get(k).copied().unwrap_or(0);
+    }
+    let last = arrival.last().copied().unwrap_or(0);
+    let now = runners.first().map_or(0, |s| s.esc.elapsed());
+    let mut reports = Vec::with_capacity(n);
+    let mut dropped = false;
+    for (k, s) in runners.iter_mut().enumerate() {
+        // The frame's instant is slave 0's time; this ESC's clock may stand a little apart from it.
+        let skew = i128::from(now) - i128::from(s.esc.elapsed());
+        let at = i64::try_from(skew + i128::from(arrival[k])).unwrap_or(0);
+        let back =
+            (k + 1 < n).then(|| i64::try_from(skew + 2 * i128::from(last) - i128::from(arrival[k])).unwrap_or(0));
+        match s.esc.process_frame_at(frame, at, back) {
+            Ok(r) => reports.push(r),
+            Err(_) => dropped = true,
+        }
+    }
+    (!dropped).then_some(reports)
 }
 
 impl EthercatRunner {

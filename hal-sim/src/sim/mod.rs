@@ -12,8 +12,10 @@
 //! slow tick reads is the one of the period that raised it.
 
 pub mod canopen;
+pub mod current_trace;
 pub mod ethercat;
 pub mod ethercat_line;
+pub mod host_priority;
 pub mod plot;
 pub mod trace;
 pub mod update;
@@ -142,10 +144,13 @@ impl Simulation {
         }
         if tick.slow_tick_due {
             self.drive.receive_report(&self.tier1.report());
-            // Tier 2 reads the STO inputs at the start of its slow period, as `rt::tier2` does on the target.
+            // Tier 2 reads the STO inputs and the load encoder at the start of its slow period, as `rt::tier2` does on the target.
             self.drive.set_sto_inputs(self.plant.sto_inputs());
+            // The load encoder's count (a 32-bit counter, as `board::load_encoder`'s TIM5; 0 without one).
+            self.drive.set_load_encoder_count(self.plant.load_encoder_count().map_or(0, |count| count as u32));
             self.drive.background();
             self.drive.slow_tick();
+            self.drive.publish_master_values();
             // The object channels after the slow tick, as `rt::tier2` takes them; the drain at once (tier 3's on the
             // target, within the ring's reach).
             self.recorder.take_objects(self.drive.dictionary().values().bytes());

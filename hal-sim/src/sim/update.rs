@@ -26,6 +26,8 @@ use firmware::hal::flash::{FlashError, NorFlash};
 use firmware::od::abort::SdoAbort;
 use firmware::od::access::{Dictionary, ReadOutcome, Table};
 use firmware::od::store::ParamStore;
+use firmware::recorder::objects::RecorderObjects;
+use firmware::recorder::Recorder;
 
 use crate::flash::SimFlash;
 
@@ -241,6 +243,9 @@ fn read_through(
     buf: &mut [u8],
 ) -> Result<ReadOutcome, SdoAbort> {
     let port = SharedPort::new(program, interface, false);
-    let mut app = DriveObjects::new(store, false).with_program_control(port);
+    let mut drive_objects = DriveObjects::new(store, false).with_program_control(port);
+    // The data recorder's objects as the runners serve them at power-on: an idle recorder.
+    let mut recorder = Recorder::new();
+    let mut app = RecorderObjects::new(&mut recorder, &mut drive_objects);
     dictionary.read(index, sub, offset, buf, &mut app)
 }

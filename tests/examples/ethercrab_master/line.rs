@@ -6,9 +6,18 @@
 //! working counter of every cycle (3 per drive), per drive the following error 0x60F4 over the move (peak, RMS),
 //! statusword bit 13, the position error at the end, the DC registers of every drive read back (0x0990 next
 //! SYNC0 pulse, 0x0928 delay) and 0x1C32:0B over SDO.
+//!
+//! **Real time** (`--realtime-s S`, against `drive-sim ethercat --slaves N` without `--lock-step`): about
+//! S x 1000 cycles after OP, paced as an ethercrab DC application paces them: SYNC0 half a cycle after the
+//! frames (`sync0_shift`), and each frame sent when ethercrab's `next_cycle_wait` (from the reference clock's
+//! system time the previous frame read) says, so the master follows the drives' clock. A frame is **lost** when
+//! it is not answered within one cycle of being sent (never, or **late**: after the cycle) or comes back with a
+//! wrong working counter; those are counted, not a failure. A cycle whose thread woke more than half a cycle
+//! after its due time is the master's own miss (`master_late_wakeups`), not the simulator's; the cycles the run's
+//! wall-clock time had room for but that no frame went out in are `cycles_skipped`.
 
 use std::collections::HashMap;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use ethercrab::std::ethercat_now;
 use ethercrab::subdevice_group::{DcConfiguration, HasDc, Op};
@@ -74,6 +83,123 @@ struct Axis {
     bit13: u64,
 }
 
+/// The real-time figures (see the module documentation).
+#[derive(Debug)]
+struct Pacer {
+    cycle: Duration,
+    /// When the run started.
+    start: Instant,
+    /// When the next frame is due (ethercrab's `next_cycle_wait` after the last one), `None`: at once.
+    due: Option<Instant>,
+    /// Frames not answered at all (ethercrab's PDU timeout).
+    unanswered: u64,
+    /// Frames answered after their cycle.
+    late: u64,
+    /// Frames answered within their cycle with a wrong working counter.
+    wrong_wkc: u64,
+    /// The longest time from sending a frame to its answer.
+    answer_max: Duration,
+    /// Wake-ups more than half a cycle after the due time.
+    master_late_wakeups: u64,
+    /// Whether this cycle's wake-up was one of them.
+    woke_late: bool,
+    /// Lost frames (late, unanswered or wrong working counter) in cycles whose wake-up was on time: the
+    /// simulator's losses as far as the master can tell (its own receive path still counts in).
+    lost_on_time: u64,
+    /// The latest wake-up after a due time.
+    wake_late_max: Duration,
+    /// Answered frames whose AL status checks showed a drive out of OP (a drive's own reaction, e.g. a sync
+    /// error 0x001A or a watchdog 0x001B), and the first such frame's index.
+    not_op_frames: u64,
+    first_not_op: Option<u64>,
+}
+
+impl Pacer {
+    fn new(cycle: Duration) -> Self {
+        Self {
+            cycle,
+            start: Instant::now(),
+            due: None,
+            unanswered: 0,
+            late: 0,
+            wrong_wkc: 0,
+            answer_max: Duration::ZERO,
+            master_late_wakeups: 0,
+            woke_late: false,
+            lost_on_time: 0,
+            wake_late_max: Duration::ZERO,
+            not_op_frames: 0,
+            first_not_op: None,
+        }
+    }
+
+    /// Sleeps until the next frame is due and counts how late the thread woke.
+    fn wait(&mut self) {
+        self.woke_late = false;
+        let Some(due) = self.due else { return };
+        let now = Instant::now();
+        if now < due {
+            std::thread::sleep(due - now);
+        }
+        let late = Instant::now().saturating_duration_since(due);
+        self.wake_late_max = self.wake_late_max.max(late);
+        if late > self.cycle / 2 {
+            self.master_late_wakeups += 1;
+            self.woke_late = true;
+        }
+    }
+
+    /// After the frame sent at `sent`: how long its answer took, whether it came, whether its working counter was
+    /// right, and ethercrab's wait from `sent` to the next cycle (SYNC0 plus the shift, in the reference clock's
+    /// time).
+    fn answered(&mut self, sent: Instant, took: Duration, answered: Option<Duration>, wkc_ok: bool) {
+        self.answer_max = self.answer_max.max(took);
+        let lost = match answered {
+            None => {
+                self.unanswered += 1;
+                true
+            }
+            Some(_) if took > self.cycle => {
+                self.late += 1;
+                true
+            }
+            Some(_) if !wkc_ok => {
+                self.wrong_wkc += 1;
+                true
+            }
+            Some(_) => false,
+        };
+        if lost && !self.woke_late {
+            self.lost_on_time += 1;
+        }
+        self.due = answered.map(|wait| sent + wait);
+    }
+
+    fn lost(&self) -> u64 {
+        self.unanswered + self.late + self.wrong_wkc
+    }
+
+    fn emit(&self, frames: u64) {
+        let wall = self.start.elapsed();
+        emit("realtime_frames", frames);
+        emit("realtime_wall_s", format!("{:.3}", wall.as_secs_f64()));
+        // Cycles the run's wall-clock time had room for but no frame was sent in (a late wake-up, a late answer).
+        let room = (wall.as_secs_f64() / self.cycle.as_secs_f64()).floor() as u64;
+        emit("cycles_skipped", room.saturating_sub(frames));
+        emit("lost_frames", self.lost());
+        emit("lost_frames_master_on_time", self.lost_on_time);
+        emit("lost_frames_master_woke_late", self.lost() - self.lost_on_time);
+        emit("late_frames", self.late);
+        emit("unanswered_frames", self.unanswered);
+        emit("wrong_wkc_frames", self.wrong_wkc);
+        emit("answer_max_us", self.answer_max.as_micros());
+        emit("master_late_wakeups", self.master_late_wakeups);
+        emit("master_wake_late_max_us", self.wake_late_max.as_micros());
+        emit("not_op_frames", self.not_op_frames);
+        emit("first_not_op_frame", self.first_not_op.map_or(-1, |k| k as i64));
+    }
+}
+
 /// The scenario (see the module documentation); `--sync dc` is implied.
 pub async fn line(master: &'static Master, args: &Args) -> Outcome {
     let mut group = master.init_single_group::<LINE_MAX, LINE_PDI>(ethercat_now).await.map_err(err("init"))?;
@@ -110,12 +236,25 @@ pub async fn line(master: &'static Master, args: &Args) -> Outcome {
     let group = group
         .configure_dc_sync(
             master,
-            DcConfiguration { start_delay: cycle * 10, sync0_period: cycle, sync0_shift: Duration::ZERO },
+            // Real time: the master's frames half a cycle after SYNC0 (ethercrab's own example), so that the
+            // outputs reach every drive well before its next pulse; lock-step: the simulator runs to SYNC0 itself.
+            DcConfiguration {
+                start_delay: cycle * 10,
+                sync0_period: cycle,
+                sync0_shift: if args.realtime_s.is_some() { cycle / 2 } else { Duration::ZERO },
+            },
         )
         .await
         .map_err(err("configure DC sync"))?;
-    let group = group.into_safe_op(master).await.map_err(err("PRE-OP -> SAFE-OP (DC)"))?;
-    let group = group.request_into_op(master).await.map_err(err("SAFE-OP -> OP (DC)"))?;
+    let group = if args.realtime_s.is_some() {
+        // Real time, as ethercrab's own DC sequence: OP requested at once and the process data sent every cycle
+        // from then on (below), so the drives' SM event and watchdog supervision never see the master fall silent
+        // while SYNC0 runs.
+        group.request_into_op(master).await.map_err(err("PRE-OP -> OP (DC)"))?
+    } else {
+        let group = group.into_safe_op(master).await.map_err(err("PRE-OP -> SAFE-OP (DC)"))?;
+        group.request_into_op(master).await.map_err(err("SAFE-OP -> OP (DC)"))?
+    };
 
     let expected_wkc = u16::try_from(3 * n).map_err(|_| "too many drives")?;
     emit("expected_wkc", expected_wkc);
@@ -126,11 +265,15 @@ pub async fn line(master: &'static Master, args: &Args) -> Outcome {
     // Cycles until every drive reports OP.
     let mut op_after = None;
     for k in 0..5_000u64 {
+        let sent = std::time::Instant::now();
         let r = group.tx_rx_dc(master).await.map_err(err("tx/rx"))?;
         cycles += 1;
         if r.all_op() {
             op_after = Some(k + 1);
             break;
+        }
+        if args.realtime_s.is_some() {
+            std::thread::sleep((sent + r.extra.next_cycle_wait).saturating_duration_since(Instant::now()));
         }
     }
     let op_after = op_after.ok_or("OP not reached on every drive in 5,000 cycles")?;
@@ -143,10 +286,15 @@ pub async fn line(master: &'static Master, args: &Args) -> Outcome {
     let move_cycles = (mv.duration_s() / cycle_s).ceil() as u64;
     emit("move_peak_rpm", format!("{:.0}", mv.peak_velocity / per_rpm));
     emit("move_cycles", move_cycles);
-    const CYCLES: u64 = 10_000;
+    // Lock-step: 10,000 cycles; real time: the seconds asked for, paced.
+    let cycles_total = match args.realtime_s {
+        Some(s) => (s / cycle_s).round() as u64,
+        None => 10_000,
+    };
+    let mut pacer = args.realtime_s.map(|_| Pacer::new(cycle));
     let mut enabled_at: Option<u64> = None;
     let mut fe_n = 0u64;
-    for k in 0..CYCLES {
+    for k in 0..cycles_total {
         for (j, a) in axes.iter_mut().enumerate() {
             let sw = a.inp.get(&0x6041).copied().unwrap_or(0) as u16;
             if sw & 0x4F == 0x08 {
@@ -177,11 +325,25 @@ pub async fn line(master: &'static Master, args: &Args) -> Outcome {
         for (j, a) in axes.iter().enumerate() {
             put(&group, master, j, &layouts[j], &a.out)?;
         }
-        let r = group.tx_rx_dc(master).await.map_err(err("tx/rx"))?;
+        let working_counter = match pacer.as_mut() {
+            Some(p) => {
+                p.wait();
+                let sent = Instant::now();
+                let r = group.tx_rx_dc(master).await;
+                let wkc = r.as_ref().map_or(0, |r| r.working_counter);
+                if r.as_ref().is_ok_and(|r| !r.all_op()) {
+                    p.not_op_frames += 1;
+                    p.first_not_op.get_or_insert(k);
+                }
+                p.answered(sent, sent.elapsed(), r.as_ref().ok().map(|r| r.extra.next_cycle_wait), wkc == expected_wkc);
+                wkc
+            }
+            None => group.tx_rx_dc(master).await.map_err(err("tx/rx"))?.working_counter,
+        };
         cycles += 1;
-        if r.working_counter != expected_wkc {
+        if working_counter != expected_wkc {
             wkc_errors += 1;
-            first_bad.get_or_insert((k, r.working_counter));
+            first_bad.get_or_insert((k, working_counter));
         }
         let sample = enabled_at.is_some_and(|e| k > e && k - e <= move_cycles);
         if sample {
@@ -205,6 +367,9 @@ pub async fn line(master: &'static Master, args: &Args) -> Outcome {
         .iter()
         .map(|a| (a.inp.get(&0x6064).copied().unwrap_or(0) - (a.start + mv.distance.round() as i64)).abs())
         .collect();
+    if let Some(p) = &pacer {
+        p.emit(cycles_total);
+    }
     emit("cycles", cycles);
     emit("enabled_at_cycle", enabled_at.map_or(-1, |e| e as i64));
     emit("enabled_at_end", enabled_end);
@@ -241,7 +406,7 @@ pub async fn line(master: &'static Master, args: &Args) -> Outcome {
     for _ in 0..10 {
         group.tx_rx_dc(master).await.map_err(err("tx/rx"))?;
     }
-    if let Some((k, w)) = first_bad {
+    if let (Some((k, w)), None) = (first_bad, &pacer) {
         return Err(format!("{wkc_errors} cycles with a wrong working counter, first at {k}: {w}"));
     }
     if enabled_at.is_none() {

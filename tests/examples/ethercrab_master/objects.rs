@@ -246,9 +246,9 @@ fn chosen_parameters() -> Vec<(&'static Entry, i64, i64)> {
             if !matches!(e.storage, Storage::Ram { .. }) {
                 return None;
             }
-            let (min, max) = match *e.limits {
-                Limits::Signed { min, max } => (min, max),
-                Limits::Unsigned { min, max } => (i64::try_from(min).ok()?, i64::try_from(max).ok()?),
+            let (min, max) = match *e.generated_limits() {
+                Limits::Signed { min, max } => (i64::from(min), i64::from(max)),
+                Limits::Unsigned { min, max } => (i64::from(min), i64::from(max)),
                 _ => return None,
             };
             (min > tmin || max < tmax).then_some((e, min, max))

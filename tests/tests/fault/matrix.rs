@@ -12,12 +12,19 @@ use hal_sim::scenarios::faults::{cases, matrix_table, run_case};
 /// samples give no physical plant), 0xFF19 (the procedure's 20 s timeout), 0xFF22 (above the maximum speed during
 /// the identification's slow movements). Their detection is tested in the firmware's unit tests
 /// (`drive::identification`: 0xFF12, 0xFF19 and the mapping of 0xFF22; `drive::mechanical_identification`: 0xFF15,
-/// 0xFF19, 0xFF22).
-const NOT_INJECTED: [FaultId; 4] = [
+/// 0xFF19, 0xFF22). The SSI absolute encoder's errors (0x738C, 0x738D, 0x7390, 0x7391) need a plant with an SSI
+/// sensor and the drive configured for it (0x3000:01 = 0x300), which the matrix's reference setups are not: they are
+/// injected on the SSI plant in `tests/tests/drive/ssi.rs` (stuck clock, flipped bit, no sensor, unreadable format)
+/// and by `drive-sim ssi`.
+const NOT_INJECTED: [FaultId; 8] = [
     FaultId::AutoTuningCurrentLimit,
     FaultId::AutoTuningSampleMismatch,
     FaultId::AutoTuningTimeout,
     FaultId::AutoTuningMaxSpeed,
+    FaultId::SsiSensor,
+    FaultId::SsiFrame,
+    FaultId::MissingMainSensor,
+    FaultId::MissingCommutationSensor,
 ];
 
 #[test]

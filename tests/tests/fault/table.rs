@@ -29,6 +29,11 @@ const IDX_TABLE_7_153: &[(u16, u8, char, u32)] = &[
     (0x6380, 0b0000_0001, 'd', 7063),
     (0x7320, 0b0010_0000, 'd', 7064),
     (0x7380, 0b0010_0000, 'd', 7065),
+    // The SSI absolute encoder's errors (sensors::ssi, drive::tier1, drive::ssi_position).
+    (0x738C, 0b0010_0000, 'd', 7066),
+    (0x738D, 0b0010_0000, 'd', 7067),
+    (0x7390, 0b0010_0000, 'd', 7068),
+    (0x7391, 0b0010_0000, 'd', 7069),
     (0x8110, 0b0001_0000, 'a', 7071),
     (0x8120, 0b0001_0000, 'a', 7073),
     (0x8130, 0b0001_0000, 'a', 7074),
@@ -190,7 +195,7 @@ fn the_dictionary_holds_what_the_fault_handling_writes() {
     assert_eq!(firmware::fault::history::capacity(&dict), object.max_sub);
     let count = dict.find(0x1003, 0).unwrap();
     assert_eq!(
-        (count.data_type, count.access, *count.limits),
+        (count.data_type, count.access, *count.generated_limits()),
         (DataType::Unsigned8, Access::ReadWrite, Limits::OneOf(&[0]))
     );
     for sub in 1..=object.max_sub {
@@ -205,8 +210,8 @@ fn the_dictionary_holds_what_the_fault_handling_writes() {
     assert_eq!((inhibit.data_type, inhibit.access), (DataType::Unsigned16, Access::ReadWrite));
 
     // Class f follows 0x605E (0 coast, 1 slow-down, 2 quick stop); class a follows 0x6007.
-    assert_eq!(*dict.find(0x605E, 0).unwrap().limits, Limits::OneOf(&[0, 1, 2]));
+    assert_eq!(*dict.find(0x605E, 0).unwrap().generated_limits(), Limits::OneOf(&[0, 1, 2]));
     let abort = dict.find(0x6007, 0).unwrap();
     assert_eq!(abort.data_type, DataType::Integer16);
-    assert!(matches!(*abort.limits, Limits::OneOf(values) if values.contains(&1)));
+    assert!(matches!(*abort.generated_limits(), Limits::OneOf(values) if values.contains(&1)));
 }

@@ -4,7 +4,9 @@
 
 mod cyclic;
 mod encoder_resolution;
+mod gear;
 mod homing;
+mod master;
 mod observer;
 mod polarity;
 mod profile;

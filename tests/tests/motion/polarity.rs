@@ -1,37 +1,28 @@
 //! Polarity 0x607E on the reference plant (issue 18 "0x607E (polarity) take effect"; Glentek Gamma L1656-1672,
 //! Nanotec PD4-E p.250 L627; `firmware::motion::polarity`): bit 7 multiplies the position values exchanged with
 //! the master by -1 (PPM, CSP, home offset, software limits, 0x6064/0x6062/0x60F4), bit 6 the velocity values
-//! (PVM, CSV, 0x606C/0x606B); the motor's own direction is the plant's true encoder count. Written over SDO as a
-//! master does, with the power stage off.
+//! (PVM, CSV, 0x606C/0x606B), and bit 6 the torques (CST, 0x6077; 0x60B2 takes bit 7 in CSP); the motor's own
+//! direction is the plant's true encoder count. Written over SDO as a master does, with the power stage off.
 //!
 //! Tolerances: the position window 0x6067 (10 inc) for positions after a move (measured 0 to 1 inc), and 15 rpm
 //! for velocities held by the velocity loop (half the velocity window 0x606D; measured within 0.5 rpm).
 
 use firmware::drive::{Drive, DriveConfig};
 use firmware::od::abort::SdoAbort;
-use firmware::od::access::{AccessContext, CommState};
-use firmware::od::generated::{handles as h, MAX_PDO_BYTES_ETHERCAT};
+use firmware::od::access::AccessContext;
+use firmware::od::generated::handles as h;
 use firmware::od::store::{ParamStore, SAVE_SIGNATURE};
 use hal_sim::flash::SimFlash;
 use hal_sim::plant::PlantParams;
 use hal_sim::scenarios::{prepare_plant, Setup};
 use hal_sim::sim::Simulation;
 
-const PRE_OP: AccessContext = AccessContext {
-    comm_state: CommState::PreOperational,
-    power_stage_enabled: false,
-    max_pdo_bytes: MAX_PDO_BYTES_ETHERCAT as u16,
-};
+use super::master::{get_i32, home_here, ppm_move, ENABLE_OPERATION, PRE_OP};
+
 /// 0x6067 default, increments.
 const POSITION_WINDOW_INC: i64 = 10;
 /// Half the 0x606D default, rpm.
 const VELOCITY_TOLERANCE_RPM: f64 = 15.0;
-/// Controlword «Enable operation», and with bit 4 (new set-point / homing start).
-const ENABLE_OPERATION: u16 = 0x000F;
-const BIT4: u16 = 0x0010;
-/// Statusword bits 10 (target reached) and 12 (set-point acknowledge, homing attained).
-const TARGET_REACHED: u16 = 1 << 10;
-const BIT12: u16 = 1 << 12;
 
 /// The commissioned reference drive, shut down («Ready to switch on», power stage off), 0x607E = `polarity`
 /// written over SDO, then enabled in `mode` through the controlword.
@@ -49,28 +40,6 @@ fn enabled_with(polarity: u8, mode: i8) -> Simulation {
     sim
 }
 
-fn get_i32(sim: &Simulation, handle: firmware::od::entry::Handle<i32>) -> i64 {
-    i64::from(sim.drive.dictionary().get(handle))
-}
-
-/// Slow ticks until the statusword has `bits`, at most `max`.
-fn until_status(sim: &mut Simulation, bits: u16, max: u64) -> bool {
-    (0..max).any(|_| {
-        sim.run_slow_ticks(1);
-        sim.statusword() & bits == bits
-    })
-}
-
-/// A PPM absolute move to `target` (master coordinates), to target reached plus 25 ticks of settling.
-fn ppm_move(sim: &mut Simulation, target: i64) {
-    sim.drive.dictionary_mut().set(h::TARGET_POSITION, i32::try_from(target).expect("in range"));
-    sim.set_controlword(ENABLE_OPERATION | BIT4);
-    assert!(until_status(sim, BIT12, 50), "set-point acknowledged");
-    sim.set_controlword(ENABLE_OPERATION);
-    assert!(until_status(sim, TARGET_REACHED, 5_000), "target reached");
-    sim.run_slow_ticks(25);
-}
-
 /// PPM, one revolution forwards in the master's coordinates (target = 0x6064 + 4,096): 0x6064 and the demand
 /// 0x6062 end at the target in every case; the motor turns +4,096 inc with 0x607E = 0 and 0x40 (bit 6 is not a
 /// position bit) and -4,096 inc with 0x80 and 0xC0; the internal value 0x6063 keeps the motor's direction.
@@ -81,7 +50,7 @@ fn ppm_target_and_actual_position_follow_bit_7() {
         let (start, start_internal) =
             (get_i32(&sim, h::POSITION_ACTUAL_VALUE), get_i32(&sim, h::POSITION_ACTUAL_INTERNAL_VALUE));
         let start_count = sim.plant.true_encoder_count();
-        ppm_move(&mut sim, start + 4096);
+        ppm_move(&mut sim, start + 4096, 5000);
         let what = format!("0x607E = {polarity:#04x}");
         assert!((get_i32(&sim, h::POSITION_ACTUAL_VALUE) - (start + 4096)).abs() <= POSITION_WINDOW_INC, "{what}");
         assert_eq!(get_i32(&sim, h::POSITION_DEMAND_VALUE), start + 4096, "{what}: 0x6062 at the target");
@@ -149,15 +118,7 @@ fn csp_set_points_follow_bit_7() {
 #[test]
 fn home_offset_and_software_limits_follow_bit_7() {
     let mut sim = enabled_with(0x80, 6);
-    {
-        let d = sim.drive.dictionary_mut();
-        d.set(h::HOMING_METHOD, 37);
-        d.set(h::HOME_OFFSET, 1_000);
-    }
-    sim.run_slow_ticks(5);
-    sim.set_controlword(ENABLE_OPERATION | BIT4);
-    assert!(until_status(&mut sim, BIT12, 2_500), "homing attained");
-    sim.run_slow_ticks(25);
+    home_here(&mut sim, 1_000);
     assert!((get_i32(&sim, h::POSITION_ACTUAL_VALUE) - 1_000).abs() <= 2, "0x6064 reads the home offset");
     {
         let d = sim.drive.dictionary_mut();
@@ -169,7 +130,7 @@ fn home_offset_and_software_limits_follow_bit_7() {
     sim.run_slow_ticks(10);
     for (target, end, motor_moves) in [(8_000_i64, 3_000_i64, -2_000_i64), (-9_000, -2_000, 5_000)] {
         let start_count = sim.plant.true_encoder_count();
-        ppm_move(&mut sim, target);
+        ppm_move(&mut sim, target, 5000);
         let position = get_i32(&sim, h::POSITION_ACTUAL_VALUE);
         assert!((position - end).abs() <= POSITION_WINDOW_INC, "target {target}: 0x6064 = {position}");
         let moved = sim.plant.true_encoder_count() - start_count;
@@ -205,16 +166,16 @@ fn polarity_is_written_with_the_power_stage_off_and_saved() {
     assert_eq!(rebooted.dictionary().get(h::POLARITY), 0xC0, "restored at boot");
 }
 
-/// `firmware::motion::polarity`: torques are not inverted, the torque offset 0x60B2 neither where it is CSP's
-/// torque feedforward (issue 20 item 4; neither seed gives a torque bit). On the locked rotor holding its position
-/// in CSP (0x607A = 0x6064 every 1 ms, so the position error and the integral stay put), 0x60B2 = 200 per mille
-/// moves the q reference by +640 mA (200 per mille of 3.2 A, exact in I16F16 bits) in the motor's positive
-/// direction with 0x607E = 0 and with bit 7 set alike.
+/// `firmware::motion::polarity` (issue 20 item 3): the torque offset 0x60B2 takes bit 7 where it is CSP's torque
+/// feedforward, as the velocity offset 0x60B1 does there (the position command's acceleration feed-forward). On the
+/// locked rotor holding its position in CSP (0x607A = 0x6064 every 1 ms, so the position error and the integral
+/// stay put), 0x60B2 = 200 per mille moves the q reference by +640 mA (200 per mille of 3.2 A, exact in I16F16
+/// bits) with 0x607E = 0 and 0x40 (bit 6 is not CSP's bit), by -640 mA with 0x80 and 0xC0.
 #[test]
-fn torque_offset_in_csp_keeps_the_motor_direction() {
+fn torque_offset_in_csp_follows_bit_7() {
     use firmware::control::demand::DemandScale;
     let expected = DemandScale::reference().torque_to_current(200, 0).1.to_bits();
-    for polarity in [0x00u8, 0x80] {
+    for (polarity, sign) in [(0x00u8, 1), (0x40, 1), (0x80, -1), (0xC0, -1)] {
         let mut sim = enabled_with(polarity, 8);
         sim.plant.lock_rotor(true);
         let cycles = |sim: &mut Simulation, n: usize| {
@@ -230,6 +191,6 @@ fn torque_offset_in_csp_keeps_the_motor_direction() {
         sim.drive.dictionary_mut().set(h::TORQUE_OFFSET, 200i16);
         cycles(&mut sim, 5);
         let after = sim.tier1().signals().i_ref.q.to_bits();
-        assert_eq!(after - before, expected, "0x607E = {polarity:#04x}: +640 mA in the motor's direction");
+        assert_eq!(after - before, sign * expected, "0x607E = {polarity:#04x}: {} 640 mA", sign * 640);
     }
 }

@@ -18,7 +18,7 @@ fn acceptable_value(dict: &firmware::od::access::Dictionary, entry: &'static Ent
         Storage::Const(bytes) => bytes.bytes().to_vec(),
         Storage::Application => match entry.data_type.fixed_size() {
             Some(size) => {
-                let value = match *entry.limits {
+                let value = match *entry.generated_limits() {
                     Limits::Signed { min, .. } => i128::from(min),
                     Limits::Unsigned { min, .. } => i128::from(min),
                     Limits::OneOf(list) => i128::from(list[0]),
@@ -246,7 +246,7 @@ fn value_too_low_and_too_high() {
         else {
             continue;
         };
-        let (min, max) = match *entry.limits {
+        let (min, max) = match *entry.generated_limits() {
             Limits::Signed { min, max } => (i128::from(min), i128::from(max)),
             Limits::Unsigned { min, max } => (i128::from(min), i128::from(max)),
             _ => continue,
@@ -279,12 +279,14 @@ fn invalid_value_for_option_codes() {
     let app = &mut TestApp::default();
     // 0x6060 modes of operation accepts only the implemented modes; 2 (velocity mode) is not one.
     let entry = dict.find(0x6060, 0).unwrap();
-    assert!(matches!(*entry.limits, Limits::OneOf(list) if !list.contains(&2)));
+    assert!(matches!(*entry.generated_limits(), Limits::OneOf(list) if !list.contains(&2)));
     assert_eq!(dict.write(0x6060, 0, &[2], allowed(), app), Err(SdoAbort::InvalidValue));
     assert_eq!(dict.write(0x6060, 0, &[8], allowed(), app), Ok(()));
     // Every option-code entry refuses the first value outside its list.
     for entry in entries().iter().filter(|e| writable_ram(e)) {
-        let (Limits::OneOf(list), Some(size)) = (*entry.limits, entry.data_type.fixed_size()) else { continue };
+        let (Limits::OneOf(list), Some(size)) = (*entry.generated_limits(), entry.data_type.fixed_size()) else {
+            continue;
+        };
         let (type_min, _) = type_range(entry.data_type).unwrap();
         let outside = (type_min..).find(|v| !list.iter().any(|a| i128::from(*a) == *v)).unwrap();
         let before = dict.values().bytes().to_vec();
@@ -471,7 +473,7 @@ fn program_download_goes_to_the_application_in_segments() {
 fn typed_handles_share_the_storage_with_sdo_access() {
     let mut dict = dictionary();
     let entry = find_entry("UNSIGNED16 RAM entry", |e| {
-        writable_ram(e) && e.data_type == DataType::Unsigned16 && *e.limits == Limits::None
+        writable_ram(e) && e.data_type == DataType::Unsigned16 && *e.generated_limits() == Limits::None
     });
     let Storage::Ram { offset, .. } = entry.storage else { unreachable!() };
     let handle = firmware::od::entry::Handle::<u16>::new(offset);

@@ -13,7 +13,7 @@
 use firmware::hal::flash::NorFlash;
 use firmware::od::abort::SdoAbort;
 use firmware::od::access::{AccessContext, CommState, Dictionary};
-use firmware::od::entry::{Access, DataType, Entry, Limits, Name, PdoMapping, Storage, WriteCondition};
+use firmware::od::entry::{Access, DataType, Entry, LimitsRef, Name, PdoMapping, Storage, WriteCondition};
 use firmware::od::generated::ENTRIES;
 use firmware::od::store::{
     store_group_of, Group, ParamStore, Selection, StoreError, StoreObjects, LOAD_SIGNATURE, RECORD_HEADER_LEN,
@@ -45,9 +45,8 @@ fn ram_entry(index: u16, sub: u8, data_type: DataType, persistent: bool, offset:
         pdo: PdoMapping::No,
         persistent,
         write_condition: WriteCondition::Always,
-        limits: &Limits::None,
-        storage: Storage::Ram { offset, len },
-        node_id_relative: false,
+        limits: LimitsRef::NONE,
+        storage: Storage::Ram { offset, len, node_id_relative: false },
     }
 }
 
@@ -84,7 +83,7 @@ fn tables() -> Vec<(&'static str, Table)> {
 /// The RAM slot of an entry.
 fn slot(e: &Entry) -> Option<std::ops::Range<usize>> {
     match e.storage {
-        Storage::Ram { offset, len } => Some(offset as usize..offset as usize + len as usize),
+        Storage::Ram { offset, len, .. } => Some(offset as usize..offset as usize + len as usize),
         _ => None,
     }
 }
@@ -424,7 +423,7 @@ fn firmware_update_skips_unknown_and_resized_entries() {
     new_fw.entries.retain(|e| e.index != 0x6083);
     for e in &mut new_fw.entries {
         if e.index == 0x605A {
-            e.storage = Storage::Ram { offset: old_fw.defaults.len() as u16, len: 4 };
+            e.storage = Storage::Ram { offset: old_fw.defaults.len() as u16, len: 4, node_id_relative: false };
         }
         if e.index == 0x30A0 {
             e.persistent = false;

@@ -80,7 +80,7 @@ fn resolve_data(dict: &Dictionary, index: u16, sub: u8, data: &Data) -> Vec<u8> 
         (Data::Bytes(bytes), _, _) => bytes.clone(),
         (Data::NearBound { upper, delta }, Some(entry), Some(size)) => {
             let (type_min, type_max) = type_range(entry.data_type).unwrap();
-            let (min, max) = match *entry.limits {
+            let (min, max) = match *entry.generated_limits() {
                 Limits::Signed { min, max } => (i128::from(min), i128::from(max)),
                 Limits::Unsigned { min, max } => (i128::from(min), i128::from(max)),
                 Limits::OneOf(list) => (i128::from(list[0]), i128::from(*list.last().unwrap())),

@@ -130,10 +130,7 @@ pub fn run(args: &CanopenArgs, config: CanopenConfig) -> Result<(), String> {
         println!("  node {}: slot A holds no valid image ({:?}): bootloader fallback", d.node.node_id(), d.last_boot);
     }
     if let (Some(path), Some(d)) = (&args.trace, runner.drive_mut(1)) {
-        let file = std::fs::File::create(path).map_err(|e| format!("--trace {}: {e}", path.display()))?;
-        let mut trace = std::io::BufWriter::new(file);
-        let _ = std::io::Write::write_all(&mut trace, b"period,iq_ma,iq_ref_ma,iq_plant_ma\n");
-        d.trace = Some(trace);
+        d.trace = Some(hal_sim::sim::current_trace::CurrentTrace::create(path)?);
     }
     for &id in &args.sto_open {
         if let Some(d) = runner.drive_mut(id) {

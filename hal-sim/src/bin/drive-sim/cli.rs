@@ -64,6 +64,9 @@ pub enum Command {
     Spinning(CurrentLoopScenario),
     /// CiA 402 CSP: a 10-revolution jerk-limited move with set-points every 1 ms; following error and settling.
     Csp(CspScenario),
+    /// The dual loop (EPOS4 AN ch. 10) on a plant with a load encoder: a CSP move of the load closed by the load
+    /// encoder; load_following_error_peak_inc, load_settle_error_inc, motor_load_deviation_peak_deg.
+    DualLoop(DualLoopScenario),
     /// CiA 402 CSV: a 100 rpm velocity step and a sine sweep of the velocity loop (velocity_bandwidth_hz).
     CsvSweep(Scenario),
     /// CiA 402 PPM: moves (target reached against the analytic profile, up to 5,000 rpm) and quick stops against
@@ -79,6 +82,10 @@ pub enum Command {
     DutyCycle(Scenario),
     /// The motor identification (0x6060 = -2) run by a master over SDO, its results against the plant's truth.
     Identify(IdentifyArgs),
+    /// The SSI absolute encoder as the only sensor (default plant: the reference motor with a 12 + 12-bit
+    /// multi-turn SSI sensor in place of the encoder, no Halls): start-up commutation, a move, homing 37, a power
+    /// cycle; commutation_error_deg, absolute_position_error_inc, and the sensor faults' codes.
+    Ssi(SsiArgs),
     /// Host speed: simulated seconds of drive time per wall-clock second (build with --release).
     Bench(BenchArgs),
     /// The drive as an EtherCAT slave on a network interface, for a real master (needs CAP_NET_RAW), until
@@ -94,6 +101,15 @@ pub enum Command {
         #[arg(value_name = "SHELL")]
         shell: clap_complete::Shell,
     },
+}
+
+/// `drive-sim ssi`: the plant (default `hal-sim/presets/reference-ssi.toml`'s, which must have an SSI sensor) and
+/// the seed.
+#[derive(Debug, Args)]
+pub struct SsiArgs {
+    /// The plant and the seed.
+    #[command(flatten)]
+    pub common: Common,
 }
 
 /// A plant file given with `--plant`: its path (for the report) and the plant it describes.
@@ -174,6 +190,21 @@ pub struct CspScenario {
     /// cycle, with 0x30A1:05 (the drive's own acceleration feedforward) = 0.
     #[arg(long)]
     pub torque_feedforward: bool,
+}
+
+/// dual-loop: a scenario, the main loop's gains and the comparison without the load encoder.
+#[derive(Debug, Args)]
+pub struct DualLoopScenario {
+    /// Plant (it needs a load encoder: load_encoder_counts_per_rev), seed, auto-tuning, output directory.
+    #[command(flatten)]
+    pub scenario: Scenario,
+    /// 0x30AE:01..03 set before the move: K_Low and K_High in 0.001/s, the scheduling weight H in 0.001.
+    #[arg(long, value_name = "K_LOW,K_HIGH,H", value_parser = parse_main_loop_gains)]
+    pub main_loop_gains: Option<[u32; 3]>,
+    /// The same move with the motor encoder alone closing the position loop (the default PID 0x30A1), for
+    /// comparison: the load encoder is only measured.
+    #[arg(long, conflicts_with = "main_loop_gains")]
+    pub motor_encoder_only: bool,
 }
 
 /// fault-matrix: a scenario and the choice of cases.
@@ -259,6 +290,11 @@ pub struct EthercatArgs {
     /// With --slaves: slave K (0 = next to the master) gets plant FILE instead of --plant's; repeatable.
     #[arg(long, value_name = "K=FILE", value_parser = parse_plant_for)]
     pub plant_for: Vec<(u16, PlantFile)>,
+    /// Write the drive's own trace to FILE (one drive only): every current-loop period
+    /// `period,iq_ma,iq_ref_ma,iq_plant_ma` (tier 1's measured q current and its reference, rounded to mA, and the
+    /// plant's true q current): the reference for a recording of the drive's data recorder (`drive-tool record`).
+    #[arg(long, value_name = "FILE", conflicts_with_all = ["slaves", "plant_for"])]
+    pub trace: Option<PathBuf>,
 }
 
 /// `--clock-spread-ppm`: 0..=500 ppm.
@@ -318,6 +354,15 @@ pub fn parse_position_gains(text: &str) -> Result<[u32; 5], String> {
     values.try_into().map_err(|_| format!("{what}, got {count}"))
 }
 
+/// `--main-loop-gains K_LOW,K_HIGH,H`: three unsigned integers (0x30AE:01..03).
+pub fn parse_main_loop_gains(text: &str) -> Result<[u32; 3], String> {
+    let what = "K_LOW,K_HIGH,H: three unsigned integers (0x30AE:01..03)";
+    let values: Vec<u32> =
+        text.split(',').map(|x| x.trim().parse()).collect::<Result<_, _>>().map_err(|e| format!("{what}: {e}"))?;
+    let count = values.len();
+    values.try_into().map_err(|_| format!("{what}, got {count}"))
+}
+
 /// `--seconds S`: a finite, non-negative duration.
 pub fn parse_seconds(text: &str) -> Result<f64, String> {
     match text.parse::<f64>() {
@@ -369,6 +414,9 @@ mod tests {
         ("README.md", "csp --torque-feedforward"),
         ("tests/tests/canopen_real_master.rs LSS", "canopen --port 0 --lock-step --nodes 3 --unconfigured 1 --unconfigured 2 --unconfigured 3"),
         ("drive-tool/tests/simulator.rs record", "canopen --port 0 --lock-step --seconds 600 --nodes 1 --trace out/trace.csv"),
+        ("README.md", concat!("dual-loop --plant ", env!("CARGO_MANIFEST_DIR"), "/presets/geared-36v.toml --auto-tune")),
+        ("README.md", "dual-loop --motor-encoder-only"),
+        ("tests/tests/drive/dual_loop.rs", "dual-loop --main-loop-gains 20000,60000,10000"),
         ("README.md", "csv-sweep"),
         ("README.md", "ppm"),
         ("README.md", "homing"),
@@ -510,6 +558,8 @@ mod tests {
         }
         let e = parse("current-step --default-gains --gains 1,2").expect_err("conflict");
         assert_eq!(e.kind(), ErrorKind::ArgumentConflict, "{e}");
+        let e = parse("dual-loop --motor-encoder-only --main-loop-gains 1,2,3").expect_err("conflict");
+        assert_eq!(e.kind(), ErrorKind::ArgumentConflict, "no main loop without the load encoder: {e}");
         let e = parse("csv-sweep --resonance 60,15").expect_err("--resonance without --auto-tune");
         assert_eq!(e.kind(), ErrorKind::MissingRequiredArgument, "{e}");
         assert!(parse("ethercat --lock-step").is_err(), "--iface is required");
@@ -523,6 +573,7 @@ mod tests {
             ("current-step --gains 1", "--gains"),
             ("current-step --gains 1,-2", "--gains"),
             ("csp --position-gains 1,2,3,4", "--position-gains"),
+            ("dual-loop --main-loop-gains 1,2", "--main-loop-gains"),
             ("ppm --seed x", "--seed"),
             ("csp --auto-tune --resonance 0,15", "--resonance"),
             ("identify --resonance 60,7000", "--resonance"),

@@ -143,7 +143,7 @@ pub fn entry(index: u16) -> &'static Entry {
 
 /// The values `device.toml` accepts for an option-code object (its `values` list).
 pub fn accepted_values(index: u16) -> Vec<i16> {
-    match *entry(index).limits {
+    match *entry(index).generated_limits() {
         Limits::OneOf(list) => list.iter().map(|&v| i16::try_from(v).expect("INTEGER16 value")).collect(),
         other => panic!("{index:#06x} has no value list: {other:?}"),
     }

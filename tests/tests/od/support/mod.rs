@@ -138,7 +138,7 @@ pub fn limits_verdict(entry: &Entry, value: i128) -> Result<(), SdoAbort> {
     if entry.data_type == DataType::Boolean && value > 1 {
         return Err(SdoAbort::InvalidValue);
     }
-    match *entry.limits {
+    match *entry.generated_limits() {
         Limits::None => Ok(()),
         Limits::Signed { min, max } => range_verdict(value, i128::from(min), i128::from(max)),
         Limits::Unsigned { min, max } => range_verdict(value, i128::from(min), i128::from(max)),

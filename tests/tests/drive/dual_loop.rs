@@ -1,0 +1,151 @@
+//! The dual loop (issue 20 item 2; EPOS4 AN ch. 10): the load encoder (sensor 2, 0x3020) closes the position loop
+//! through the gear ratio 0x3003, the velocity loop stays on the motor encoder. Its configuration is refused as a
+//! whole when it cannot work (0x0604_0043), the geared-36v plant settles on the load encoder where the motor
+//! encoder alone misses by the backlash, and `drive-sim dual-loop` prints its figures and writes its plot.
+
+use firmware::drive::{Drive, DriveConfig};
+use firmware::od::abort::SdoAbort;
+use firmware::od::access::{AccessContext, CommState};
+use firmware::od::generated::{handles as h, MAX_PDO_BYTES_ETHERCAT};
+use firmware::od::store::ParamStore;
+use hal_sim::flash::SimFlash;
+use hal_sim::plant::PlantParams;
+use hal_sim::scenarios;
+use hal_sim::scenarios::dual_loop::{self, DualLoopConfig, DualLoopError, DualLoopFigures};
+use hal_sim::scenarios::identification::{self, Outcome};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+const PRE_OP: AccessContext = AccessContext {
+    comm_state: CommState::PreOperational,
+    power_stage_enabled: false,
+    max_pdo_bytes: MAX_PDO_BYTES_ETHERCAT as u16,
+};
+
+/// 0x3000:01 encoder + load encoder (sensor 2 type 2) + Halls.
+const WITH_LOAD_ENCODER: u32 = 0x0004_0201;
+/// 0x3000:02 dual loop: main sensor 2 (bits 19..16) on the gear output (bits 27..26 = 1), gear, PID, PI low-pass.
+const DUAL_LOOP: u32 = 0x0402_1111;
+
+fn geared_preset() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../hal-sim/presets/geared-36v.toml")
+}
+
+fn write(drive: &mut Drive, store: &mut ParamStore<SimFlash>, index: u16, sub: u8, value: u32) -> Result<(), SdoAbort> {
+    drive.sdo_write(index, sub, &value.to_le_bytes(), PRE_OP, store)
+}
+
+/// 0x3000:02 = dual loop needs sensor 2 in 0x3000:01 (EPOS4 AN ch. 10: the main sensor is the load encoder); without
+/// it the write aborts with 0x0604_0043 (CiA 301 Table 22, general parameter incompatibility) and 0x3000:02 keeps
+/// its value. Once configured, taking the load encoder out of 0x3000:01 is refused the same way.
+#[test]
+fn dual_loop_without_the_load_encoder_is_refused() {
+    let mut drive = Drive::new(DriveConfig::DEFAULT);
+    let mut store = ParamStore::new(SimFlash::params());
+    assert_eq!(write(&mut drive, &mut store, 0x3000, 2, DUAL_LOOP), Err(SdoAbort::ParameterIncompatibility));
+    assert_eq!(drive.dictionary().get(h::CONTROL_STRUCTURE), 0x0001_0111, "nothing changed");
+    assert_eq!(write(&mut drive, &mut store, 0x3000, 1, WITH_LOAD_ENCODER), Ok(()));
+    assert_eq!(write(&mut drive, &mut store, 0x3000, 2, DUAL_LOOP), Ok(()));
+    assert_eq!(write(&mut drive, &mut store, 0x3000, 1, 0x0004_0001), Err(SdoAbort::ParameterIncompatibility));
+    assert_eq!(drive.dictionary().get(h::SENSORS_CONFIGURATION), WITH_LOAD_ENCODER, "nothing changed");
+    // Main sensor 2 without its mounting position is no structure this drive offers: 0x0609_0030 (value range).
+    assert_eq!(write(&mut drive, &mut store, 0x3000, 2, 0x0002_1111), Err(SdoAbort::InvalidValue));
+}
+
+/// EPOS3 L6343: gear ratio x auxiliary resolution / main resolution must lie in 2^-11..2^15 (EPOS3's 0xFF0F, the
+/// gear scaling factor error). With the reference encoder (4,096 inc/rev): a 2,500,000-line load encoder
+/// (10^7 inc/rev) at 1:1 is 4,096 / 10^7 = 0.00041 < 2^-11 = 0.00049, refused when the dual loop is selected; a
+/// gear of 40,000:1 on a 16-line load encoder (64 inc/rev) is 2,560,000 > 2^15, refused when the gear is written.
+/// Each refusal is 0x0604_0043 and leaves the objects as they were; 5:1 with 5,000 lines (1.024) is taken.
+#[test]
+fn gear_scaling_factor_out_of_range_is_refused() {
+    let mut drive = Drive::new(DriveConfig::DEFAULT);
+    let mut store = ParamStore::new(SimFlash::params());
+    assert_eq!(drive.dictionary().get(h::MAIN_SENSOR_RESOLUTION), 4096);
+    assert_eq!(write(&mut drive, &mut store, 0x3000, 1, WITH_LOAD_ENCODER), Ok(()));
+    assert_eq!(write(&mut drive, &mut store, 0x3020, 1, 2_500_000), Ok(()), "no dual loop yet: taken");
+    assert_eq!(write(&mut drive, &mut store, 0x3000, 2, DUAL_LOOP), Err(SdoAbort::ParameterIncompatibility));
+    assert_eq!(drive.dictionary().get(h::CONTROL_STRUCTURE), 0x0001_0111);
+    assert_eq!(write(&mut drive, &mut store, 0x3020, 1, 16), Ok(()));
+    assert_eq!(write(&mut drive, &mut store, 0x3000, 2, DUAL_LOOP), Ok(()), "4,096 / 64 = 64: in range");
+    assert_eq!(write(&mut drive, &mut store, 0x3003, 1, 40_000), Err(SdoAbort::ParameterIncompatibility));
+    assert_eq!(drive.dictionary().get(h::GEAR_REDUCTION_NUMERATOR), 1, "nothing changed");
+    assert_eq!(write(&mut drive, &mut store, 0x3020, 1, 5_000), Ok(()));
+    assert_eq!(write(&mut drive, &mut store, 0x3003, 1, 5), Ok(()), "5 x 4,096 / 20,000 = 1.024");
+}
+
+/// The auto-tuned drive on geared-36v (identification on seed 1, as `drive-sim --auto-tune`): the gains of the
+/// velocity loop, the auxiliary loop, come from it; the main loop's are 0x30AE's defaults.
+fn run(dual: bool) -> DualLoopFigures {
+    let params = PlantParams::from_toml_file(&geared_preset()).expect("geared preset");
+    let run = identification::identify(&params, 1, |_| {});
+    assert_eq!(run.outcome, Outcome::Done, "identification finished");
+    let config = DualLoopConfig { dual_loop: dual, ..DualLoopConfig::default() };
+    scenarios::with_parameters(run.parameters, || dual_loop::dual_loop(params.clone(), &config))
+        .expect("dual-loop run")
+        .0
+}
+
+/// Issue 20 item 2 "What it must show": on geared-36v (5:1, 0.3 deg backlash = 33.3 increments of its 40,000-count
+/// load encoder, coupling at 60 Hz), a 90 deg CSP move of the load at 1 ms set-points. With the load encoder
+/// closing the loop (the master's set-points in the load encoder's increments, its main sensor's) the load settles
+/// within +-2 load increments over the last 100 ms of the 0.4 s hold (reached: 2.0 on seed 1; seeds 2 and 3 reach
+/// 1.0 and 3.0: the load ends where the motor, crawling through the backlash at the main loop's low gain, leaves
+/// it); with the motor encoder alone it misses by about the backlash (reached: 25, 23, 24 on seeds 1..3: where the
+/// load rests within the backlash depends on the last reversal), asserted as half to one and a half backlash. The
+/// following error peak (312 load increments, the coupling's twist under the move's acceleration) and the
+/// motor/load deviation (1.9 deg) are reported, bounded by what a stable run reaches plus 20 % (an unstable loop
+/// rings far beyond them).
+#[test]
+fn load_encoder_settles_the_load_where_the_motor_encoder_misses_by_the_backlash() {
+    let dual = run(true);
+    assert!(dual.load_settle_error_inc <= 2.0, "dual loop settle {} load inc", dual.load_settle_error_inc);
+    assert!(dual.load_following_error_peak_inc <= 314.0 * 1.2, "peak {}", dual.load_following_error_peak_inc);
+    assert!(dual.motor_load_deviation_peak_deg <= 1.9 * 1.2, "deviation {}", dual.motor_load_deviation_peak_deg);
+    let motor = run(false);
+    let backlash = motor.backlash_inc;
+    assert!((backlash - 33.33).abs() < 0.01, "0.3 deg of 40,000 inc/rev");
+    assert!(
+        (0.5 * backlash..=1.5 * backlash).contains(&motor.load_settle_error_inc),
+        "motor encoder alone misses by {} load inc, the backlash is {backlash}",
+        motor.load_settle_error_inc
+    );
+}
+
+/// A plant without a load encoder cannot run the dual loop: the scenario says so instead of running.
+#[test]
+fn dual_loop_needs_a_plant_with_a_load_encoder() {
+    let config = DualLoopConfig::default();
+    assert_eq!(dual_loop::dual_loop(PlantParams::reference(), &config).err(), Some(DualLoopError::NoLoadEncoder));
+}
+
+/// `drive-sim dual-loop --plant geared-36v.toml` prints the three figures the issue names as `key=value` lines and
+/// writes the trace and its SVG plot; on the reference plant (no load encoder) it fails with the reason.
+#[test]
+fn drive_sim_dual_loop_prints_the_figures_and_writes_the_plot() {
+    let drive_sim = drive_tests::real_master::build_drive_sim();
+    let out = std::env::temp_dir().join(format!("dual-loop-{}", std::process::id()));
+    let run = Command::new(&drive_sim)
+        .args(["dual-loop", "--plant"])
+        .arg(geared_preset())
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .expect("drive-sim runs");
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(run.status.success(), "drive-sim dual-loop failed: {stdout}{}", String::from_utf8_lossy(&run.stderr));
+    let figures = drive_tests::real_master::figures(&stdout);
+    for key in ["load_following_error_peak_inc", "load_settle_error_inc", "motor_load_deviation_peak_deg"] {
+        let value = figures.get(key).unwrap_or_else(|| panic!("{key} missing: {stdout}"));
+        let x: f64 = value.parse().unwrap_or_else(|e| panic!("{key}={value}: {e}"));
+        assert!(x.is_finite() && x >= 0.0, "{key}={value}");
+    }
+    let svg = std::fs::read_to_string(Path::new(&out).join("dual-loop.svg")).expect("the plot");
+    assert!(svg.starts_with("<svg") || svg.starts_with("<?xml"), "an SVG");
+    assert!(svg.contains("load following error"), "the plot shows the load's following error");
+    let _ = std::fs::remove_dir_all(&out);
+    let refused =
+        Command::new(&drive_sim).args(["dual-loop", "--out"]).arg(std::env::temp_dir()).output().expect("runs");
+    assert!(!refused.status.success(), "the reference plant has no load encoder");
+    assert!(String::from_utf8_lossy(&refused.stderr).contains("no load encoder"));
+}
