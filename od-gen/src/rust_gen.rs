@@ -316,8 +316,8 @@ pub fn rust_with_names(d: &Description, names: bool) -> Result<String, String> {
         for s in &o.subs {
             let _ = writeln!(
                 w,
-                "    Entry {{ index: 0x{:04X}, sub: 0x{:02X}, name: {}, data_type: {}, access: {}, pdo: {}, \
-                 persistent: {}, write_condition: {}, limits: LimitsRef({}), storage: {} }},",
+                "    Entry {{ index: 0x{:04X}, sub: 0x{:02X}, name: {}, data_type: {}, attributes: Attributes::new({}, {}, \
+                 {}, {}), limits: LimitsRef({}), storage: {} }},",
                 o.index,
                 s.sub,
                 name(&s.name),

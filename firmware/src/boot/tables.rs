@@ -83,11 +83,11 @@ const fn bootloader_entries() -> [Entry; BOOT_ENTRY_COUNT] {
         if kept(e.index) {
             if e.index == 0x1000 {
                 e.storage = Storage::Const(ConstRef::new(&DEVICE_TYPE_BYTES));
-                e.access = Access::ReadOnly;
+                e.attributes = e.attributes.with_access(Access::ReadOnly);
             } else if e.index == 0x1018 && e.sub == 3 {
                 // Revision: software version and application version both 0x0000 (E4 Table 4-33).
                 e.storage = Storage::Const(ConstRef::new(&ZERO_U32));
-                e.access = Access::ReadOnly;
+                e.attributes = e.attributes.with_access(Access::ReadOnly);
             }
             out[n] = e;
             n += 1;
@@ -169,6 +169,6 @@ mod tests {
         show_software_version(&mut d, &[b'9'; 40]);
         assert_eq!(read(&d), vec![b'9'; 32], "cut to the entry's capacity");
         let entry = APPLICATION_TABLE.find(MANUFACTURER_SOFTWARE_VERSION, 0).unwrap();
-        assert_eq!(entry.access, Access::ReadOnly);
+        assert_eq!(entry.access(), Access::ReadOnly);
     }
 }

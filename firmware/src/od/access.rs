@@ -269,10 +269,10 @@ impl<const S: usize> Download<S> {
 
 /// Checks the access type and the write condition of `entry`.
 fn check_writable(entry: &Entry, ctx: AccessContext) -> Result<(), SdoAbort> {
-    if !entry.access.writable() || matches!(entry.storage, Storage::Const(_)) {
+    if !entry.access().writable() || matches!(entry.storage, Storage::Const(_)) {
         return Err(SdoAbort::ReadOnly);
     }
-    if !ctx.allows(entry.write_condition) {
+    if !ctx.allows(entry.write_condition()) {
         return Err(SdoAbort::DeviceState);
     }
     Ok(())
@@ -429,7 +429,7 @@ impl<const N: usize> Dictionary<N> {
         buf: &mut [u8],
         app: &mut A,
     ) -> Result<ReadOutcome, SdoAbort> {
-        if !entry.access.readable() {
+        if !entry.access().readable() {
             return Err(SdoAbort::WriteOnly);
         }
         let value = match entry.storage {
@@ -616,7 +616,7 @@ impl<const N: usize> Dictionary<N> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::od::entry::{Access, ConstRef, LimitsRef, Name, ObjectCode, PdoMapping};
+    use crate::od::entry::{Access, Attributes, ConstRef, LimitsRef, Name, ObjectCode, PdoMapping};
 
     const fn entry(index: u16, sub: u8, data_type: DataType, access: Access, storage: Storage) -> Entry {
         Entry {
@@ -624,10 +624,7 @@ mod tests {
             sub,
             name: Name::EMPTY,
             data_type,
-            access,
-            pdo: PdoMapping::No,
-            persistent: false,
-            write_condition: WriteCondition::Always,
+            attributes: Attributes::new(access, PdoMapping::No, false, WriteCondition::Always),
             limits: LimitsRef::NONE,
             storage,
         }
@@ -641,7 +638,7 @@ mod tests {
         let data_type = if sub == 0 { DataType::Unsigned8 } else { DataType::Unsigned32 };
         let len = if sub == 0 { 1 } else { 4 };
         let mut e = entry(index, sub, data_type, Access::ReadWrite, ram(offset, len));
-        e.write_condition = WriteCondition::PreOperational;
+        e.attributes = e.attributes.with_write_condition(WriteCondition::PreOperational);
         if sub == 0 {
             e.limits = LimitsRef(1);
         }
@@ -649,7 +646,7 @@ mod tests {
     }
 
     const fn pdo(mut e: Entry, pdo: PdoMapping) -> Entry {
-        e.pdo = pdo;
+        e.attributes = e.attributes.with_pdo(pdo);
         e
     }
 
