@@ -101,13 +101,10 @@ const fn bootloader_entries() -> [Entry; BOOT_ENTRY_COUNT] {
 const fn bootloader_objects() -> [Object; BOOT_OBJECT_COUNT] {
     let mut out = [OBJECTS[0]; BOOT_OBJECT_COUNT];
     let mut n = 0;
-    let mut first = 0u16;
     let mut i = 0;
     while i < OBJECT_COUNT {
-        let mut o = OBJECTS[i];
+        let o = OBJECTS[i];
         if kept(o.index) {
-            o.first_entry = first;
-            first += o.entry_count;
             out[n] = o;
             n += 1;
         }
@@ -150,8 +147,7 @@ mod tests {
         assert_eq!(t.find(0x1000, 0).map(|e| e.storage.constant()), Ok(Some(&[0x2E, 0x01, 0, 0][..])));
         for index in BOOTLOADER_OBJECTS {
             assert!(!t.entries_of(index).is_empty(), "{index:#06x}");
-            let o = t.object(index).unwrap();
-            assert_eq!(t.entries().get(usize::from(o.first_entry)).map(|e| e.index), Some(index));
+            assert_eq!(t.object(index).map(|o| o.index), Some(index));
         }
     }
 

@@ -673,8 +673,8 @@ mod tests {
         ),
     ];
 
-    const fn object(index: u16, first_entry: u16, entry_count: u16) -> Object {
-        Object { index, name: Name::EMPTY, object_code: ObjectCode::Var, max_sub: 0, first_entry, entry_count }
+    const fn object(index: u16) -> Object {
+        Object { index, name: Name::EMPTY, object_code: ObjectCode::Var, max_sub: 0 }
     }
 
     /// The test table's limits, by the positions its entries name.
@@ -686,15 +686,15 @@ mod tests {
     ];
 
     static OBJECTS: [Object; 9] = [
-        object(0x1008, 0, 1),
-        object(0x1010, 1, 1),
-        object(0x1600, 2, 3),
-        object(0x2003, 5, 1),
-        object(0x2100, 6, 1),
-        object(0x2101, 7, 1),
-        object(0x6040, 8, 1),
-        object(0x6041, 9, 1),
-        object(0x605A, 10, 1),
+        object(0x1008),
+        object(0x1010),
+        object(0x1600),
+        object(0x2003),
+        object(0x2100),
+        object(0x2101),
+        object(0x6040),
+        object(0x6041),
+        object(0x605A),
     ];
 
     const PRE_OP: AccessContext =
@@ -748,7 +748,7 @@ mod tests {
         assert_eq!(dict.find(0x1600, 3), Err(SdoAbort::SubindexDoesNotExist));
         assert_eq!(dict.find(0x0000, 0), Err(SdoAbort::ObjectDoesNotExist));
         assert_eq!(dict.find(0xFFFF, 0xFF), Err(SdoAbort::ObjectDoesNotExist));
-        assert_eq!(dict.object(0x605A).map(|o| o.first_entry), Some(10));
+        assert_eq!(dict.object(0x605A).map(|o| o.index), Some(0x605A));
         assert_eq!(dict.object(0x607B), None);
     }
 

@@ -89,7 +89,7 @@ impl ConstRef {
 /// The name of an object or entry: its place in the generated text of every name, `NAMES` (od-gen writes each
 /// name once, and a name that is part of another one not at all). Three bytes instead of a `&str`'s eight in each
 /// entry and object. The CANopen image serves no names (build.rs sets `od_no_names`): there `NAMES` is empty
-/// and a name takes no bytes at all, which makes an object 8 bytes instead of 12 and an entry 12 instead of 16.
+/// and a name takes no bytes at all, which makes an object 4 bytes instead of 8 and an entry 12 instead of 16.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg(not(od_no_names))]
 pub struct Name([u8; 3]);
@@ -342,7 +342,9 @@ impl Entry {
     }
 }
 
-/// One object (index) of the dictionary: the header row of an ARRAY or RECORD, or a VAR.
+/// One object (index) of the dictionary: the header row of an ARRAY or RECORD, or a VAR. 4 bytes in an image
+/// without names, 8 with them. Its entries are found by their index ([`crate::od::access::Table::entries_of`], a
+/// binary search of the sorted entries), so the object keeps no position or count of them (4 bytes more each).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Object {
     /// Object index.
@@ -353,10 +355,6 @@ pub struct Object {
     pub object_code: ObjectCode,
     /// Highest sub-index declared for the object.
     pub max_sub: u8,
-    /// Position of the object's first entry in the entry table.
-    pub first_entry: u16,
-    /// Number of entries (sub-objects) the object has in the entry table.
-    pub entry_count: u16,
 }
 
 /// A typed handle to a value in RAM storage, generated for the objects the control tiers read and write, so
@@ -403,6 +401,14 @@ mod tests {
         // index, sub, data type, attributes, limits: 6 bytes; then name and storage.
         let fields = 6 + core::mem::size_of::<Name>() + storage;
         assert_eq!(core::mem::size_of::<Entry>(), fields + fields % 2);
+    }
+
+    #[test]
+    fn an_object_is_its_index_code_highest_sub_and_name() {
+        // 4 bytes on the target without names, 8 with them (several hundred objects in every image): index, object
+        // code and highest sub-index, then the name; a new field fails here.
+        let fields = 4 + core::mem::size_of::<Name>();
+        assert_eq!(core::mem::size_of::<Object>(), fields + fields % 2);
     }
 
     /// Every combination of the four attributes comes back from its byte as it went in (IDX 6.1.3, 6.1.4: each
