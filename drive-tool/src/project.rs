@@ -13,7 +13,7 @@ use crate::eds::{Access, Dictionary, Entry};
 /// outside the store/restore commands (0x1010, 0x1011) is taken.
 pub fn persistent(dict: &Dictionary, entry: &Entry) -> bool {
     if is_project_device(dict) {
-        return firmware::od::access::Table::GENERATED.find(entry.index, entry.sub).is_ok_and(|e| e.persistent);
+        return firmware::od::access::Table::GENERATED.find(entry.index, entry.sub).is_ok_and(|e| e.persistent());
     }
     entry.access == Access::ReadWrite && !matches!(entry.index, 0x1010 | 0x1011) && entry.data_type != 0x000F
 }

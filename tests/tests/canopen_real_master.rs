@@ -157,13 +157,13 @@ fn every_readable_object_uploads_through_canopen_as_the_dictionary_says() {
     let eds = write_eds(&dir);
     let mut text = String::new();
     let (mut n, mut longer, mut by_len) = (0, 0, 0);
-    for entry in d.table().entries().iter().filter(|e| e.access.readable()) {
+    for entry in d.table().entries().iter().filter(|e| e.access().readable()) {
         let expected = upload(&d, &mut objects, entry);
         let (rule, value, size) = match &expected {
             Err(code) => ("abort", format!("{code:08x}"), 0),
             Ok(v)
-                if entry.access == Access::ReadOnly
-                    && entry.pdo.tx()
+                if entry.access() == Access::ReadOnly
+                    && entry.pdo().tx()
                     && !FIXED_THOUGH_MAPPABLE.contains(&(entry.index, entry.sub))
                     || SET_BY_THE_DRIVE.contains(&(entry.index, entry.sub)) =>
             {

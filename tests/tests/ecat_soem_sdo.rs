@@ -92,8 +92,8 @@ const FIXED_THOUGH_MAPPABLE: &[(u16, u8)] = &[(0x6502, 0), (0x6075, 0)];
 fn rule(entry: &Entry, expected: &Result<Vec<u8>, u32>) -> Rule {
     if expected.is_err() {
         Rule::Abort
-    } else if entry.access == Access::ReadOnly
-        && entry.pdo.tx()
+    } else if entry.access() == Access::ReadOnly
+        && entry.pdo().tx()
         && !FIXED_THOUGH_MAPPABLE.contains(&(entry.index, entry.sub))
     {
         Rule::Len
@@ -112,7 +112,7 @@ fn every_readable_object_uploads_through_soem_as_the_dictionary_says() {
     let d = Dictionary::with_table(APPLICATION_TABLE, objects.drive.dictionary().values().clone());
     let mut text = String::new();
     let (mut n, mut len_only, mut longer) = (0, Vec::new(), 0);
-    for entry in d.table().entries().iter().filter(|e| e.access.readable()) {
+    for entry in d.table().entries().iter().filter(|e| e.access().readable()) {
         let expected = upload(&d, &mut objects, entry);
         let r = rule(entry, &expected);
         let (value, size) = match &expected {
@@ -174,10 +174,10 @@ fn parameter_of(d: &Dictionary, data_type: DataType) -> &'static Entry {
         .iter()
         .find(|e| {
             e.data_type == data_type
-                && e.access == Access::ReadWrite
+                && e.access() == Access::ReadWrite
                 && matches!(e.storage, Storage::Ram { .. })
                 && (0x2000..0xA000).contains(&e.index)
-                && !e.pdo.rx()
+                && !e.pdo().rx()
                 && match *e.generated_limits() {
                     Limits::Signed { min, max } => i128::from(min) > type_min && i128::from(max) < type_max,
                     Limits::Unsigned { min, max } => i128::from(min) > type_min && i128::from(max) < type_max,
@@ -388,7 +388,7 @@ fn sdo_mailbox_throughput_of_normal_and_expedited_uploads_of_the_longest_string_
         .table()
         .entries()
         .iter()
-        .filter(|e| e.access.readable() && e.data_type.fixed_size().is_none())
+        .filter(|e| e.access().readable() && e.data_type.fixed_size().is_none())
         .filter_map(|e| upload(&d, &mut objects, e).ok().map(|v| (e, v)))
         .max_by_key(|(_, v)| v.len())
         .expect("a readable string");

@@ -48,7 +48,7 @@ fn entries_json(node_id: u8) -> String {
             Storage::Const(bytes) => Some(bytes.bytes().iter().map(|b| format!("{b:02x}")).collect()),
             Storage::Application => None,
         };
-        let access = match e.access {
+        let access = match e.access() {
             Access::ReadOnly => "ro",
             Access::WriteOnly => "wo",
             Access::ReadWrite => "rw",
@@ -63,7 +63,7 @@ fn entries_json(node_id: u8) -> String {
             json_string(e.name.as_str()),
             OBJECTS.iter().find(|o| o.index == e.index).expect("the entry's object").object_code.code(),
             e.data_type.code(),
-            e.pdo != firmware::od::entry::PdoMapping::No,
+            e.pdo() != firmware::od::entry::PdoMapping::No,
             e.node_id_relative(),
             default.map_or("null".to_string(), |d| format!("\"{d}\"")),
             if i + 1 == ENTRIES.len() { "" } else { "," }

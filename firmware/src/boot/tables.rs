@@ -83,11 +83,11 @@ const fn bootloader_entries() -> [Entry; BOOT_ENTRY_COUNT] {
         if kept(e.index) {
             if e.index == 0x1000 {
                 e.storage = Storage::Const(ConstRef::new(&DEVICE_TYPE_BYTES));
-                e.access = Access::ReadOnly;
+                e.attributes = e.attributes.with_access(Access::ReadOnly);
             } else if e.index == 0x1018 && e.sub == 3 {
                 // Revision: software version and application version both 0x0000 (E4 Table 4-33).
                 e.storage = Storage::Const(ConstRef::new(&ZERO_U32));
-                e.access = Access::ReadOnly;
+                e.attributes = e.attributes.with_access(Access::ReadOnly);
             }
             out[n] = e;
             n += 1;
@@ -101,13 +101,10 @@ const fn bootloader_entries() -> [Entry; BOOT_ENTRY_COUNT] {
 const fn bootloader_objects() -> [Object; BOOT_OBJECT_COUNT] {
     let mut out = [OBJECTS[0]; BOOT_OBJECT_COUNT];
     let mut n = 0;
-    let mut first = 0u16;
     let mut i = 0;
     while i < OBJECT_COUNT {
-        let mut o = OBJECTS[i];
+        let o = OBJECTS[i];
         if kept(o.index) {
-            o.first_entry = first;
-            first += o.entry_count;
             out[n] = o;
             n += 1;
         }
@@ -150,8 +147,7 @@ mod tests {
         assert_eq!(t.find(0x1000, 0).map(|e| e.storage.constant()), Ok(Some(&[0x2E, 0x01, 0, 0][..])));
         for index in BOOTLOADER_OBJECTS {
             assert!(!t.entries_of(index).is_empty(), "{index:#06x}");
-            let o = t.object(index).unwrap();
-            assert_eq!(t.entries().get(usize::from(o.first_entry)).map(|e| e.index), Some(index));
+            assert_eq!(t.object(index).map(|o| o.index), Some(index));
         }
     }
 
@@ -169,6 +165,6 @@ mod tests {
         show_software_version(&mut d, &[b'9'; 40]);
         assert_eq!(read(&d), vec![b'9'; 32], "cut to the entry's capacity");
         let entry = APPLICATION_TABLE.find(MANUFACTURER_SOFTWARE_VERSION, 0).unwrap();
-        assert_eq!(entry.access, Access::ReadOnly);
+        assert_eq!(entry.access(), Access::ReadOnly);
     }
 }

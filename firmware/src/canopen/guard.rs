@@ -49,7 +49,7 @@ pub fn check_download<const N: usize>(
     let Ok(entry) = d.find(index, sub) else {
         return Ok(());
     };
-    if !matches!(entry.access, Access::ReadWrite | Access::WriteOnly) || !ctx.allows(entry.write_condition) {
+    if !matches!(entry.access(), Access::ReadWrite | Access::WriteOnly) || !ctx.allows(entry.write_condition()) {
         return Ok(());
     }
     let value = value.ok_or(SdoAbort::UnsupportedAccess)?;

@@ -129,7 +129,7 @@ pub fn reset_communication_parameters(d: &mut Dictionary, node_id: u8) {
     let communication = entries.get(first..end).unwrap_or(&[]);
     let defaults = Values::defaults_for(communication, node_id);
     for entry in communication {
-        let writable = matches!(entry.access, Access::ReadWrite | Access::WriteOnly);
+        let writable = matches!(entry.access(), Access::ReadWrite | Access::WriteOnly);
         let node_relative = entry.node_id_relative();
         if !restored_by_communication_reset(entry.index) || !(writable || node_relative) {
             continue;

@@ -75,7 +75,7 @@ pub fn plant_from_objects(values: &[u8]) -> TuningPlant {
     }
 }
 
-/// Writes every gain of `g` into 0x30A0..0x30A3.
+/// Writes every gain of `g` into 0x30A0..0x30A3 and the dual loop's main loop 0x30AE:01..03.
 pub fn write_gains(values: &mut [u8], g: &TunedGains) {
     set(values, h::CURRENT_CONTROLLER_P_GAIN, g.current.p_uv_per_a);
     set(values, h::CURRENT_CONTROLLER_I_GAIN, g.current.i_uv_per_a_ms);
@@ -94,6 +94,9 @@ pub fn write_gains(values: &mut [u8], g: &TunedGains) {
     set(values, h::OBSERVER_LOAD_CORRECTION_GAIN, g.observer.load_correction_unm_per_rad);
     set(values, h::OBSERVER_FRICTION, g.observer.friction);
     set(values, h::OBSERVER_INERTIA, g.observer.inertia);
+    set(values, h::DUAL_LOOP_GAIN_LOW, g.main_loop.k_low);
+    set(values, h::DUAL_LOOP_GAIN_HIGH, g.main_loop.k_high);
+    set(values, h::DUAL_LOOP_SCHEDULING_WEIGHT, g.main_loop.weight);
 }
 
 /// 0x3205:05 for a refusal (device.toml): 16 + plant value, 32 stiffness, 48 + gain object (each code < 16).

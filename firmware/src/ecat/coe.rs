@@ -107,10 +107,10 @@ fn in_list(table: &Table, object: &Object, list: u16) -> bool {
     let entries = table.entries_of(object.index);
     match list {
         list_type::ALL => true,
-        list_type::RX_PDO => entries.iter().any(|e| e.pdo.rx()),
-        list_type::TX_PDO => entries.iter().any(|e| e.pdo.tx()),
-        list_type::BACKUP => entries.iter().any(|e| e.persistent),
-        list_type::SETTINGS => entries.iter().any(|e| e.persistent && e.access.writable()),
+        list_type::RX_PDO => entries.iter().any(|e| e.pdo().rx()),
+        list_type::TX_PDO => entries.iter().any(|e| e.pdo().tx()),
+        list_type::BACKUP => entries.iter().any(|e| e.persistent()),
+        list_type::SETTINGS => entries.iter().any(|e| e.persistent() && e.access().writable()),
         _ => false,
     }
 }
@@ -136,23 +136,23 @@ fn object_data_type(table: &Table, object: &Object) -> u16 {
 /// bit 8 backup, bit 9 settings.
 fn object_access(entry: &Entry) -> u16 {
     let mut access = 0u16;
-    if entry.access.readable() {
+    if entry.access().readable() {
         access |= 0x0007;
     }
-    let writable = entry.access.writable() && !matches!(entry.storage, Storage::Const(_));
+    let writable = entry.access().writable() && !matches!(entry.storage, Storage::Const(_));
     if writable {
-        access |= match entry.write_condition {
+        access |= match entry.write_condition() {
             WriteCondition::Always | WriteCondition::PowerDisabled => 0x0038,
             WriteCondition::PreOperational | WriteCondition::PreOperationalPowerDisabled => 0x0008,
         };
     }
-    if entry.pdo.rx() {
+    if entry.pdo().rx() {
         access |= 0x0040;
     }
-    if entry.pdo.tx() {
+    if entry.pdo().tx() {
         access |= 0x0080;
     }
-    if entry.persistent {
+    if entry.persistent() {
         access |= 0x0100;
         if writable {
             access |= 0x0200;

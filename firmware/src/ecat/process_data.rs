@@ -248,7 +248,9 @@ fn compile_image<const N: usize>(d: &Dictionary<N>, direction: Direction) -> Res
 mod tests {
     use super::*;
     use crate::od::access::{AccessContext, NoApplicationObjects, Table};
-    use crate::od::entry::{Access, ConstRef, DataType, Entry, LimitsRef, Name, PdoMapping, Storage, WriteCondition};
+    use crate::od::entry::{
+        Access, Attributes, ConstRef, DataType, Entry, LimitsRef, Name, PdoMapping, Storage, WriteCondition,
+    };
     use crate::od::values::Values;
 
     const fn entry(index: u16, sub: u8, data_type: DataType, pdo: PdoMapping, storage: Storage) -> Entry {
@@ -257,10 +259,7 @@ mod tests {
             sub,
             name: Name::EMPTY,
             data_type,
-            access: Access::ReadWrite,
-            pdo,
-            persistent: false,
-            write_condition: WriteCondition::Always,
+            attributes: Attributes::new(Access::ReadWrite, pdo, false, WriteCondition::Always),
             limits: LimitsRef::NONE,
             storage,
         }

@@ -269,10 +269,10 @@ impl<const S: usize> Download<S> {
 
 /// Checks the access type and the write condition of `entry`.
 fn check_writable(entry: &Entry, ctx: AccessContext) -> Result<(), SdoAbort> {
-    if !entry.access.writable() || matches!(entry.storage, Storage::Const(_)) {
+    if !entry.access().writable() || matches!(entry.storage, Storage::Const(_)) {
         return Err(SdoAbort::ReadOnly);
     }
-    if !ctx.allows(entry.write_condition) {
+    if !ctx.allows(entry.write_condition()) {
         return Err(SdoAbort::DeviceState);
     }
     Ok(())
@@ -429,7 +429,7 @@ impl<const N: usize> Dictionary<N> {
         buf: &mut [u8],
         app: &mut A,
     ) -> Result<ReadOutcome, SdoAbort> {
-        if !entry.access.readable() {
+        if !entry.access().readable() {
             return Err(SdoAbort::WriteOnly);
         }
         let value = match entry.storage {
@@ -616,7 +616,7 @@ impl<const N: usize> Dictionary<N> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::od::entry::{Access, ConstRef, LimitsRef, Name, ObjectCode, PdoMapping};
+    use crate::od::entry::{Access, Attributes, ConstRef, LimitsRef, Name, ObjectCode, PdoMapping};
 
     const fn entry(index: u16, sub: u8, data_type: DataType, access: Access, storage: Storage) -> Entry {
         Entry {
@@ -624,10 +624,7 @@ mod tests {
             sub,
             name: Name::EMPTY,
             data_type,
-            access,
-            pdo: PdoMapping::No,
-            persistent: false,
-            write_condition: WriteCondition::Always,
+            attributes: Attributes::new(access, PdoMapping::No, false, WriteCondition::Always),
             limits: LimitsRef::NONE,
             storage,
         }
@@ -641,7 +638,7 @@ mod tests {
         let data_type = if sub == 0 { DataType::Unsigned8 } else { DataType::Unsigned32 };
         let len = if sub == 0 { 1 } else { 4 };
         let mut e = entry(index, sub, data_type, Access::ReadWrite, ram(offset, len));
-        e.write_condition = WriteCondition::PreOperational;
+        e.attributes = e.attributes.with_write_condition(WriteCondition::PreOperational);
         if sub == 0 {
             e.limits = LimitsRef(1);
         }
@@ -649,7 +646,7 @@ mod tests {
     }
 
     const fn pdo(mut e: Entry, pdo: PdoMapping) -> Entry {
-        e.pdo = pdo;
+        e.attributes = e.attributes.with_pdo(pdo);
         e
     }
 
@@ -676,8 +673,8 @@ mod tests {
         ),
     ];
 
-    const fn object(index: u16, first_entry: u16, entry_count: u16) -> Object {
-        Object { index, name: Name::EMPTY, object_code: ObjectCode::Var, max_sub: 0, first_entry, entry_count }
+    const fn object(index: u16) -> Object {
+        Object { index, name: Name::EMPTY, object_code: ObjectCode::Var, max_sub: 0 }
     }
 
     /// The test table's limits, by the positions its entries name.
@@ -689,15 +686,15 @@ mod tests {
     ];
 
     static OBJECTS: [Object; 9] = [
-        object(0x1008, 0, 1),
-        object(0x1010, 1, 1),
-        object(0x1600, 2, 3),
-        object(0x2003, 5, 1),
-        object(0x2100, 6, 1),
-        object(0x2101, 7, 1),
-        object(0x6040, 8, 1),
-        object(0x6041, 9, 1),
-        object(0x605A, 10, 1),
+        object(0x1008),
+        object(0x1010),
+        object(0x1600),
+        object(0x2003),
+        object(0x2100),
+        object(0x2101),
+        object(0x6040),
+        object(0x6041),
+        object(0x605A),
     ];
 
     const PRE_OP: AccessContext =
@@ -751,7 +748,7 @@ mod tests {
         assert_eq!(dict.find(0x1600, 3), Err(SdoAbort::SubindexDoesNotExist));
         assert_eq!(dict.find(0x0000, 0), Err(SdoAbort::ObjectDoesNotExist));
         assert_eq!(dict.find(0xFFFF, 0xFF), Err(SdoAbort::ObjectDoesNotExist));
-        assert_eq!(dict.object(0x605A).map(|o| o.first_entry), Some(10));
+        assert_eq!(dict.object(0x605A).map(|o| o.index), Some(0x605A));
         assert_eq!(dict.object(0x607B), None);
     }
 

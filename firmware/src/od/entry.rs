@@ -89,7 +89,7 @@ impl ConstRef {
 /// The name of an object or entry: its place in the generated text of every name, `NAMES` (od-gen writes each
 /// name once, and a name that is part of another one not at all). Three bytes instead of a `&str`'s eight in each
 /// entry and object. The CANopen image serves no names (build.rs sets `od_no_names`): there `NAMES` is empty
-/// and a name takes no bytes at all, which makes an object 8 bytes instead of 12 and an entry 16 instead of 18.
+/// and a name takes no bytes at all, which makes an object 4 bytes instead of 8 and an entry 12 instead of 16.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg(not(od_no_names))]
 pub struct Name([u8; 3]);
@@ -150,10 +150,126 @@ impl LimitsRef {
     pub const NONE: Self = Self(0);
 }
 
+/// The access type, PDO mapping direction, write condition and backup flag of an entry (IDX 6.1.3, 6.1.4; device.toml
+/// `access`, `pdo`, `writable_in`, `persistent`), packed into one byte: bits 0-1 the access type, 2-3 the PDO
+/// mapping, 4-5 the write condition, bit 6 the backup flag, bit 7 zero. As four bytes they made an entry 16 bytes
+/// in the CAN image instead of 12 (about 2.2 KB over the several hundred entries); each attribute is read once per
+/// transfer, PDO mapping or save, never per cycle, and its masks cost a few instructions.
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub struct Attributes(u8);
+
+impl Attributes {
+    const PDO_SHIFT: u32 = 2;
+    const WRITE_CONDITION_SHIFT: u32 = 4;
+    const PERSISTENT: u8 = 1 << 6;
+
+    /// The attributes of an entry. Only generated code and tests create them.
+    #[must_use]
+    pub const fn new(access: Access, pdo: PdoMapping, persistent: bool, write_condition: WriteCondition) -> Self {
+        Self(0).with_access(access).with_pdo(pdo).with_persistent(persistent).with_write_condition(write_condition)
+    }
+
+    /// Access type.
+    #[must_use]
+    pub const fn access(self) -> Access {
+        match self.0 & 0b11 {
+            0 => Access::ReadOnly,
+            1 => Access::WriteOnly,
+            2 => Access::ReadWrite,
+            _ => Access::Const,
+        }
+    }
+
+    /// PDO mapping direction.
+    #[must_use]
+    pub const fn pdo(self) -> PdoMapping {
+        match (self.0 >> Self::PDO_SHIFT) & 0b11 {
+            0 => PdoMapping::No,
+            1 => PdoMapping::Rx,
+            2 => PdoMapping::Tx,
+            _ => PdoMapping::Both,
+        }
+    }
+
+    /// When writes are accepted.
+    #[must_use]
+    pub const fn write_condition(self) -> WriteCondition {
+        match (self.0 >> Self::WRITE_CONDITION_SHIFT) & 0b11 {
+            0 => WriteCondition::Always,
+            1 => WriteCondition::PreOperational,
+            2 => WriteCondition::PowerDisabled,
+            _ => WriteCondition::PreOperationalPowerDisabled,
+        }
+    }
+
+    /// Whether 0x1010 "save" stores the value (IDX Backup flag).
+    #[must_use]
+    pub const fn persistent(self) -> bool {
+        self.0 & Self::PERSISTENT != 0
+    }
+
+    /// The same attributes with another access type.
+    #[must_use]
+    pub const fn with_access(self, access: Access) -> Self {
+        let bits = match access {
+            Access::ReadOnly => 0,
+            Access::WriteOnly => 1,
+            Access::ReadWrite => 2,
+            Access::Const => 3,
+        };
+        Self((self.0 & !0b11) | bits)
+    }
+
+    /// The same attributes with another PDO mapping direction.
+    #[must_use]
+    pub const fn with_pdo(self, pdo: PdoMapping) -> Self {
+        let bits: u8 = match pdo {
+            PdoMapping::No => 0,
+            PdoMapping::Rx => 1,
+            PdoMapping::Tx => 2,
+            PdoMapping::Both => 3,
+        };
+        Self((self.0 & !(0b11 << Self::PDO_SHIFT)) | (bits << Self::PDO_SHIFT))
+    }
+
+    /// The same attributes with another write condition.
+    #[must_use]
+    pub const fn with_write_condition(self, write_condition: WriteCondition) -> Self {
+        let bits: u8 = match write_condition {
+            WriteCondition::Always => 0,
+            WriteCondition::PreOperational => 1,
+            WriteCondition::PowerDisabled => 2,
+            WriteCondition::PreOperationalPowerDisabled => 3,
+        };
+        Self((self.0 & !(0b11 << Self::WRITE_CONDITION_SHIFT)) | (bits << Self::WRITE_CONDITION_SHIFT))
+    }
+
+    /// The same attributes with the backup flag set or cleared.
+    #[must_use]
+    pub const fn with_persistent(self, persistent: bool) -> Self {
+        if persistent {
+            Self(self.0 | Self::PERSISTENT)
+        } else {
+            Self(self.0 & !Self::PERSISTENT)
+        }
+    }
+}
+
+impl core::fmt::Debug for Attributes {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("Attributes")
+            .field("access", &self.access())
+            .field("pdo", &self.pdo())
+            .field("persistent", &self.persistent())
+            .field("write_condition", &self.write_condition())
+            .finish()
+    }
+}
+
 /// One sub-object of the dictionary. The generated table holds one per (index, sub-index), sorted. Packed to 2
-/// bytes: 16 bytes in an image without names (where the name takes none, [`Name`]), 18 with them (15 and 18
-/// bytes of fields); the access layer reads entries on no fast path, and the Cortex-M4 loads a word from any half-word
-/// address.
+/// bytes: 12 bytes in an image without names (where the name takes none, [`Name`]), 16 with them (12 and 15
+/// bytes of fields); the access layer reads entries on no fast path, and the Cortex-M4 loads a word from any
+/// half-word address.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[repr(Rust, packed(2))]
 pub struct Entry {
@@ -165,14 +281,9 @@ pub struct Entry {
     pub name: Name,
     /// Data type of the value.
     pub data_type: DataType,
-    /// Access type.
-    pub access: Access,
-    /// PDO mapping direction.
-    pub pdo: PdoMapping,
-    /// Whether 0x1010 "save" stores the value (IDX Backup flag).
-    pub persistent: bool,
-    /// When writes are accepted.
-    pub write_condition: WriteCondition,
+    /// Access type, PDO mapping, write condition and backup flag, one byte ([`Entry::access`], [`Entry::pdo`],
+    /// [`Entry::write_condition`], [`Entry::persistent`]).
+    pub attributes: Attributes,
     /// Range for writes: a position in the table's list of limits (most entries share a few ranges; the 24-byte
     /// enum in each entry took about 8.5 KB, a 4-byte reference to it 2 KB).
     pub limits: LimitsRef,
@@ -181,6 +292,30 @@ pub struct Entry {
 }
 
 impl Entry {
+    /// Access type.
+    #[must_use]
+    pub const fn access(&self) -> Access {
+        self.attributes.access()
+    }
+
+    /// PDO mapping direction.
+    #[must_use]
+    pub const fn pdo(&self) -> PdoMapping {
+        self.attributes.pdo()
+    }
+
+    /// When writes are accepted.
+    #[must_use]
+    pub const fn write_condition(&self) -> WriteCondition {
+        self.attributes.write_condition()
+    }
+
+    /// Whether 0x1010 "save" stores the value (IDX Backup flag).
+    #[must_use]
+    pub const fn persistent(&self) -> bool {
+        self.attributes.persistent()
+    }
+
     /// Whether the default is the declared value plus the node-ID (CiA 301 `$NODEID+` defaults of COB-IDs): a
     /// mark of RAM storage ([`Storage::Ram`]).
     #[must_use]
@@ -207,7 +342,9 @@ impl Entry {
     }
 }
 
-/// One object (index) of the dictionary: the header row of an ARRAY or RECORD, or a VAR.
+/// One object (index) of the dictionary: the header row of an ARRAY or RECORD, or a VAR. 4 bytes in an image
+/// without names, 8 with them. Its entries are found by their index ([`crate::od::access::Table::entries_of`], a
+/// binary search of the sorted entries), so the object keeps no position or count of them (4 bytes more each).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Object {
     /// Object index.
@@ -218,10 +355,6 @@ pub struct Object {
     pub object_code: ObjectCode,
     /// Highest sub-index declared for the object.
     pub max_sub: u8,
-    /// Position of the object's first entry in the entry table.
-    pub first_entry: u16,
-    /// Number of entries (sub-objects) the object has in the entry table.
-    pub entry_count: u16,
 }
 
 /// A typed handle to a value in RAM storage, generated for the objects the control tiers read and write, so
@@ -257,14 +390,84 @@ mod tests {
 
     #[test]
     fn an_entry_is_its_fields_packed_to_two_bytes() {
-        // 16 bytes on the target without names, 18 with them: the node-ID mark sits beside the storage's tag and
-        // the limits take a one-byte position (flash: several hundred entries in every image). A wider field or a
-        // new one fails here. The storage is its tag byte, the node-ID mark and a thin pointer or two half-words.
+        // 12 bytes on the target without names, 16 with them: the node-ID mark sits beside the storage's tag, the
+        // limits take a one-byte position and the four attributes one byte (flash: several hundred entries in
+        // every image). A wider field or a new one fails here. The storage is its tag byte, the node-ID mark and a
+        // thin pointer or two half-words.
         let storage = core::mem::size_of::<Storage>();
         assert_eq!(storage, 2 + core::mem::size_of::<&u8>());
         assert_eq!(core::mem::size_of::<LimitsRef>(), 1);
-        // index, sub, data type, access, PDO, persistent, write condition, limits: 9 bytes; then name and storage.
-        let fields = 9 + core::mem::size_of::<Name>() + storage;
+        assert_eq!(core::mem::size_of::<Attributes>(), 1);
+        // index, sub, data type, attributes, limits: 6 bytes; then name and storage.
+        let fields = 6 + core::mem::size_of::<Name>() + storage;
         assert_eq!(core::mem::size_of::<Entry>(), fields + fields % 2);
+    }
+
+    #[test]
+    fn an_object_is_its_index_code_highest_sub_and_name() {
+        // 4 bytes on the target without names, 8 with them (several hundred objects in every image): index, object
+        // code and highest sub-index, then the name; a new field fails here.
+        let fields = 4 + core::mem::size_of::<Name>();
+        assert_eq!(core::mem::size_of::<Object>(), fields + fields % 2);
+    }
+
+    /// Every combination of the four attributes comes back from its byte as it went in (IDX 6.1.3, 6.1.4: each
+    /// one an independent property of the entry), and bit 7 stays clear.
+    #[test]
+    fn attributes_keep_every_combination_apart() {
+        let accesses = [Access::ReadOnly, Access::WriteOnly, Access::ReadWrite, Access::Const];
+        let mappings = [PdoMapping::No, PdoMapping::Rx, PdoMapping::Tx, PdoMapping::Both];
+        let conditions = [
+            WriteCondition::Always,
+            WriteCondition::PreOperational,
+            WriteCondition::PowerDisabled,
+            WriteCondition::PreOperationalPowerDisabled,
+        ];
+        let mut seen = std::vec::Vec::new();
+        for access in accesses {
+            for pdo in mappings {
+                for condition in conditions {
+                    for persistent in [false, true] {
+                        let a = Attributes::new(access, pdo, persistent, condition);
+                        assert_eq!(
+                            (a.access(), a.pdo(), a.write_condition(), a.persistent()),
+                            (access, pdo, condition, persistent)
+                        );
+                        assert_eq!(a.0 & 0x80, 0, "{a:?}");
+                        seen.push(a.0);
+                    }
+                }
+            }
+        }
+        seen.sort_unstable();
+        seen.dedup();
+        assert_eq!(seen.len(), 128, "each combination has a byte of its own");
+    }
+
+    /// Changing one attribute leaves the other three as they were (the hand-made tables of the tests and the
+    /// boot image's read-only copies rely on it).
+    #[test]
+    fn changing_one_attribute_keeps_the_others() {
+        let a = Attributes::new(Access::ReadWrite, PdoMapping::Both, true, WriteCondition::PreOperationalPowerDisabled);
+        let b = a.with_access(Access::ReadOnly);
+        assert_eq!(
+            (b.access(), b.pdo(), b.persistent(), b.write_condition()),
+            (Access::ReadOnly, a.pdo(), true, a.write_condition())
+        );
+        let c = a.with_pdo(PdoMapping::No);
+        assert_eq!(
+            (c.access(), c.pdo(), c.persistent(), c.write_condition()),
+            (a.access(), PdoMapping::No, true, a.write_condition())
+        );
+        let d = a.with_write_condition(WriteCondition::Always);
+        assert_eq!(
+            (d.access(), d.pdo(), d.persistent(), d.write_condition()),
+            (a.access(), a.pdo(), true, WriteCondition::Always)
+        );
+        let e = a.with_persistent(false);
+        assert_eq!(
+            (e.access(), e.pdo(), e.persistent(), e.write_condition()),
+            (a.access(), a.pdo(), false, a.write_condition())
+        );
     }
 }

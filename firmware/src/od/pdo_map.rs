@@ -145,8 +145,8 @@ pub fn resolve(table: &Table, entry: MapEntry, direction: Direction) -> Result<M
     }
     let object = table.find(entry.index, entry.sub).map_err(|_| SdoAbort::ObjectDoesNotExist)?;
     let mappable = match direction {
-        Direction::Rx => object.pdo.rx(),
-        Direction::Tx => object.pdo.tx(),
+        Direction::Rx => object.pdo().rx(),
+        Direction::Tx => object.pdo().tx(),
     };
     match object.bit_size() {
         Some(_) if !mappable => Err(SdoAbort::CannotBeMapped),

@@ -609,7 +609,7 @@ impl<F: NorFlash> ParamStore<F> {
                 .binary_search_by(|e| (e.index, e.sub).cmp(&(item.index, item.sub)))
                 .ok()
                 .and_then(|i| entries.get(i))
-                .filter(|e| e.persistent);
+                .filter(|e| e.persistent());
             let Some(entry) = found else {
                 report.unknown = report.unknown.saturating_add(1);
                 continue;
@@ -711,7 +711,7 @@ impl<F: NorFlash> ParamStore<F> {
             }
             // ...and the current values of the replaced groups.
             if let Some((entries, values)) = fresh {
-                for e in entries.iter().filter(|e| e.persistent && replace.contains(store_group_of(e.index))) {
+                for e in entries.iter().filter(|e| e.persistent() && replace.contains(store_group_of(e.index))) {
                     let Storage::Ram { offset, len, .. } = e.storage else { continue };
                     let start = usize::from(offset);
                     let bytes = start

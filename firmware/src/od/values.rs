@@ -243,7 +243,7 @@ impl<const N: usize> Values<N> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::od::entry::{Access, DataType, LimitsRef, Name, PdoMapping, WriteCondition};
+    use crate::od::entry::{Access, Attributes, DataType, LimitsRef, Name, PdoMapping, WriteCondition};
 
     const fn ram(index: u16, data_type: DataType, offset: u16, len: u16, node_id_relative: bool) -> Entry {
         Entry {
@@ -251,10 +251,7 @@ mod tests {
             sub: 0,
             name: Name::EMPTY,
             data_type,
-            access: Access::ReadWrite,
-            pdo: PdoMapping::No,
-            persistent: false,
-            write_condition: WriteCondition::Always,
+            attributes: Attributes::new(Access::ReadWrite, PdoMapping::No, false, WriteCondition::Always),
             limits: LimitsRef::NONE,
             storage: Storage::Ram { offset, len, node_id_relative },
         }

@@ -163,7 +163,7 @@ fn channel(value: u32) -> Result<(u8, Option<&'static Entry>), SdoAbort> {
     let size = entry.data_type.fixed_size().unwrap_or(0);
     let integer = entry.data_type.is_integer() || entry.data_type == DataType::Boolean;
     let stored = !matches!(entry.storage, Storage::Application);
-    if !(entry.access.readable() && entry.pdo.tx() && integer && stored && (1..=4).contains(&size)) {
+    if !(entry.access().readable() && entry.pdo().tx() && integer && stored && (1..=4).contains(&size)) {
         return Err(SdoAbort::CannotBeMapped);
     }
     Ok((if size > 2 { PLAN_OBJECT | PLAN_WIDE } else { PLAN_OBJECT }, Some(entry)))

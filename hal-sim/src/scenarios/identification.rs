@@ -167,8 +167,8 @@ impl Master {
 
 /// The objects the identification and its auto-tuning write (the drive's parameters a master saves after it and
 /// writes into a drive it commissions): motor data, winding, encoder direction and index offset, Hall offset, and
-/// the gains of the current, position and velocity loops and the observer.
-pub const IDENTIFIED_OBJECTS: [(u16, u8); 26] = [
+/// the gains of the current, position and velocity loops, the observer and the dual loop's main loop.
+pub const IDENTIFIED_OBJECTS: [(u16, u8); 29] = [
     (0x3001, 5),
     (0x3002, 1),
     (0x3002, 2),
@@ -193,6 +193,9 @@ pub const IDENTIFIED_OBJECTS: [(u16, u8); 26] = [
     (0x30A3, 3),
     (0x30A3, 4),
     (0x30A3, 5),
+    (0x30AE, 1),
+    (0x30AE, 2),
+    (0x30AE, 3),
     (0x3205, 3),
     (0x3205, 4),
 ];

@@ -845,7 +845,7 @@ mod reset_tests {
             d.table()
                 .entries()
                 .iter()
-                .filter(|e| (0x1000..=0x1FFF).contains(&e.index) && e.persistent && !e.node_id_relative())
+                .filter(|e| (0x1000..=0x1FFF).contains(&e.index) && e.persistent() && !e.node_id_relative())
                 .filter(|e| matches!(e.storage, Storage::Ram { .. }) && e.data_type.fixed_size().is_some())
                 .copied()
                 .collect()

@@ -129,8 +129,8 @@ pub async fn read_all(master: &'static Master) -> Outcome {
     for (index, sub, _) in MEASURED {
         let e =
             d.find(*index, *sub).map_err(|a| format!("excluded {index:#06x}:{sub} not in the dictionary: {a:?}"))?;
-        if e.access != Access::ReadOnly {
-            return Err(format!("excluded {index:#06x}:{sub} is {:?}, not ro", e.access));
+        if e.access() != Access::ReadOnly {
+            return Err(format!("excluded {index:#06x}:{sub} is {:?}, not ro", e.access()));
         }
     }
     let (mut read, mut equal, mut refused_alike, mut excluded_differ, mut longest) = (0u32, 0u32, 0u32, 0u32, 0usize);
@@ -138,7 +138,7 @@ pub async fn read_all(master: &'static Master) -> Outcome {
     let started = std::time::Instant::now();
     let mut bytes = 0usize;
     for e in Table::GENERATED.entries() {
-        if !e.access.readable() {
+        if !e.access().readable() {
             continue;
         }
         read += 1;
@@ -240,7 +240,7 @@ fn chosen_parameters() -> Vec<(&'static Entry, i64, i64)> {
     ] {
         let Some((tmin, tmax)) = type_range(t) else { continue };
         let found = Table::GENERATED.entries().iter().find_map(|e| {
-            if e.data_type != t || e.access != Access::ReadWrite || e.index < 0x2000 {
+            if e.data_type != t || e.access() != Access::ReadWrite || e.index < 0x2000 {
                 return None;
             }
             if !matches!(e.storage, Storage::Ram { .. }) {

@@ -128,7 +128,7 @@ fn saved_parameters_are_loaded_at_the_next_boot() {
     assert_eq!((report.load.unknown, report.load.mismatched), (0, 0));
     assert_changed(&rebooted, &mut store);
     // Every persistent value came back.
-    for entry in ENTRIES.iter().filter(|e| e.persistent) {
+    for entry in ENTRIES.iter().filter(|e| e.persistent()) {
         let (now, before) = (rebooted.dictionary().values().raw(entry), drive.dictionary().values().raw(entry));
         assert_eq!(now, before, "{:#06x}:{}", entry.index, entry.sub);
     }
@@ -171,7 +171,7 @@ fn save_follows_the_write_conditions_and_the_power_stage() {
     let (mut drive, _) = boot(&mut store);
     change_parameters(&mut drive, &mut store);
     let save = SAVE_SIGNATURE.to_le_bytes();
-    let condition = drive.dictionary().find(0x1010, 1).expect("0x1010:01").write_condition;
+    let condition = drive.dictionary().find(0x1010, 1).expect("0x1010:01").write_condition();
     assert_eq!(condition, WriteCondition::PreOperationalPowerDisabled, "device.toml writable_in of 0x1010");
 
     // Operational with the power stage enabled: refused by the write condition (CiA 301 Table 22, 0x0800_0022).

@@ -190,7 +190,7 @@ fn pdo_configuration_is_writable_in_pre_op_only() {
     for index in [0x1600u16, 0x1601, 0x1602, 0x1603, 0x1A00, 0x1A01, 0x1A02, 0x1A03, 0x1C12, 0x1C13] {
         assert!(process_data::is_pdo_configuration(index));
         for entry in d.table().entries_of(index) {
-            assert_eq!(entry.write_condition, WriteCondition::PreOperational, "{index:04X}:{}", entry.sub);
+            assert_eq!(entry.write_condition(), WriteCondition::PreOperational, "{index:04X}:{}", entry.sub);
         }
         let mut current = [0u8; 4];
         let n = d.read(index, 0, 0, &mut current, &mut NoApplicationObjects).unwrap().len;

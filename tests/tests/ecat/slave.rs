@@ -402,7 +402,7 @@ fn every_readable_object_reads_through_coe_as_in_the_dictionary() {
     let table = *rig.sim.drive.dictionary().table();
     let mut checked = 0;
     let mut segmented = 0;
-    for entry in table.entries().iter().filter(|e| e.access.readable()) {
+    for entry in table.entries().iter().filter(|e| e.access().readable()) {
         let mut buf = vec![0u8; 4096];
         let expected = rig
             .sim

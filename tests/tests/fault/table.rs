@@ -179,13 +179,13 @@ fn the_dictionary_holds_what_the_fault_handling_writes() {
 
     // 0x603F error code: UNSIGNED16 (every table code fits), read-only, TxPDO-mappable; the handle points at it.
     let code = dict.find(0x603F, 0).unwrap();
-    assert_eq!((code.data_type, code.access, code.pdo), (DataType::Unsigned16, Access::ReadOnly, PdoMapping::Tx));
+    assert_eq!((code.data_type, code.access(), code.pdo()), (DataType::Unsigned16, Access::ReadOnly, PdoMapping::Tx));
     assert_eq!(ERROR_CODE.offset(), ram_offset(0x603F, 0));
     assert_eq!(dict.get(ERROR_CODE), 0, "no error at start-up");
 
     // 0x1001 error register: UNSIGNED8, read-only; the handle points at it.
     let register = dict.find(0x1001, 0).unwrap();
-    assert_eq!((register.data_type, register.access), (DataType::Unsigned8, Access::ReadOnly));
+    assert_eq!((register.data_type, register.access()), (DataType::Unsigned8, Access::ReadOnly));
     assert_eq!(ERROR_REGISTER.offset(), ram_offset(0x1001, 0));
 
     // 0x1003: an ARRAY, sub 0 UNSIGNED8 rw accepting only 0, subs 1..=max UNSIGNED32 ro.
@@ -195,19 +195,19 @@ fn the_dictionary_holds_what_the_fault_handling_writes() {
     assert_eq!(firmware::fault::history::capacity(&dict), object.max_sub);
     let count = dict.find(0x1003, 0).unwrap();
     assert_eq!(
-        (count.data_type, count.access, *count.generated_limits()),
+        (count.data_type, count.access(), *count.generated_limits()),
         (DataType::Unsigned8, Access::ReadWrite, Limits::OneOf(&[0]))
     );
     for sub in 1..=object.max_sub {
         let entry = dict.find(0x1003, sub).unwrap();
-        assert_eq!((entry.data_type, entry.access), (DataType::Unsigned32, Access::ReadOnly), "0x1003:{sub}");
+        assert_eq!((entry.data_type, entry.access()), (DataType::Unsigned32, Access::ReadOnly), "0x1003:{sub}");
         ram_offset(0x1003, sub);
     }
 
     // 0x1014 COB-ID EMCY (0x80 + node-ID) and 0x1015 inhibit time (UNSIGNED16, 100 us units, rw).
     assert_eq!(dict.find(0x1014, 0).unwrap().data_type, DataType::Unsigned32);
     let inhibit = dict.find(0x1015, 0).unwrap();
-    assert_eq!((inhibit.data_type, inhibit.access), (DataType::Unsigned16, Access::ReadWrite));
+    assert_eq!((inhibit.data_type, inhibit.access()), (DataType::Unsigned16, Access::ReadWrite));
 
     // Class f follows 0x605E (0 coast, 1 slow-down, 2 quick stop); class a follows 0x6007.
     assert_eq!(*dict.find(0x605E, 0).unwrap().generated_limits(), Limits::OneOf(&[0, 1, 2]));

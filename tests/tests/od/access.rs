@@ -70,7 +70,7 @@ fn reads_match_the_access_type_of_every_entry() {
         let mut app = TestApp::default();
         let mut buf = [0u8; 256];
         let result = dict.read(entry.index, entry.sub, 0, &mut buf, &mut app);
-        if entry.access == Access::WriteOnly {
+        if entry.access() == Access::WriteOnly {
             assert_eq!(result, Err(SdoAbort::WriteOnly), "{what}");
             continue;
         }
@@ -96,7 +96,7 @@ fn writes_match_the_access_type_and_condition_of_every_entry() {
         let mut dict = dictionary();
         let mut app = TestApp::default();
         let value = acceptable_value(&dict, entry);
-        if !entry.access.writable() {
+        if !entry.access().writable() {
             let data = if value.is_empty() { vec![0] } else { value };
             assert_eq!(
                 dict.write(entry.index, entry.sub, &data, allowed(), &mut app),
@@ -111,7 +111,7 @@ fn writes_match_the_access_type_and_condition_of_every_entry() {
             continue;
         }
         let before = dict.values().bytes().to_vec();
-        if entry.write_condition != WriteCondition::Always {
+        if entry.write_condition() != WriteCondition::Always {
             assert_eq!(
                 dict.write(entry.index, entry.sub, &value, forbidden(), &mut app),
                 Err(SdoAbort::DeviceState),
@@ -176,8 +176,8 @@ fn find_entry(what: &str, predicate: impl Fn(&Entry) -> bool) -> &'static Entry 
 }
 
 fn writable_ram(entry: &Entry) -> bool {
-    entry.access == Access::ReadWrite
-        && entry.write_condition == WriteCondition::Always
+    entry.access() == Access::ReadWrite
+        && entry.write_condition() == WriteCondition::Always
         && matches!(entry.storage, Storage::Ram { .. })
         && !is_pdo_configuration(entry)
 }
@@ -209,7 +209,7 @@ fn read_only_write_only_and_device_state() {
     assert_eq!(dict.write(0x1600, 0, &[0], safe_op, app), Err(SdoAbort::DeviceState));
     // Power-disabled entries refuse writes with the power stage on.
     let entry = find_entry("power-disabled entry", |e| {
-        e.access == Access::ReadWrite && e.write_condition == WriteCondition::PowerDisabled
+        e.access() == Access::ReadWrite && e.write_condition() == WriteCondition::PowerDisabled
     });
     let value = dict.values().raw(entry).map(<[u8]>::to_vec).unwrap_or_default();
     let powered = AccessContext { power_stage_enabled: true, ..allowed() };
@@ -318,7 +318,7 @@ fn raw(index: u16, sub: u8, bits: u8) -> [u8; 4] {
 
 /// An entry mappable into an RxPDO of `bits` bits (writable RAM, so the tests can read it back).
 fn rx_mappable(bits: u16) -> &'static Entry {
-    find_entry("RxPDO-mappable entry", |e| e.pdo.rx() && e.bit_size() == Some(bits) && !is_pdo_configuration(e))
+    find_entry("RxPDO-mappable entry", |e| e.pdo().rx() && e.bit_size() == Some(bits) && !is_pdo_configuration(e))
 }
 
 #[test]

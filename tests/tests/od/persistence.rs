@@ -13,7 +13,7 @@
 use firmware::hal::flash::NorFlash;
 use firmware::od::abort::SdoAbort;
 use firmware::od::access::{AccessContext, CommState, Dictionary};
-use firmware::od::entry::{Access, DataType, Entry, LimitsRef, Name, PdoMapping, Storage, WriteCondition};
+use firmware::od::entry::{Access, Attributes, DataType, Entry, LimitsRef, Name, PdoMapping, Storage, WriteCondition};
 use firmware::od::generated::ENTRIES;
 use firmware::od::store::{
     store_group_of, Group, ParamStore, Selection, StoreError, StoreObjects, LOAD_SIGNATURE, RECORD_HEADER_LEN,
@@ -41,10 +41,7 @@ fn ram_entry(index: u16, sub: u8, data_type: DataType, persistent: bool, offset:
         sub,
         name: Name::EMPTY,
         data_type,
-        access: Access::ReadWrite,
-        pdo: PdoMapping::No,
-        persistent,
-        write_condition: WriteCondition::Always,
+        attributes: Attributes::new(Access::ReadWrite, PdoMapping::No, persistent, WriteCondition::Always),
         limits: LimitsRef::NONE,
         storage: Storage::Ram { offset, len, node_id_relative: false },
     }
@@ -74,7 +71,7 @@ fn hand_table() -> Table {
 
 fn tables() -> Vec<(&'static str, Table)> {
     let mut t = vec![("hand-written", hand_table())];
-    if ENTRIES.iter().any(|e| e.persistent && matches!(e.storage, Storage::Ram { .. })) {
+    if ENTRIES.iter().any(|e| e.persistent() && matches!(e.storage, Storage::Ram { .. })) {
         t.push(("generated", generated()));
     }
     t
@@ -91,7 +88,7 @@ fn slot(e: &Entry) -> Option<std::ops::Range<usize>> {
 /// Changes every persistent RAM value of `selection` (the `salt` picks which different value).
 fn mutate(table: &Table, values: &mut [u8], selection: Selection, salt: u8) {
     let x = 0x11u8.wrapping_mul(salt.wrapping_add(1)) | 1;
-    for e in table.entries.iter().filter(|e| e.persistent && selection.covers(e.index)) {
+    for e in table.entries.iter().filter(|e| e.persistent() && selection.covers(e.index)) {
         if let Some(r) = slot(e) {
             for (j, b) in values[r].iter_mut().enumerate() {
                 *b ^= x.rotate_left(j as u32);
@@ -111,7 +108,7 @@ fn boot(table: &Table, mut flash: SimFlash) -> (Vec<u8>, SimFlash) {
 
 /// Number of persistent RAM entries.
 fn persistent_count(table: &Table) -> usize {
-    table.entries.iter().filter(|e| e.persistent && slot(e).is_some()).count()
+    table.entries.iter().filter(|e| e.persistent() && slot(e).is_some()).count()
 }
 
 #[derive(Default, Debug)]
@@ -232,7 +229,7 @@ fn power_cut_during_group_save_and_restore_keeps_the_other_groups() {
 
         // Restore the communication group: its defaults come back at the next boot, the others stay.
         let mut restored = old.clone();
-        for e in table.entries.iter().filter(|e| e.persistent && store_group_of(e.index) == Group::Communication) {
+        for e in table.entries.iter().filter(|e| e.persistent() && store_group_of(e.index) == Group::Communication) {
             if let Some(r) = slot(e) {
                 restored[r.clone()].copy_from_slice(&table.defaults[r]);
             }
@@ -265,7 +262,7 @@ fn repeated_saves_alternate_sectors_and_wear_both() {
     // A save writes one erase plus a handful of programs, not one per word.
     let before = store.flash().write_count();
     store.save(Selection::All, &table.entries, &values).unwrap();
-    let payload: usize = table.entries.iter().filter(|e| e.persistent).filter_map(slot).map(|r| r.len() + 5).sum();
+    let payload: usize = table.entries.iter().filter(|e| e.persistent()).filter_map(slot).map(|r| r.len() + 5).sum();
     assert!(store.flash().write_count() - before <= 3 + payload.div_ceil(128) as u64);
 }
 
@@ -298,7 +295,7 @@ fn restore_defaults_takes_effect_at_next_reset() {
             let mut s = ParamStore::new(store.flash().clone());
             s.restore_defaults(Selection::Only(group)).unwrap();
             let (loaded, _) = boot(&table, s.into_flash());
-            for e in table.entries.iter().filter(|e| e.persistent) {
+            for e in table.entries.iter().filter(|e| e.persistent()) {
                 let Some(r) = slot(e) else { continue };
                 let expected =
                     if store_group_of(e.index) == group { &table.defaults[r.clone()] } else { &running[r.clone()] };
@@ -311,7 +308,7 @@ fn restore_defaults_takes_effect_at_next_reset() {
         store.save(Selection::Only(Group::Manufacturer), &table.entries, &running).unwrap();
         let (loaded, _) = boot(&table, store.into_flash());
         let mut expected = table.defaults.clone();
-        for e in table.entries.iter().filter(|e| e.persistent && store_group_of(e.index) == Group::Manufacturer) {
+        for e in table.entries.iter().filter(|e| e.persistent() && store_group_of(e.index) == Group::Manufacturer) {
             if let Some(r) = slot(e) {
                 expected[r.clone()].copy_from_slice(&running[r]);
             }
@@ -426,7 +423,7 @@ fn firmware_update_skips_unknown_and_resized_entries() {
             e.storage = Storage::Ram { offset: old_fw.defaults.len() as u16, len: 4, node_id_relative: false };
         }
         if e.index == 0x30A0 {
-            e.persistent = false;
+            e.attributes = e.attributes.with_persistent(false);
         }
     }
     new_fw.defaults.extend_from_slice(&[1, 2, 3, 4]);
@@ -437,7 +434,7 @@ fn firmware_update_skips_unknown_and_resized_entries() {
     for e in &new_fw.entries {
         let r = slot(e).unwrap();
         let expected =
-            if e.persistent && e.index != 0x605A { &running[r.clone()] } else { &new_fw.defaults[r.clone()] };
+            if e.persistent() && e.index != 0x605A { &running[r.clone()] } else { &new_fw.defaults[r.clone()] };
         assert_eq!(&values[r], expected, "{:#06x}:{}", e.index, e.sub);
     }
 }

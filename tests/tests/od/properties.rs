@@ -129,7 +129,7 @@ proptest! {
                     let mut stored = data.clone();
                     stored.resize(usize::from(len), 0);
                     prop_assert_eq!(dict.values().raw(entry).unwrap(), &stored[..]);
-                    if entry.access.readable() {
+                    if entry.access().readable() {
                         let mut expected = data.clone();
                         if entry.data_type == DataType::VisibleString {
                             let end = expected.iter().position(|b| *b == 0).unwrap_or(expected.len());

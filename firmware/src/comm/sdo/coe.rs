@@ -198,7 +198,7 @@ fn ca_read<const N: usize, A: ApplicationObjects + ?Sized>(
     for entry in entries {
         let bits = ca_bits(code, entry)?;
         let mut value = [0u8; 8];
-        if entry.access.readable() {
+        if entry.access().readable() {
             let size = entry.data_type.fixed_size().unwrap_or(0);
             let part = value.get_mut(..size).ok_or(SdoAbort::InternalIncompatibility)?;
             dict.read_entry(entry, 0, part, app)?;
@@ -219,7 +219,7 @@ fn ca_value(entry: &Entry, image: &[u8], at: usize, bits: usize) -> ([u8; 8], us
 /// Whether `entry` takes part in a complete-access write (read-only and constant entries are skipped, as their
 /// bytes only keep the layout).
 fn ca_writable(entry: &Entry) -> bool {
-    entry.access.writable() && !matches!(entry.storage, Storage::Const(_))
+    entry.access().writable() && !matches!(entry.storage, Storage::Const(_))
 }
 
 /// Writes the entries of `index` from `first_sub` on that `data` covers (complete-access write). PDO mapping and

@@ -184,10 +184,10 @@ pub fn oracle<const N: usize>(
         }
         Err(_) => return Some(Err(SdoAbort::ObjectDoesNotExist)),
     };
-    if !entry.access.writable() || matches!(entry.storage, Storage::Const(_)) {
+    if !entry.access().writable() || matches!(entry.storage, Storage::Const(_)) {
         return Some(Err(SdoAbort::ReadOnly));
     }
-    if !ctx.allows(entry.write_condition) {
+    if !ctx.allows(entry.write_condition()) {
         return Some(Err(SdoAbort::DeviceState));
     }
     let length = match (entry.data_type.fixed_size(), entry.storage) {
