@@ -297,6 +297,10 @@ fn dual_loop(args: &DualLoopScenario, dir: &Path) -> Result<(), String> {
         dual::SETTLE_WINDOW_S * 1000.0,
         f.load_settle_error_inc
     );
+    match f.load_settle_time_s {
+        Some(t) => println!("  within +-{:.0} load inc from                   {t:7.3} s after the move", dual::SETTLE_BAND_INC),
+        None => println!("  within +-{:.0} load inc                          not at the end of the hold", dual::SETTLE_BAND_INC),
+    }
     println!("  |motor / gear - load| peak                   {:7.3} deg at the load", f.motor_load_deviation_peak_deg);
     println!(
         "  the drive's 0x60F4 peak during the move       {:7.1} inc (the master's units)",
@@ -321,6 +325,10 @@ fn dual_loop(args: &DualLoopScenario, dir: &Path) -> Result<(), String> {
     println!("load_following_error_peak_inc={:.1}", f.load_following_error_peak_inc);
     println!("load_settle_error_inc={:.1}", f.load_settle_error_inc);
     println!("motor_load_deviation_peak_deg={:.3}", f.motor_load_deviation_peak_deg);
+    match f.load_settle_time_s {
+        Some(t) => println!("load_settle_time_s={t:.3}"),
+        None => println!("load_settle_time_s=none"),
+    }
     Ok(())
 }
 
