@@ -5,33 +5,33 @@
 //! class d).
 //!
 //! # The check
-//! A healthy motor accelerates the way its torque pushes, unless a load stronger than that torque holds it. With the
-//! sensor counting backwards (polarity, A/B lines swapped) or the torque reversed against the sensor (two motor leads
-//! swapped), the sensor shows the motor accelerating against the torque, and the loops, which see it run the wrong
-//! way, push harder: a run-away. The check compares the sign of the torque demand with the measured acceleration
-//! over windows of [`WINDOW_TICKS`] slow ticks (2 ms). A window counts as a turn-away when, through all of it,
-//! 1. the loops drive the motor ([`SupervisionInputs::loops_drive_motor`]: not in CST, where a master may hold a
-//!    torque against a load that overpowers it, and not disabled);
-//! 2. the q-current demand keeps one sign and at least half the current limit in force
-//!    ([`SupervisionInputs::current_limit`]; [`DEMAND_PERMILLE_OF_LIMIT`]): the loop pushes hard one way. A sign
-//!    change or a weaker demand restarts the window, so reversals and the small demands of holding and cruising
-//!    never count;
-//! 3. at the window's end the measured velocity runs against the demand by at least the threshold, and it has
-//!    grown in that direction over the window by at least the threshold: the motor gains speed against its torque.
-//!    The threshold is the larger of 0x606F (velocity threshold, the drive's "zero speed") and two sensor
-//!    increments per slow tick (73 rpm for 4,096 inc/rev: one increment of quantisation either way cannot make it).
+//! A healthy motor turns the way its torque pushes, unless a load stronger than that torque drives it. With the
+//! sensor counting backwards (polarity, A/B lines swapped) or the torque reversed against the sensor (two motor
+//! leads swapped), the sensor shows the motor turning away against the torque as soon as it starts, and the loops,
+//! which see it run the wrong way, push harder. Such a fault is there from the installation, so it shows whenever
+//! the motor starts from rest; the check looks there, where nothing else moves the motor:
+//! 1. the motor stands: the measured velocity ([`SupervisionInputs::velocity`], the loops' own estimate, before the
+//!    polarity 0x607E) stays within the threshold for [`REST_TICKS`] slow ticks (10 ms) while the loops drive the
+//!    motor ([`SupervisionInputs::loops_drive_motor`]: not in CST, where a master may hold a torque against a load
+//!    that overpowers it, and not disabled). The threshold is the larger of 0x606F (velocity threshold, the drive's
+//!    "zero speed") and two sensor increments per slow tick (73 rpm for 4,096 inc/rev: one increment of
+//!    quantisation either way cannot make it);
+//! 2. it then leaves the threshold: with the q-current demand's sign the start is healthy and the watch ends until
+//!    the motor stands again; against it the watch goes on while the motor stays beyond the threshold, and once the
+//!    demand reaches half the current limit in force ([`SupervisionInputs::current_limit`];
+//!    [`DEMAND_PERMILLE_OF_LIMIT`]) with the motor still running against it, the motor has turned away.
 //!
 //! Then [`FaultId::MainSensorDirection`] is raised (an event: the power stage is off after it and nothing pushes any
 //! longer) with the demanded current in mA as the snapshot's detail; its EMCY carries the velocity.
 //!
 //! # Why it does not trip on a healthy drive
-//! Braking (regeneration, a reversal, a stop) has the torque against the velocity, but the speed falls: condition
-//! 3 needs it to grow against the torque. Backlash and an elastic coupling let the motor run free or spring back;
-//! free, it accelerates with its torque; sprung back, the coupling's torque pushes it against the demand only while
-//! it exceeds the motor's, at which point the loop has not reached half its limit for a whole window unless the
-//! spring torque exceeds that half. A load step holds the motor or pushes it back until the loop's demand exceeds the
-//! load; a load that still drives the motor backwards against half the current limit for 2 ms is one the motor
-//! cannot hold: the motor turns away. At low speed the threshold stays above the sensor's quantisation.
+//! A start from rest accelerates with the torque (the loop's demand follows the set-point's direction), and a stop
+//! brakes with it. Reversals, backlash and elastic couplings do their work while the motor runs: a reversal passes
+//! zero speed within a few milliseconds (the geared preset's reversals throw the rotor back against the braking
+//! torque through zero, by backlash and coupling, within 4 ms of the reversal), never standing 10 ms in between. A
+//! load that pushes a standing motor back against half the current limit is one the motor cannot hold: it turns
+//! away. A demand under half the limit never trips, and at low speed the threshold stays above the sensor's
+//! quantisation.
 //!
 //! Bit 8 of 0x3000:04 "main sensor supervision disabled" (IDX Table 6-98,
 //! [`super::feedback::MAIN_SENSOR_SUPERVISION_DISABLED`]) turns the check off, as the other main sensor checks.
@@ -42,10 +42,10 @@ use crate::fault::{FaultId, FaultManager};
 use crate::od::access::Dictionary;
 use crate::od::generated::handles as h;
 
-/// Slow ticks per window (2 ms): short enough for the first swing of a reversed sensor (the rotor turns 45 degrees
-/// electrical, 1/56 turn of the reference motor, in about 4 ms at its limit), long enough for the velocity estimate
-/// to show a real acceleration rather than one increment of quantisation.
-pub const WINDOW_TICKS: u8 = 5;
+/// Slow ticks the motor must stand before a start is watched (10 ms): longer than a reversal takes to pass zero
+/// speed at the current limit (the geared preset: under 4 ms), short enough that a move started after a pause is
+/// watched.
+pub const REST_TICKS: u8 = 25;
 
 /// The q-current demand counts as pushing from this fraction of the current limit in force, per mille.
 pub const DEMAND_PERMILLE_OF_LIMIT: i64 = 500;
@@ -61,12 +61,8 @@ pub struct DirectionSupervision {
     speed_threshold_rpm: u32,
     /// Bit 8 of 0x3000:04 clear.
     supervised: bool,
-    /// The sign of the demand of the current window (0: no window).
-    push: i8,
-    /// Slow ticks of the current window.
-    ticks: u8,
-    /// The velocity at the window's start, Q32 increments per slow tick.
-    start: i64,
+    /// Consecutive slow ticks the motor stood (saturating at [`REST_TICKS`]).
+    rest_ticks: u8,
 }
 
 impl DirectionSupervision {
@@ -84,7 +80,7 @@ impl DirectionSupervision {
         self.supervised = d.get(h::AXIS_CONFIGURATION_MISC) & MAIN_SENSOR_SUPERVISION_DISABLED == 0;
     }
 
-    /// The speed threshold of condition 3, Q32 increments per slow tick.
+    /// The speed threshold, Q32 increments per slow tick.
     fn threshold(&self, counts_per_turn: u32) -> i64 {
         let object = i64::from(self.speed_threshold_rpm)
             .saturating_mul(i64::from(counts_per_turn))
@@ -92,36 +88,29 @@ impl DirectionSupervision {
         object.max(2 << 32)
     }
 
-    /// One slow tick: raises [`FaultId::MainSensorDirection`] at the end of a window that shows a turn-away.
+    /// One slow tick: raises [`FaultId::MainSensorDirection`] when a start from rest turns away against the demand.
     pub fn step(&mut self, inputs: &SupervisionInputs, faults: &mut FaultManager) {
+        if !(self.supervised && inputs.loops_drive_motor) {
+            self.rest_ticks = 0;
+            return;
+        }
+        let velocity = inputs.velocity.0;
+        if velocity.saturating_abs() < self.threshold(inputs.encoder_counts_per_turn) {
+            self.rest_ticks = self.rest_ticks.saturating_add(1).min(REST_TICKS);
+            return;
+        }
         let demand = i64::from(inputs.i_ref.q.to_bits());
+        if self.rest_ticks < REST_TICKS || (demand > 0) == (velocity > 0) {
+            // Not from rest, or running with the demand (or without one): a healthy start.
+            self.rest_ticks = 0;
+            return;
+        }
         let limit = i64::from(inputs.current_limit.to_bits());
         // |bits| < 2^31 and the factors <= 1000: the products stay far inside i64.
-        let pushing = limit > 0
-            && demand.saturating_abs().saturating_mul(1000) >= limit.saturating_mul(DEMAND_PERMILLE_OF_LIMIT);
-        let push = if !(self.supervised && inputs.loops_drive_motor && pushing) {
-            0
-        } else if demand > 0 {
-            1
-        } else {
-            -1
-        };
-        let velocity = inputs.velocity.0;
-        if push == 0 || push != self.push {
-            (self.push, self.ticks, self.start) = (push, 0, velocity);
-            return;
-        }
-        self.ticks = self.ticks.saturating_add(1);
-        if self.ticks < WINDOW_TICKS {
-            return;
-        }
-        let threshold = self.threshold(inputs.encoder_counts_per_turn);
-        let along = velocity.saturating_mul(i64::from(push));
-        let gained = velocity.saturating_sub(self.start).saturating_mul(i64::from(push));
-        if along <= threshold.saturating_neg() && gained <= threshold.saturating_neg() {
+        if limit > 0 && demand.saturating_abs().saturating_mul(1000) >= limit.saturating_mul(DEMAND_PERMILLE_OF_LIMIT) {
             faults.raise(FaultId::MainSensorDirection, inputs.snapshot(inputs.i_ref.q.to_milliamps()), inputs.now);
+            self.rest_ticks = 0;
         }
-        (self.ticks, self.start) = (0, velocity);
     }
 }
 
@@ -169,49 +158,68 @@ mod tests {
         assert_eq!(s.threshold(40_000) / (COUNT / 1000), 10_666);
     }
 
-    /// IDX 7.2.25: a sensor counting backwards: 6 A pushing forward while the velocity runs backwards and grows by
-    /// one increment per tick per tick: raised at the end of the first full window (tick 0 starts it).
+    /// The reference drive standing for `rest` ticks, then `f(tick after the rest)` as the inputs.
+    fn from_rest(rest: u32, f: impl Fn(u32) -> SupervisionInputs) -> impl Fn(u32) -> SupervisionInputs {
+        move |now| if now < rest { at(now, 0, 0.0) } else { SupervisionInputs { now: Ticks(now), ..f(now - rest) } }
+    }
+
+    /// IDX 7.2.25: a sensor counting backwards: after 10 ms at rest the loop's demand rises by 1 A per tick while the
+    /// measured velocity runs against it by one increment per tick per tick: raised at the first tick with the
+    /// demand at half the 10 A limit and the motor beyond two increments per tick (tick 25 + 5).
     #[test]
-    fn a_motor_accelerating_against_its_torque_raises_0x7392_at_the_end_of_a_window() {
-        let mut s = supervision();
-        let raised = run(&mut s, 100, |now| at(now, 6_000, -2.0 - f64::from(now)));
-        assert_eq!(raised, Some(u32::from(WINDOW_TICKS)));
+    fn a_start_from_rest_turning_away_against_the_demand_raises_0x7392() {
+        let away = |k: u32| at(k, 1_000 * k as i32, -f64::from(k));
+        assert_eq!(run(&mut supervision(), 100, from_rest(25, away)), Some(30));
         assert_eq!(FaultId::MainSensorDirection.info().code, 0x7392);
-        // The same backwards, and negative torque with a growing positive velocity.
-        assert_eq!(run(&mut supervision(), 100, |now| at(now, -6_000, 2.0 + f64::from(now))), Some(5));
+        // Negative demand, the motor turning forward.
+        let forward = |k: u32| at(k, -1_000 * k as i32, f64::from(k));
+        assert_eq!(run(&mut supervision(), 100, from_rest(25, forward)), Some(30));
     }
 
     #[test]
-    fn braking_a_reversal_and_a_healthy_acceleration_do_not_raise() {
-        // Braking from 2,000 rpm at the limit: torque against the velocity, the speed falls.
-        assert_eq!(run(&mut supervision(), 1000, |now| at(now, -10_000, 55.0 - 0.05 * f64::from(now))), None);
-        // Accelerating with the torque.
-        assert_eq!(run(&mut supervision(), 1000, |now| at(now, 10_000, 0.05 * f64::from(now))), None);
-        // A demand that changes sign every 4 ticks (a reversal, an oscillation) never completes a window.
-        let flipping = |now: u32| at(now, if (now / 4) % 2 == 0 { 6_000 } else { -6_000 }, -3.0 - f64::from(now));
-        assert_eq!(run(&mut supervision(), 1000, flipping), None);
+    fn healthy_starts_stops_reversals_and_backlash_throws_do_not_raise() {
+        // A start with the demand, from rest.
+        let start = |k: u32| at(k, 10_000, 0.05 * f64::from(k));
+        assert_eq!(run(&mut supervision(), 2000, from_rest(25, start)), None);
+        // Braking from 2,000 rpm at the limit through zero speed, and on in the other direction.
+        assert_eq!(run(&mut supervision(), 2000, |now| at(now, -10_000, 55.0 - 0.05 * f64::from(now))), None);
+        // A reversal thrown back by backlash: braking (demand +), the rotor passes zero in 2 ticks and is thrown
+        // back against the demand to 40 increments per tick.
+        let thrown = |now: u32| {
+            let v = match now {
+                0..=9 => -16.0 + 4.0 * f64::from(now),
+                10..=11 => 1.0,
+                _ => -40.0,
+            };
+            at(now, 8_000, v)
+        };
+        assert_eq!(run(&mut supervision(), 100, thrown), None);
     }
 
     #[test]
-    fn a_weak_demand_or_a_slow_turn_away_does_not_raise() {
+    fn a_weak_demand_too_short_a_rest_or_quantisation_does_not_raise() {
         // Under half the 10 A limit: a load pushing the motor back while the loop builds up its demand.
-        assert_eq!(run(&mut supervision(), 1000, |now| at(now, 4_990, -2.0 - f64::from(now))), None);
+        let weak = |k: u32| at(k, 4_990, -f64::from(k));
+        assert_eq!(run(&mut supervision(), 1000, from_rest(25, weak)), None);
+        // 24 ticks at rest: not a start from rest.
+        let away = |k: u32| at(k, 6_000, -2.0 - f64::from(k));
+        assert_eq!(run(&mut supervision(), 100, from_rest(24, away)), None);
         // Against the demand but within two increments per tick: quantisation of a held position.
-        assert_eq!(run(&mut supervision(), 1000, |now| at(now, 6_000, if now % 2 == 0 { -1.9 } else { 0.0 })), None);
-        // Running backwards at a steady speed: not gaining speed against the torque.
-        assert_eq!(run(&mut supervision(), 1000, |now| at(now, 6_000, -50.0)), None);
+        let dither = |now: u32| at(now, 6_000, if now % 2 == 0 { -1.9 } else { 0.0 });
+        assert_eq!(run(&mut supervision(), 1000, dither), None);
     }
 
     #[test]
     fn off_in_cst_and_with_0x3000_04_bit_8() {
-        let cst = |now| SupervisionInputs { loops_drive_motor: false, ..at(now, 6_000, -2.0 - f64::from(now)) };
+        let away = |k: u32| at(k, 6_000, -2.0 - f64::from(k));
+        let cst = |now| SupervisionInputs { loops_drive_motor: false, ..from_rest(25, away)(now) };
         assert_eq!(run(&mut supervision(), 100, cst), None);
         let mut d = Dictionary::new(1);
         d.set(h::AXIS_CONFIGURATION_MISC, MAIN_SENSOR_SUPERVISION_DISABLED);
         let mut s = DirectionSupervision::new(&d);
-        assert_eq!(run(&mut s, 100, |now| at(now, 6_000, -2.0 - f64::from(now))), None);
+        assert_eq!(run(&mut s, 100, from_rest(25, away)), None);
         // Set clear again: on again.
         s.refresh(&Dictionary::new(1));
-        assert_eq!(run(&mut s, 100, |now| at(now, 6_000, -2.0 - f64::from(now))), Some(5));
+        assert_eq!(run(&mut s, 100, from_rest(25, away)), Some(25));
     }
 }
