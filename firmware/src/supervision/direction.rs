@@ -36,78 +36,69 @@
 //! Bit 8 of 0x3000:04 "main sensor supervision disabled" (IDX Table 6-98,
 //! [`super::feedback::MAIN_SENSOR_SUPERVISION_DISABLED`]) turns the check off, as the other main sensor checks.
 
-use super::feedback::MAIN_SENSOR_SUPERVISION_DISABLED;
 use super::SupervisionInputs;
 use crate::fault::{FaultId, FaultManager};
-use crate::od::access::Dictionary;
-use crate::od::generated::handles as h;
 
 /// Slow ticks the motor must stand before a start is watched (10 ms): longer than a reversal takes to pass zero
 /// speed at the current limit (the geared preset: under 4 ms), short enough that a move started after a pause is
 /// watched.
 pub const REST_TICKS: u8 = 25;
 
-/// The q-current demand counts as pushing from this fraction of the current limit in force, per mille.
-pub const DEMAND_PERMILLE_OF_LIMIT: i64 = 500;
+/// The q-current demand counts as pushing from this fraction of the current limit in force, per mille (the check
+/// compares twice the demand with the limit).
+pub const DEMAND_PERMILLE_OF_LIMIT: u32 = 500;
 
 /// 2^32 / 150,000: rpm times increments per turn times this is the velocity in Q32 increments per slow tick (60 s
 /// per minute x 2,500 slow ticks per second = 150,000).
-const RPM_TO_Q32_PER_COUNT: i64 = 28_633;
+const RPM_TO_Q32_PER_COUNT: u64 = 28_633;
 
-/// Main sensor direction supervision. See the module documentation.
+/// Main sensor direction supervision. See the module documentation. Its parameters are those the other
+/// supervisions read already: bit 8 of 0x3000:04 ([`super::feedback::FeedbackSupervision::main_sensor_supervised`])
+/// and 0x606F ([`super::stall::StallSupervision::speed_threshold_rpm`]).
 #[derive(Clone, Debug, Default)]
 pub struct DirectionSupervision {
-    /// 0x606F velocity threshold, rpm.
-    speed_threshold_rpm: u32,
-    /// Bit 8 of 0x3000:04 clear.
-    supervised: bool,
     /// Consecutive slow ticks the motor stood (saturating at [`REST_TICKS`]).
     rest_ticks: u8,
 }
 
 impl DirectionSupervision {
-    /// Over the parameters of `d` (0x606F, 0x3000:04).
-    #[must_use]
-    pub fn new(d: &Dictionary) -> Self {
-        let mut s = Self::default();
-        s.refresh(d);
-        s
-    }
-
-    /// Re-reads 0x606F (velocity threshold) and bit 8 of 0x3000:04.
-    pub fn refresh(&mut self, d: &Dictionary) {
-        self.speed_threshold_rpm = u32::from(d.get(h::VELOCITY_THRESHOLD));
-        self.supervised = d.get(h::AXIS_CONFIGURATION_MISC) & MAIN_SENSOR_SUPERVISION_DISABLED == 0;
-    }
-
-    /// The speed threshold, Q32 increments per slow tick.
-    fn threshold(&self, counts_per_turn: u32) -> i64 {
-        let object = i64::from(self.speed_threshold_rpm)
-            .saturating_mul(i64::from(counts_per_turn))
-            .saturating_mul(RPM_TO_Q32_PER_COUNT);
+    /// The speed threshold for 0x606F = `speed_threshold_rpm`, Q32 increments per slow tick.
+    fn threshold(speed_threshold_rpm: u32, counts_per_turn: u32) -> u64 {
+        // 0x606F < 2^16, counts per turn < 2^32 (at most 10^7 configurable), the factor < 2^15: the product stays
+        // below 2^63 for any configurable resolution, and wraps (never panics) beyond it.
+        let object =
+            u64::from(speed_threshold_rpm).wrapping_mul(u64::from(counts_per_turn)).wrapping_mul(RPM_TO_Q32_PER_COUNT);
         object.max(2 << 32)
     }
 
-    /// One slow tick: raises [`FaultId::MainSensorDirection`] when a start from rest turns away against the demand.
-    pub fn step(&mut self, inputs: &SupervisionInputs, faults: &mut FaultManager) {
-        if !(self.supervised && inputs.loops_drive_motor) {
+    /// One slow tick: raises [`FaultId::MainSensorDirection`] when a start from rest turns away against the demand;
+    /// `supervised`: bit 8 of 0x3000:04 clear; `speed_threshold_rpm`: 0x606F.
+    pub fn step(
+        &mut self,
+        inputs: &SupervisionInputs,
+        supervised: bool,
+        speed_threshold_rpm: u32,
+        faults: &mut FaultManager,
+    ) {
+        if !(supervised && inputs.loops_drive_motor) {
             self.rest_ticks = 0;
             return;
         }
         let velocity = inputs.velocity.0;
-        if velocity.saturating_abs() < self.threshold(inputs.encoder_counts_per_turn) {
+        if velocity.unsigned_abs() < Self::threshold(speed_threshold_rpm, inputs.encoder_counts_per_turn) {
             self.rest_ticks = self.rest_ticks.saturating_add(1).min(REST_TICKS);
             return;
         }
-        let demand = i64::from(inputs.i_ref.q.to_bits());
+        let demand = inputs.i_ref.q.to_bits();
         if self.rest_ticks < REST_TICKS || (demand > 0) == (velocity > 0) {
             // Not from rest, or running with the demand (or without one): a healthy start.
             self.rest_ticks = 0;
             return;
         }
-        let limit = i64::from(inputs.current_limit.to_bits());
-        // |bits| < 2^31 and the factors <= 1000: the products stay far inside i64.
-        if limit > 0 && demand.saturating_abs().saturating_mul(1000) >= limit.saturating_mul(DEMAND_PERMILLE_OF_LIMIT) {
+        // |demand| x 1000 >= limit x 500, i.e. |demand| >= limit / 2 (a limit <= 0 never pushes: 2 x |demand| >= 0
+        // holds, so it is excluded first).
+        let limit = inputs.current_limit.to_bits();
+        if limit > 0 && u64::from(demand.unsigned_abs()).wrapping_mul(2) >= u64::from(limit.unsigned_abs()) {
             faults.raise(FaultId::MainSensorDirection, inputs.snapshot(inputs.i_ref.q.to_milliamps()), inputs.now);
             self.rest_ticks = 0;
         }
@@ -120,6 +111,11 @@ mod tests {
     use crate::cia402::Ticks;
     use crate::control::frames::{Amps, Dq};
     use crate::control::trajectory::Velocity;
+    use crate::od::access::Dictionary;
+    use crate::od::generated::handles as h;
+    use crate::supervision::feedback::FeedbackSupervision;
+    use crate::supervision::feedback::MAIN_SENSOR_SUPERVISION_DISABLED;
+    use crate::supervision::stall::StallSupervision;
 
     /// One increment per slow tick, Q32 (36.6 rpm at 4,096 inc/rev).
     const COUNT: i64 = 1 << 32;
@@ -136,26 +132,30 @@ mod tests {
         }
     }
 
-    /// Runs `ticks` slow ticks with `f(now)`; the tick of the first raise.
-    fn run(s: &mut DirectionSupervision, ticks: u32, f: impl Fn(u32) -> SupervisionInputs) -> Option<u32> {
+    /// Runs `ticks` slow ticks with `f(now)` and the parameters of `d`; the tick of the first raise.
+    fn run_with(d: &Dictionary, ticks: u32, f: impl Fn(u32) -> SupervisionInputs) -> Option<u32> {
+        let (feedback, stall) = (FeedbackSupervision::new(d), StallSupervision::new(d));
+        let mut s = DirectionSupervision::default();
         let mut faults = FaultManager::new();
         (0..ticks).find(|&now| {
-            s.step(&f(now), &mut faults);
+            s.step(&f(now), feedback.main_sensor_supervised(), stall.speed_threshold_rpm(), &mut faults);
             faults.is_active(FaultId::MainSensorDirection)
         })
     }
 
-    fn supervision() -> DirectionSupervision {
-        DirectionSupervision::new(&Dictionary::new(1))
+    /// [`run_with`] the dictionary's defaults.
+    fn run(ticks: u32, f: impl Fn(u32) -> SupervisionInputs) -> Option<u32> {
+        run_with(&Dictionary::new(1), ticks, f)
     }
 
     #[test]
     fn threshold_is_0x606f_or_two_increments_per_tick() {
-        let s = supervision();
+        let object = StallSupervision::new(&Dictionary::new(1)).speed_threshold_rpm();
+        assert_eq!(object, 40, "0x606F default");
         // 0x606F = 40 rpm at 4,096 inc/rev is 1.09 increments per tick: two increments (73 rpm) rule.
-        assert_eq!(s.threshold(4096), 2 * COUNT);
+        assert_eq!(DirectionSupervision::threshold(object, 4096), 2 << 32);
         // At 40,000 inc/rev 40 rpm is 10.7 increments per tick.
-        assert_eq!(s.threshold(40_000) / (COUNT / 1000), 10_666);
+        assert_eq!(DirectionSupervision::threshold(object, 40_000) / ((1 << 32) / 1000), 10_666);
     }
 
     /// The reference drive standing for `rest` ticks, then `f(tick after the rest)` as the inputs.
@@ -169,20 +169,20 @@ mod tests {
     #[test]
     fn a_start_from_rest_turning_away_against_the_demand_raises_0x7392() {
         let away = |k: u32| at(k, 1_000 * k as i32, -f64::from(k));
-        assert_eq!(run(&mut supervision(), 100, from_rest(25, away)), Some(30));
+        assert_eq!(run(100, from_rest(25, away)), Some(30));
         assert_eq!(FaultId::MainSensorDirection.info().code, 0x7392);
         // Negative demand, the motor turning forward.
         let forward = |k: u32| at(k, -1_000 * k as i32, f64::from(k));
-        assert_eq!(run(&mut supervision(), 100, from_rest(25, forward)), Some(30));
+        assert_eq!(run(100, from_rest(25, forward)), Some(30));
     }
 
     #[test]
     fn healthy_starts_stops_reversals_and_backlash_throws_do_not_raise() {
         // A start with the demand, from rest.
         let start = |k: u32| at(k, 10_000, 0.05 * f64::from(k));
-        assert_eq!(run(&mut supervision(), 2000, from_rest(25, start)), None);
+        assert_eq!(run(2000, from_rest(25, start)), None);
         // Braking from 2,000 rpm at the limit through zero speed, and on in the other direction.
-        assert_eq!(run(&mut supervision(), 2000, |now| at(now, -10_000, 55.0 - 0.05 * f64::from(now))), None);
+        assert_eq!(run(2000, |now| at(now, -10_000, 55.0 - 0.05 * f64::from(now))), None);
         // A reversal thrown back by backlash: braking (demand +), the rotor passes zero in 2 ticks and is thrown
         // back against the demand to 40 increments per tick.
         let thrown = |now: u32| {
@@ -193,33 +193,32 @@ mod tests {
             };
             at(now, 8_000, v)
         };
-        assert_eq!(run(&mut supervision(), 100, thrown), None);
+        assert_eq!(run(100, thrown), None);
     }
 
     #[test]
     fn a_weak_demand_too_short_a_rest_or_quantisation_does_not_raise() {
         // Under half the 10 A limit: a load pushing the motor back while the loop builds up its demand.
         let weak = |k: u32| at(k, 4_990, -f64::from(k));
-        assert_eq!(run(&mut supervision(), 1000, from_rest(25, weak)), None);
+        assert_eq!(run(1000, from_rest(25, weak)), None);
         // 24 ticks at rest: not a start from rest.
         let away = |k: u32| at(k, 6_000, -2.0 - f64::from(k));
-        assert_eq!(run(&mut supervision(), 100, from_rest(24, away)), None);
+        assert_eq!(run(100, from_rest(24, away)), None);
         // Against the demand but within two increments per tick: quantisation of a held position.
         let dither = |now: u32| at(now, 6_000, if now % 2 == 0 { -1.9 } else { 0.0 });
-        assert_eq!(run(&mut supervision(), 1000, dither), None);
+        assert_eq!(run(1000, dither), None);
     }
 
     #[test]
     fn off_in_cst_and_with_0x3000_04_bit_8() {
         let away = |k: u32| at(k, 6_000, -2.0 - f64::from(k));
         let cst = |now| SupervisionInputs { loops_drive_motor: false, ..from_rest(25, away)(now) };
-        assert_eq!(run(&mut supervision(), 100, cst), None);
+        assert_eq!(run(100, cst), None);
         let mut d = Dictionary::new(1);
         d.set(h::AXIS_CONFIGURATION_MISC, MAIN_SENSOR_SUPERVISION_DISABLED);
-        let mut s = DirectionSupervision::new(&d);
-        assert_eq!(run(&mut s, 100, from_rest(25, away)), None);
-        // Set clear again: on again.
-        s.refresh(&Dictionary::new(1));
-        assert_eq!(run(&mut s, 100, from_rest(25, away)), Some(25));
+        assert_eq!(run_with(&d, 100, from_rest(25, away)), None);
+        // Bit 8 clear again: on again.
+        d.set(h::AXIS_CONFIGURATION_MISC, 0u32);
+        assert_eq!(run_with(&d, 100, from_rest(25, away)), Some(25));
     }
 }

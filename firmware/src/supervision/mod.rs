@@ -190,7 +190,7 @@ impl Supervision {
             thermal: thermal::ThermalSupervision::new(d),
             feedback: feedback::FeedbackSupervision::new(d),
             stall: stall::StallSupervision::new(d),
-            direction: direction::DirectionSupervision::new(d),
+            direction: direction::DirectionSupervision::default(),
             phases: phases::PhaseSupervision::new(d),
             safe_torque_off: safe_torque_off::StoSupervision::default(),
         }
@@ -201,7 +201,6 @@ impl Supervision {
         self.thermal.refresh(d);
         self.feedback.refresh(d);
         self.stall.refresh(d);
-        self.direction.refresh(d);
         self.phases.refresh(d);
     }
 
@@ -215,7 +214,8 @@ impl Supervision {
         let current_limit = self.thermal.step(inputs, faults, d);
         self.feedback.step(inputs, faults);
         self.stall.step(inputs, faults);
-        self.direction.step(inputs, faults);
+        let supervised = self.feedback.main_sensor_supervised();
+        self.direction.step(inputs, supervised, self.stall.speed_threshold_rpm(), faults);
         self.phases.step(inputs, faults);
         SupervisionOutputs { current_limit }
     }
