@@ -361,8 +361,10 @@ fn soem_csp_move_dc_200us_clock_100ppm_fast_within_the_motion_bounds() {
 /// 0x3012:09 spans the move's 40,960 increments within 2 (the +-1 inc at each end).
 #[test]
 fn soem_maps_the_ssi_position_into_a_txpdo_and_drives_csp_on_the_ssi_sensor_alone() {
-    if prerequisite::skip("soem_maps_the_ssi_position_into_a_txpdo_and_drives_csp_on_the_ssi_sensor_alone", cannot_run())
-    {
+    if prerequisite::skip(
+        "soem_maps_the_ssi_position_into_a_txpdo_and_drives_csp_on_the_ssi_sensor_alone",
+        cannot_run(),
+    ) {
         return;
     }
     let plant = root().join("hal-sim/presets/reference-ssi.toml");
