@@ -18,8 +18,9 @@
 //!    quantisation either way cannot make it);
 //! 2. it then leaves the threshold: with the q-current demand's sign the start is healthy and the watch ends until
 //!    the motor stands again; against it the watch goes on while the motor stays beyond the threshold, and once the
-//!    demand reaches half the current limit in force ([`SupervisionInputs::current_limit`];
-//!    [`DEMAND_PERMILLE_OF_LIMIT`]) with the motor still running against it, the motor has turned away.
+//!    demand has been at least half the current limit in force ([`SupervisionInputs::current_limit`];
+//!    [`DEMAND_PERMILLE_OF_LIMIT`]) for [`AWAY_TICKS`] slow ticks in a row with the motor running against it and its
+//!    speed growing (braking would make it fall), the motor has turned away.
 //!
 //! Then [`FaultId::MainSensorDirection`] is raised (an event: the power stage is off after it and nothing pushes any
 //! longer) with the demanded current in mA as the snapshot's detail; its EMCY carries the velocity.
@@ -44,6 +45,12 @@ use crate::fault::{FaultId, FaultManager};
 /// watched.
 pub const REST_TICKS: u8 = 25;
 
+/// Consecutive slow ticks (1.6 ms) a watched start must run against a demand of half the current limit, its speed
+/// growing, before it counts as a turn-away: the velocity estimate lags the rotor, so a start that the position
+/// loop brakes at once (a free, light rotor overshooting a held position) can pass the threshold in the estimate
+/// while the demand already brakes it; braking makes the speed fall within a tick, a turn-away makes it grow.
+pub const AWAY_TICKS: u8 = 4;
+
 /// The q-current demand counts as pushing from this fraction of the current limit in force, per mille (the check
 /// compares twice the demand with the limit).
 pub const DEMAND_PERMILLE_OF_LIMIT: u32 = 500;
@@ -59,6 +66,10 @@ const RPM_TO_Q32_PER_COUNT: u64 = 28_633;
 pub struct DirectionSupervision {
     /// Consecutive slow ticks the motor stood (saturating at [`REST_TICKS`]).
     rest_ticks: u8,
+    /// Consecutive slow ticks of a watched start running away against a pushing demand.
+    away_ticks: u8,
+    /// The measured speed of the last tick, Q32 increments per slow tick.
+    last_speed: u64,
 }
 
 impl DirectionSupervision {
@@ -81,26 +92,32 @@ impl DirectionSupervision {
         faults: &mut FaultManager,
     ) {
         if !(supervised && inputs.loops_drive_motor) {
-            self.rest_ticks = 0;
+            (self.rest_ticks, self.away_ticks) = (0, 0);
             return;
         }
         let velocity = inputs.velocity.0;
-        if velocity.unsigned_abs() < Self::threshold(speed_threshold_rpm, inputs.encoder_counts_per_turn) {
-            self.rest_ticks = self.rest_ticks.saturating_add(1).min(REST_TICKS);
+        let speed = velocity.unsigned_abs();
+        let gaining = speed >= self.last_speed;
+        self.last_speed = speed;
+        if speed < Self::threshold(speed_threshold_rpm, inputs.encoder_counts_per_turn) {
+            (self.rest_ticks, self.away_ticks) = (self.rest_ticks.saturating_add(1).min(REST_TICKS), 0);
             return;
         }
         let demand = inputs.i_ref.q.to_bits();
         if self.rest_ticks < REST_TICKS || (demand > 0) == (velocity > 0) {
             // Not from rest, or running with the demand (or without one): a healthy start.
-            self.rest_ticks = 0;
+            (self.rest_ticks, self.away_ticks) = (0, 0);
             return;
         }
         // |demand| x 1000 >= limit x 500, i.e. |demand| >= limit / 2 (a limit <= 0 never pushes: 2 x |demand| >= 0
         // holds, so it is excluded first).
         let limit = inputs.current_limit.to_bits();
-        if limit > 0 && u64::from(demand.unsigned_abs()).wrapping_mul(2) >= u64::from(limit.unsigned_abs()) {
+        let pushing = limit > 0 && u64::from(demand.unsigned_abs()).wrapping_mul(2) >= u64::from(limit.unsigned_abs());
+        // A tick that brakes (the speed falls) or pushes weakly restarts the count, the start stays watched.
+        self.away_ticks = if pushing && gaining { self.away_ticks.saturating_add(1) } else { 0 };
+        if self.away_ticks >= AWAY_TICKS {
             faults.raise(FaultId::MainSensorDirection, inputs.snapshot(inputs.i_ref.q.to_milliamps()), inputs.now);
-            self.rest_ticks = 0;
+            (self.rest_ticks, self.away_ticks) = (0, 0);
         }
     }
 }
@@ -164,16 +181,16 @@ mod tests {
     }
 
     /// IDX 7.2.25: a sensor counting backwards: after 10 ms at rest the loop's demand rises by 1 A per tick while the
-    /// measured velocity runs against it by one increment per tick per tick: raised at the first tick with the
-    /// demand at half the 10 A limit and the motor beyond two increments per tick (tick 25 + 5).
+    /// measured velocity runs against it by one increment per tick per tick: raised at the fourth tick with the
+    /// demand at half the 10 A limit or more and the motor beyond two increments per tick (ticks 25 + 5..=8).
     #[test]
     fn a_start_from_rest_turning_away_against_the_demand_raises_0x7392() {
         let away = |k: u32| at(k, 1_000 * k as i32, -f64::from(k));
-        assert_eq!(run(100, from_rest(25, away)), Some(30));
+        assert_eq!(run(100, from_rest(25, away)), Some(33));
         assert_eq!(FaultId::MainSensorDirection.info().code, 0x7392);
         // Negative demand, the motor turning forward.
         let forward = |k: u32| at(k, -1_000 * k as i32, f64::from(k));
-        assert_eq!(run(100, from_rest(25, forward)), Some(30));
+        assert_eq!(run(100, from_rest(25, forward)), Some(33));
     }
 
     #[test]
@@ -194,6 +211,13 @@ mod tests {
             at(now, 8_000, v)
         };
         assert_eq!(run(100, thrown), None);
+        // A light rotor overshooting a held position: the lagging estimate passes the threshold (5 increments per
+        // tick) while the loop already brakes at its limit; the speed falls by one increment per tick.
+        let overshoot = |k: u32| at(k, -10_000, (5.0 - f64::from(k)).max(0.0));
+        assert_eq!(run(100, from_rest(25, overshoot)), None);
+        // The same with the speed held for three ticks before it falls: not four in a row.
+        let held = |k: u32| at(k, -10_000, if k < 3 { 5.0 } else { (7.0 - f64::from(k)).max(0.0) });
+        assert_eq!(run(100, from_rest(25, held)), None);
     }
 
     #[test]
@@ -219,6 +243,6 @@ mod tests {
         assert_eq!(run_with(&d, 100, from_rest(25, away)), None);
         // Bit 8 clear again: on again.
         d.set(h::AXIS_CONFIGURATION_MISC, 0u32);
-        assert_eq!(run_with(&d, 100, from_rest(25, away)), Some(25));
+        assert_eq!(run_with(&d, 100, from_rest(25, away)), Some(28));
     }
 }
