@@ -229,7 +229,7 @@ mod tests {
         let away = |k: u32| at(k, 6_000, -2.0 - f64::from(k));
         assert_eq!(run(100, from_rest(24, away)), None);
         // Against the demand but within two increments per tick: quantisation of a held position.
-        let dither = |now: u32| at(now, 6_000, if now % 2 == 0 { -1.9 } else { 0.0 });
+        let dither = |now: u32| at(now, 6_000, if now.is_multiple_of(2) { -1.9 } else { 0.0 });
         assert_eq!(run(1000, dither), None);
     }
 
