@@ -16,14 +16,16 @@
 //!    that overpowers it, and not disabled). The threshold is the larger of 0x606F (velocity threshold, the drive's
 //!    "zero speed") and two sensor increments per slow tick (73 rpm for 4,096 inc/rev: one increment of
 //!    quantisation either way cannot make it);
-//! 2. it then leaves the threshold: with the q-current demand's sign the start is healthy and the watch ends until
+//! 2. it then leaves the threshold: with the sign of the q current the current loop measures (in the frame of its
+//!    commutation angle: where that angle is right, the torque's; an open phase leaves it short of the demand and
+//!    is [`super::phases`]' to name) the start is healthy and the watch ends until
 //!    the motor stands again; against it the watch goes on while the motor stays beyond the threshold, and once the
-//!    demand has been at least half the current limit in force ([`SupervisionInputs::current_limit`];
+//!    measured q current has been at least half the current limit in force ([`SupervisionInputs::current_limit`];
 //!    [`DEMAND_PERMILLE_OF_LIMIT`]) for [`AWAY_TICKS`] slow ticks in a row with the motor running against it and its
 //!    speed growing (braking would make it fall), the motor has turned away.
 //!
 //! Then [`FaultId::MainSensorDirection`] is raised (an event: the power stage is off after it and nothing pushes any
-//! longer) with the demanded current in mA as the snapshot's detail; its EMCY carries the velocity.
+//! longer) with the measured q current in mA as the snapshot's detail; its EMCY carries the velocity.
 //!
 //! # Why it does not trip on a healthy drive
 //! A start from rest accelerates with the torque (the loop's demand follows the set-point's direction), and a stop
@@ -103,7 +105,11 @@ impl DirectionSupervision {
             (self.rest_ticks, self.away_ticks) = (self.rest_ticks.saturating_add(1).min(REST_TICKS), 0);
             return;
         }
-        let demand = inputs.i_ref.q.to_bits();
+        // The q current the current loop measures, in the frame of the angle it commutates with: where the sensor is
+        // right, the motor's torque follows it (an open phase may leave it short of, or against, the demand while
+        // the motor turns away: that fault is the phase supervision's to name); a reversed sensor or swapped leads
+        // leave it equal to the demand while the motor turns the other way.
+        let demand = inputs.i_dq.q.to_bits();
         if self.rest_ticks < REST_TICKS || (demand > 0) == (velocity > 0) {
             // Not from rest, or running with the demand (or without one): a healthy start.
             (self.rest_ticks, self.away_ticks) = (0, 0);
@@ -116,7 +122,7 @@ impl DirectionSupervision {
         // A tick that brakes (the speed falls) or pushes weakly restarts the count, the start stays watched.
         self.away_ticks = if pushing && gaining { self.away_ticks.saturating_add(1) } else { 0 };
         if self.away_ticks >= AWAY_TICKS {
-            faults.raise(FaultId::MainSensorDirection, inputs.snapshot(inputs.i_ref.q.to_milliamps()), inputs.now);
+            faults.raise(FaultId::MainSensorDirection, inputs.snapshot(inputs.i_dq.q.to_milliamps()), inputs.now);
             (self.rest_ticks, self.away_ticks) = (0, 0);
         }
     }
@@ -218,6 +224,13 @@ mod tests {
         // The same with the speed held for three ticks before it falls: not four in a row.
         let held = |k: u32| at(k, -10_000, if k < 3 { 5.0 } else { (7.0 - f64::from(k)).max(0.0) });
         assert_eq!(run(100, from_rest(25, held)), None);
+        // An open phase: the demand pushes at 6 A, the measured q current falls short of half the limit while the
+        // motor turns away (the phase supervision names that fault).
+        let open = |k: u32| SupervisionInputs {
+            i_dq: Dq::new(Amps::ZERO, Amps::from_milliamps(4_000)),
+            ..at(k, 6_000, -2.0 - f64::from(k))
+        };
+        assert_eq!(run(100, from_rest(25, open)), None);
     }
 
     #[test]
