@@ -12,6 +12,12 @@ Run by tests/tests/ecat_real_masters.rs in a private network namespace against `
    (s(u) = 10u^3 - 15u^4 + 6u^5: zero speed and acceleration at both ends; peak speed 1.875 x distance /
    duration). Figures: working-counter errors, the following error 0x60F4 from the TxPDO during the move (peak
    and RMS), statusword bit 13 seen, |position - end| at the end, 0x1C32:0B / 0x1C33:0B / 0x1C32:0C over SDO.
+   With --ssi (a plant with an SSI absolute encoder, issue 20): in PRE-OP first 0x3000:01 = 0x00000300 (the SSI
+   sensor alone, IDX 0x3000:01 sensor 2 type 3; read back), then TxPDO 4 (0x1A03) remapped to the SSI position raw
+   value 0x3012:09 and assigned as the fourth TxPDO of 0x1C13 (CiA 301 procedure: assignment sub 0 = 0, mapping
+   sub 0 = 0, entry, mapping sub 0 = 1, assignment entry, assignment sub 0 = 4). Figures: the largest distance,
+   modulo 2^24, between 0x6064 and 0x3012:09 of the same frame, how many frames had them equal, and the span of
+   0x3012:09 over the move.
 4. --watchdog: no more process data until the AL status shows the error flag (at most --quiet-s seconds;
    drive-sim --idle-cycle runs a cycle per idle poll), then the AL state and status code, 0x603F and the statusword over SDO.
 5. Back to INIT.
@@ -28,6 +34,8 @@ from soem_common import Fail, emit, go_op, offset_of, open_preop, pdo_layout, re
 from soem_common import write_checked
 
 INC_PER_REV = 4096
+# 0x3012:09 "SSI position raw value", UNSIGNED32 (firmware/device.toml): index << 16 | sub << 8 | bits.
+SSI_POSITION_ENTRY = 0x30120920
 
 
 def interpolation_period(cycle_ns):
@@ -62,9 +70,22 @@ def run(args):
         write_checked(slave, 0x60C2, 1, struct.pack("<B", value))
         write_checked(slave, 0x60C2, 2, struct.pack("<b", index))
         emit("interpolation_period", f"{value}e{index}")
+        if args.ssi:
+            write_checked(slave, 0x3000, 1, struct.pack("<I", 0x00000300))
+            emit("sensors_configuration", f"0x{u(slave, 0x3000, 1, '<I'):08x}")
+            write_checked(slave, 0x1C13, 0, b"\x00")
+            write_checked(slave, 0x1A03, 0, b"\x00")
+            write_checked(slave, 0x1A03, 1, struct.pack("<I", SSI_POSITION_ENTRY))
+            write_checked(slave, 0x1A03, 2, b"\x00\x00\x00\x00")
+            write_checked(slave, 0x1A03, 0, b"\x01")
+            write_checked(slave, 0x1C13, 4, struct.pack("<H", 0x1A03))
+            write_checked(slave, 0x1C13, 0, b"\x04")
         outs, ins = pdo_layout(slave, 0x1C12), pdo_layout(slave, 0x1C13)
         cw_at, mode_at, target_at = offset_of(outs, 0x6040), offset_of(outs, 0x6060), offset_of(outs, 0x607A)
         sw_at, pos_at, fe_at = offset_of(ins, 0x6041), offset_of(ins, 0x6064), offset_of(ins, 0x60F4)
+        ssi_at = offset_of(ins, 0x3012) if args.ssi else None
+        if args.ssi:
+            emit("txpdo_map", " ".join(f"{i:04x}:{s:02x}/{b}" for i, s, b, _ in ins))
 
         if args.sync == 2:
             master.manual_state_change = True  # see soem_csp.py: SAFE-OP only once SYNC0 runs
@@ -94,6 +115,7 @@ def run(args):
         enabled_at = None
         fe_peak, fe_sq, fe_n = 0, 0.0, 0
         bit13 = False
+        ssi = {"diff_max": 0, "equal": 0, "frames": 0, "min": None, "max": None}
         statusword, actual = 0, 0
         bad, first_bad = 0, None
         wall = time.monotonic()
@@ -103,6 +125,9 @@ def run(args):
             if sw == 0x27 and enabled_at is None:
                 enabled_at, start = k, actual
                 end = start + distance
+            if enabled_at is None and args.ssi:
+                # The SSI sensor's absolute position comes at switch-on: until enabled, the target follows it.
+                state["target"] = actual
             if enabled_at is not None:
                 uu = min(1.0, (k - enabled_at) * cycle_s / duration)
                 state["target"] = round(start + distance * (10 * uu**3 - 15 * uu**4 + 6 * uu**5))
@@ -116,6 +141,16 @@ def run(args):
             inp = slave.input
             statusword = struct.unpack_from("<H", inp, sw_at)[0]
             actual = struct.unpack_from("<i", inp, pos_at)[0]
+            if ssi_at is not None and enabled_at is not None:
+                raw = struct.unpack_from("<I", inp, ssi_at)[0]
+                # Without homing (0x3012:0E = 0) 0x6064 is the SSI sensor's absolute position; the raw value keeps
+                # its 24 position bits (0x3012:0B = 0x0C0C): the two agree modulo 2^24.
+                diff = (actual - raw + (1 << 23)) % (1 << 24) - (1 << 23)
+                ssi["diff_max"] = max(ssi["diff_max"], abs(diff))
+                ssi["equal"] += int(diff == 0)
+                ssi["frames"] += 1
+                ssi["min"] = raw if ssi["min"] is None else min(ssi["min"], raw)
+                ssi["max"] = raw if ssi["max"] is None else max(ssi["max"], raw)
             if enabled_at is not None:
                 bit13 |= bool(statusword & (1 << 13))
                 if k > enabled_at + 1 and (k - enabled_at) * cycle_s <= duration:
@@ -134,6 +169,12 @@ def run(args):
         emit("fe_rms_inc", f"{math.sqrt(fe_sq / fe_n):.2f}" if fe_n else "nan")
         emit("bit13_seen", int(bit13))
         emit("end_error_inc", abs(actual - end) if end is not None else "none")
+        if args.ssi:
+            emit("start_position", start)
+            emit("ssi_frames", ssi["frames"])
+            emit("ssi_equal_frames", ssi["equal"])
+            emit("ssi_position_diff_max", ssi["diff_max"])
+            emit("ssi_raw_span", (ssi["max"] or 0) - (ssi["min"] or 0))
         master.read_state()
         emit("state_after_cycles", state_name(slave.state))
         emit("sdo_sync_type", u(slave, 0x1C32, 1, "<H"))
@@ -177,4 +218,5 @@ if __name__ == "__main__":
     p.add_argument("--wkc-timeout-us", type=int, default=200_000, help="lock-step: a late answer is not a lost cycle, so wait long (a loaded 2-core CI host can take tens of ms)")
     p.add_argument("--watchdog", action="store_true")
     p.add_argument("--quiet-s", type=float, default=10.0)
+    p.add_argument("--ssi", action="store_true", help="SSI sensor alone, 0x3012:09 mapped into TxPDO 4")
     run_main(run, p)

@@ -346,6 +346,66 @@ fn soem_csp_move_dc_200us_clock_100ppm_fast_within_the_motion_bounds() {
     csp_move("csp-dc-200us", 2, 200);
 }
 
+/// Proves issue 20 ("Real masters: the SOEM ... tests map and use the new objects (SSI position ...) in PDOs") with
+/// SOEM: against `drive-sim ethercat --plant hal-sim/presets/reference-ssi.toml` (the reference motor with a 12 +
+/// 12-bit Gray SSI sensor in place of the encoder, Halls stuck at 000, encoder lines broken) the master writes
+/// 0x3000:01 = 0x00000300 in PRE-OP (the SSI sensor alone; read back exactly), maps the SSI position raw value
+/// 0x3012:09 (UNSIGNED32, `pdo = "tx"` in firmware/device.toml) into TxPDO 4 (0x1A03) and assigns it as the fourth
+/// TxPDO of 0x1C13, reaches OP SM-synchronous at 1 ms, enables CSP and runs the 10-revolution move of
+/// [`csp_move`] commutated and positioned by the SSI sensor alone, within the same bounds (peak <= 30, RMS <= 8,
+/// +-1 inc at the end). The relation checked in every frame from «Operation enabled» on: without homing
+/// (0x3012:0E = 0) 0x6064 is the sensor's absolute position and 0x3012:09 its 24 position bits, and over EtherCAT
+/// both come from the same tier-2 publication into the same TxPDO copy, so 0x6064 ≡ 0x3012:09 (mod 2^24) exactly in
+/// every frame, at rest and during the move (over CANopen a SYNC may fall between their publications: one slow
+/// tick's travel apart in `canopen_maps_the_ssi_position_into_a_tpdo_and_drives_csp_on_the_ssi_sensor_alone`).
+/// 0x3012:09 spans the move's 40,960 increments within 2 (the +-1 inc at each end).
+#[test]
+fn soem_maps_the_ssi_position_into_a_txpdo_and_drives_csp_on_the_ssi_sensor_alone() {
+    if prerequisite::skip(
+        "soem_maps_the_ssi_position_into_a_txpdo_and_drives_csp_on_the_ssi_sensor_alone",
+        cannot_run(),
+    ) {
+        return;
+    }
+    let plant = root().join("hal-sim/presets/reference-ssi.toml");
+    let out = run_motion(
+        "csp-ssi",
+        &format!("--lock-step --cycle-us 1000 --plant '{}'", plant.display()),
+        "--sync 1 --cycle-ns 1000000 --cycles 3000 --ssi",
+    );
+    let text = &out.text;
+    assert_eq!(out.master("verdict"), "pass", "\n{text}");
+    assert_eq!(out.master("sensors_configuration"), "0x00000300", "0x3000:01 read back");
+    let tx = out.master("txpdo_map");
+    assert!(tx.ends_with(" 3012:09/32"), "0x3012:09 the last TxPDO entry: {tx}");
+    assert_eq!(out.master("expected_wkc"), "3");
+    assert_eq!(out.master("wkc_errors"), "0");
+    assert_eq!(out.master("state_after_cycles"), "OP");
+    let (frames, equal) = (out.master_num("ssi_frames"), out.master_num("ssi_equal_frames"));
+    let diff = out.master_num("ssi_position_diff_max");
+    println!(
+        "SOEM, SSI alone: following error peak {} inc, RMS {} inc; 0x6064 - 0x3012:09 (mod 2^24) at most {diff} \
+         inc, equal in {equal} of {frames} frames; 0x3012:09 spans {} inc; start at {}",
+        out.master("fe_peak_inc"),
+        out.master("fe_rms_inc"),
+        out.master("ssi_raw_span"),
+        out.master("start_position"),
+    );
+    assert!(frames >= 2_000.0, "{frames} frames from «Operation enabled» on\n{text}");
+    assert_eq!(diff, 0.0, "0x3012:09 against 0x6064\n{text}");
+    assert_eq!(equal, frames, "0x6064 ≡ 0x3012:09 (mod 2^24) in every frame\n{text}");
+    let span = out.master_num("ssi_raw_span");
+    assert!((span - 40_960.0).abs() <= 2.0, "0x3012:09 over the move: {span}\n{text}");
+    assert!(out.master_num("enabled_at_cycle") < 1_000.0, "enabled late\n{text}");
+    assert!(out.master_num("fe_peak_inc") <= 30.0, "peak following error\n{text}");
+    assert!(out.master_num("fe_rms_inc") <= 8.0, "RMS following error\n{text}");
+    assert_eq!(out.master("bit13_seen"), "0", "statusword bit 13 (following error)");
+    assert!(out.master_num("end_error_inc") <= 1.0, "at the target +-1 inc\n{text}");
+    assert_eq!(out.master("master_rc"), "0", "\n{text}");
+    assert_eq!(out.master("sim_rc"), "0", "\n{text}");
+    assert_eq!(out.sim("sm_event_missed"), "0");
+}
+
 /// The process-data watchdog with SOEM: after OP and a CSP move (SM-synchronous, 1 ms) the master stops the
 /// process data and only reads the AL status every 100 ms. `drive-sim --idle-cycle` runs one cycle of simulated
 /// time per idle poll, so the watchdog (0x0400/0x0420 as SOEM left them: 100 ms) expires in simulated time.

@@ -268,10 +268,13 @@ pub enum FaultId {
     MissingMainSensor = 48,
     /// The configured commutation sensor never answered (no valid SSI frame since the start; IDX 0x7391).
     MissingCommutationSensor = 49,
+    /// The motor turned away against the direction it was driven (sensor polarity, sensor or motor wiring wrong;
+    /// IDX 0x7392).
+    MainSensorDirection = 50,
 }
 
 /// Number of rows in [`FAULT_TABLE`].
-pub const FAULT_COUNT: usize = 50;
+pub const FAULT_COUNT: usize = 51;
 
 /// One row of the fault table.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -354,6 +357,7 @@ impl FaultId {
         Self::SsiFrame,
         Self::MissingMainSensor,
         Self::MissingCommutationSensor,
+        Self::MainSensorDirection,
     ];
 
     /// The stable fault number (the table row; EMCY manufacturer byte 3).
@@ -991,5 +995,16 @@ pub static FAULT_TABLE: [FaultInfo; FAULT_COUNT] = [
         S::Detail,
         "Missing commutation sensor error",
         "IDX L7069, L7300 (7.2.24)",
+    ),
+    row(
+        FaultId::MainSensorDirection,
+        0x7392,
+        REG_GENERIC | REG_PROFILE,
+        D,
+        Event,
+        Tier::Supervision,
+        S::Velocity,
+        "Main sensor direction error",
+        "IDX L7070, L7306 (7.2.25); EPOS3 0xFF11 (S0 L1160)",
     ),
 ];

@@ -326,6 +326,13 @@ impl FeedbackSupervision {
         self.main_sensor_supervised = d.get(h::AXIS_CONFIGURATION_MISC) & MAIN_SENSOR_SUPERVISION_DISABLED == 0;
     }
 
+    /// Bit 8 of 0x3000:04 "main sensor supervision disabled" is clear: the main sensor's checks run (these and
+    /// [`super::direction`]).
+    #[must_use]
+    pub const fn main_sensor_supervised(&self) -> bool {
+        self.main_sensor_supervised
+    }
+
     /// The Hall/encoder tolerance in use.
     #[must_use]
     pub const fn tolerance(&self) -> &MismatchTolerance {

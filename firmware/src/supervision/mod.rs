@@ -10,6 +10,7 @@
 //! - [`thermal`]: power-stage and motor temperature: 0x3201, the warning, the current derating, the trips.
 //! - [`feedback`]: encoder and Hall sensors: invalid Hall state, Hall/encoder disagreement, index missing or
 //!   displaced, encoder signal loss.
+//! - [`direction`]: the motor turning away against the direction the loops drive it (main sensor direction error).
 //! - [`stall`]: motor blocked (stall) supervision in the modes where the loops drive the motor.
 //! - [`phases`]: motor phase open (a phase that carries no current while the others do).
 //! - [`safe_torque_off`]: the STO state and the discrepancy of its two inputs (read by tier 2, stepped by
@@ -19,6 +20,7 @@
 //!   (heartbeat, RxPDO/SYNC timeout, EtherCAT watchdog, ...), and the process-data watchdog they share.
 
 pub mod communication;
+pub mod direction;
 pub mod feedback;
 pub mod phases;
 pub mod safe_torque_off;
@@ -172,6 +174,8 @@ pub struct Supervision {
     pub feedback: feedback::FeedbackSupervision,
     /// Motor blocked.
     pub stall: stall::StallSupervision,
+    /// Motor turning away against its torque.
+    pub direction: direction::DirectionSupervision,
     /// Motor phase open.
     pub phases: phases::PhaseSupervision,
     /// Safe Torque Off state and input discrepancy.
@@ -186,6 +190,7 @@ impl Supervision {
             thermal: thermal::ThermalSupervision::new(d),
             feedback: feedback::FeedbackSupervision::new(d),
             stall: stall::StallSupervision::new(d),
+            direction: direction::DirectionSupervision::default(),
             phases: phases::PhaseSupervision::new(d),
             safe_torque_off: safe_torque_off::StoSupervision::default(),
         }
@@ -209,6 +214,8 @@ impl Supervision {
         let current_limit = self.thermal.step(inputs, faults, d);
         self.feedback.step(inputs, faults);
         self.stall.step(inputs, faults);
+        let supervised = self.feedback.main_sensor_supervised();
+        self.direction.step(inputs, supervised, self.stall.speed_threshold_rpm(), faults);
         self.phases.step(inputs, faults);
         SupervisionOutputs { current_limit }
     }

@@ -76,6 +76,12 @@ impl StallSupervision {
         self.speed_threshold_rpm = u32::from(d.get(h::VELOCITY_THRESHOLD));
     }
 
+    /// 0x606F (velocity threshold) as last read, rpm: the drive's "zero speed" (also [`super::direction`]'s).
+    #[must_use]
+    pub const fn speed_threshold_rpm(&self) -> u32 {
+        self.speed_threshold_rpm
+    }
+
     /// Whether the blocked condition holds in this slow tick (conditions 1 to 3 of the module documentation).
     #[must_use]
     pub fn blocked_now(&self, inputs: &SupervisionInputs) -> bool {

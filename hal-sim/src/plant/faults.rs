@@ -26,6 +26,8 @@ pub struct PlantFaults {
     pub phase_short: Option<(usize, usize, f64)>,
     /// The encoder's A/B lines are broken: the counter no longer moves (the index line with them).
     pub encoder_wire_break: bool,
+    /// The encoder's A and B lines are swapped (a wiring error): the counter counts the shaft's motion backwards.
+    pub encoder_reversed: bool,
     /// A noise burst on the encoder lines.
     pub encoder_noise: Option<EncoderNoise>,
     /// The encoder's index line is broken: no index pulse reaches the counter.

@@ -10,7 +10,8 @@ use super::{sensors, Plant};
 impl Plant {
     /// Follow the encoder after a segment: latch the counter if the index state was entered.
     ///
-    /// Injected sensor faults change only what the counter shows, never the shaft: with the A/B lines broken the
+    /// Injected sensor faults change only what the counter shows, never the shaft: with the A/B lines swapped it
+    /// counts backwards (no index latched meanwhile); with the A/B lines broken the
     /// counter holds its value while the shaft turns (the motion goes into `encoder_error`) and the index, which
     /// needs the A/B state, is not latched either; with the index line broken no pulse reaches the latch. The
     /// latched value is the counter's at the index, spurious counts included.
@@ -18,6 +19,9 @@ impl Plant {
         let count = self.count_now();
         if self.faults.encoder_wire_break {
             self.encoder_error -= count - self.last_count;
+        } else if self.faults.encoder_reversed {
+            // The counter moves by the negated motion: twice the motion taken off what the shaft adds.
+            self.encoder_error -= 2 * (count - self.last_count);
         } else if let Some(n) =
             sensors::index_entry(self.last_count, count, self.params.encoder_counts_per_rev, self.params.index_count)
         {

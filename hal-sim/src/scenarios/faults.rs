@@ -61,6 +61,10 @@ pub enum Situation {
     RunningCsv,
     /// CSP following a 300 rpm ramp, set-points every 1 ms.
     RunningCsp,
+    /// CSV at 0 rpm, standing, set-points every 1 ms, commutated by the encoder alone (0x3000:01 = 0x00000001,
+    /// forced alignment at the enabling): no Halls to cross-check the encoder, so the encoder's checks against the
+    /// Halls are off and only the direction supervision sees a sensor that counts backwards.
+    StandingCsvEncoderOnly,
     /// CST at twice the nominal current on a locked rotor.
     LockedTorque,
     /// «Ready to switch on», about to switch on (offset calibration).
@@ -79,7 +83,7 @@ impl Situation {
     /// The mode of operation (0x6060) the situation runs in, if it runs the motor.
     pub const fn mode(self) -> Option<i8> {
         match self {
-            Self::RunningCsv | Self::ReadyToSwitchOn => Some(9),
+            Self::RunningCsv | Self::StandingCsvEncoderOnly | Self::ReadyToSwitchOn => Some(9),
             Self::RunningCsp => Some(8),
             Self::LockedTorque => Some(10),
             Self::AutoSetup => Some(-2),
@@ -92,6 +96,7 @@ impl Situation {
         match self {
             Self::RunningCsv => "CSV 300 rpm",
             Self::RunningCsp => "CSP 300 rpm",
+            Self::StandingCsvEncoderOnly => "CSV 0 rpm, encoder only",
             Self::LockedTorque => "CST locked",
             Self::ReadyToSwitchOn => "ready",
             Self::AutoSetup => "auto setup",
@@ -368,6 +373,22 @@ pub fn cases() -> Vec<Case> {
             2_500,
             |b| b.sim.plant.faults_mut().encoder_wire_break = true,
             |b| b.sim.plant.faults_mut().encoder_wire_break = false,
+        ),
+        case(
+            F::MainSensorDirection,
+            "encoder A/B lines swapped (counts backwards), then 300 rpm commanded",
+            S::StandingCsvEncoderOnly,
+            // The motor leaves the 73 rpm threshold against the demand, with the demand at half the current limit,
+            // within a few milliseconds of the command; 10 ms and the slow tick allowed.
+            250,
+            |b| {
+                b.sim.plant.faults_mut().encoder_reversed = true;
+                b.sim.drive.dictionary_mut().set(h::TARGET_VELOCITY, RUNNING_RPM);
+            },
+            |b| {
+                b.sim.plant.faults_mut().encoder_reversed = false;
+                b.sim.drive.dictionary_mut().set(h::TARGET_VELOCITY, 0);
+            },
         ),
         case(
             F::EncoderIndexMissing,
@@ -684,6 +705,15 @@ fn prepare(situation: Situation, seed: u64) -> Result<Bench, SimError> {
         Situation::RunningCsv => {
             let mut b = Bench::new(prepare_motion(seed, 9)?);
             b.sim.drive.dictionary_mut().set(h::TARGET_VELOCITY, RUNNING_RPM);
+            b.run(12_500);
+            b
+        }
+        Situation::StandingCsvEncoderOnly => {
+            let mut sim = super::motion::prepare_plant_for_motion(super::scenario_plant(), seed)?;
+            sim.drive.dictionary_mut().set(h::SENSORS_CONFIGURATION, 0x0000_0001u32);
+            sim.enable_through_controlword(9)?;
+            let mut b = Bench::new(sim);
+            b.sim.drive.dictionary_mut().set(h::TARGET_VELOCITY, 0);
             b.run(12_500);
             b
         }
