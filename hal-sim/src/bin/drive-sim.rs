@@ -298,8 +298,13 @@ fn dual_loop(args: &DualLoopScenario, dir: &Path) -> Result<(), String> {
         f.load_settle_error_inc
     );
     match f.load_settle_time_s {
-        Some(t) => println!("  within +-{:.0} load inc from                   {t:7.3} s after the move", dual::SETTLE_BAND_INC),
-        None => println!("  within +-{:.0} load inc                          not at the end of the hold", dual::SETTLE_BAND_INC),
+        Some(t) => {
+            println!("  within +-{:.0} load inc from                   {t:7.3} s after the move", dual::SETTLE_BAND_INC)
+        }
+        None => println!(
+            "  within +-{:.0} load inc                          not at the end of the hold",
+            dual::SETTLE_BAND_INC
+        ),
     }
     println!("  |motor / gear - load| peak                   {:7.3} deg at the load", f.motor_load_deviation_peak_deg);
     println!(
