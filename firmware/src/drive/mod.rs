@@ -562,7 +562,8 @@ impl Drive {
         let was_active = self.bus_limiter.active();
         self.bus_limiter.refresh(&self.dictionary);
         let signals = &self.report.signals;
-        self.bus_limiter.observe(signals.v_bus, signals.i_dq.q, self.scale.current_limit());
+        let velocity = self.axis.velocity().to_bits();
+        self.bus_limiter.observe(signals.v_bus, signals.i_dq.q, self.scale.current_limit(), velocity);
         if was_active || self.bus_limiter.active() {
             self.dictionary.set(h::BUS_LIMITER_STATE, self.bus_limiter.state_bits());
             self.update_demand();

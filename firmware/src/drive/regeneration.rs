@@ -46,10 +46,20 @@
 //! out, and half of the excess moves the next reference toward driving (at most to the current limit): an
 //! integrator that brings the measured braking current, not only its reference, down to the factor.
 //!
+//! # Power, not current
+//! The bus takes power, `1.5 p psi w i_q`: the same braking current returns more of it the faster the rotor turns.
+//! The factor is therefore a share of the braking power at the speed the reduction began at: above that speed the
+//! factor shrinks in proportion (`speed at the start / speed`). On the geared preset the coupling throws the rotor
+//! from about 600 to 1,700-1,900 rpm while the reduction acts; a factor on the current alone let the braking power
+//! triple with the speed.
+//!
 //! # Release
-//! The factor falls at once and grows back by at most [`RELEASE_STEP_Q16`] per sample. A rotor the load threw
-//! to a higher speed than the braking began at returns more power per amp: on the geared preset full braking at
-//! 1,700 rpm came back the moment the bus fell below the band and lifted it by 3 V in one slow period.
+//! The factor falls at once and grows back by at most [`RELEASE_STEP_Q16`] per sample; the correction of "The
+//! current, not its reference" is given back by the same share of the current limit per sample, not dropped.
+//! Dropped in one sample, it handed the velocity loop's full braking back at once: on the geared preset
+//! auto-tuned (`drive-sim duty-cycle --auto-tune --plant hal-sim/presets/geared-36v.toml`, 36.6 s) up to 4.5 A of
+//! correction toward driving vanished the moment the bus fell below the band, -12 A came back at 1,700 rpm (about
+//! 220 W, 3.5 V per slow period on 470 uF) and the bus went from 52.9 V to 56.03 V, the trip (0x3210).
 
 use crate::control::frames::{Amps, Dq, Volts};
 use crate::control::wide::isqrt;
@@ -125,6 +135,9 @@ pub struct BusVoltageLimiter {
     /// How far the q reference is moved toward driving, amp bits (>= 0), so that the measured braking current,
     /// not only its reference, follows the reduction (module documentation, "The current, not its reference").
     lag_correction: i32,
+    /// |velocity| (Q32 inc/tick) when the reduction began, 0 while the factor is one: the speed whose braking power
+    /// the factor scales (module documentation, "Power, not current").
+    reduction_speed: i64,
 }
 
 impl Default for BusVoltageLimiter {
@@ -144,6 +157,7 @@ impl Default for BusVoltageLimiter {
             braking_reference: 0,
             braking_sign: 0,
             lag_correction: 0,
+            reduction_speed: 0,
         }
     }
 }
@@ -172,18 +186,19 @@ impl BusVoltageLimiter {
     /// sample, for the voltage the bus will have when they take effect (module documentation, "Rate"), and the
     /// correction for a braking current that lags its reduced reference ("The current, not its reference").
     #[inline(never)]
-    pub fn observe(&mut self, v_bus: Volts, i_q_measured: Amps, current_limit: Amps) {
+    pub fn observe(&mut self, v_bus: Volts, i_q_measured: Amps, current_limit: Amps, velocity_bits: i64) {
         let v = v_bus.to_bits();
         // No rise before the first sample.
         let rise = if self.last_v == 0 { 0 } else { v.saturating_sub(self.last_v).max(0) };
         self.last_v = v;
         let v = v.saturating_add(rise.saturating_mul(LOOKAHEAD_TICKS));
         let below = v <= self.loss_start && v <= self.regen_start;
-        if !self.enabled || (below && self.regen_scale_q16 == SCALE_ONE) {
+        if !self.enabled || (below && self.regen_scale_q16 == SCALE_ONE && self.lag_correction == 0) {
             self.loss_current = 0;
             self.regen_scale_q16 = SCALE_ONE;
             self.lag_correction = 0;
             self.braking_sign = 0;
+            self.reduction_speed = 0;
             return;
         }
         let limit = current_limit.to_bits().max(0);
@@ -202,19 +217,41 @@ impl BusVoltageLimiter {
             let den = i64::from(self.regen_zero.wrapping_sub(self.regen_start)).max(1);
             i32::try_from(num.checked_div(den).unwrap_or(0)).unwrap_or(SCALE_ONE)
         };
-        // Reduced at once, given back by at most a step per sample (module documentation, "Release").
+        // The factor acts on the braking power of the speed the reduction began at: above it, a rotor the load
+        // throws faster gets proportionally less current (module documentation, "Power, not current").
+        let speed = velocity_bits.saturating_abs();
+        if scale < SCALE_ONE && self.reduction_speed == 0 {
+            self.reduction_speed = speed.max(1);
+        }
+        let scale = if scale < SCALE_ONE && speed > self.reduction_speed {
+            // reduction_speed < speed: the ratio is below one, Q16; the product below 2^32.
+            let ratio = self.reduction_speed.saturating_mul(i64::from(SCALE_ONE)).checked_div(speed).unwrap_or(0);
+            i32::try_from(i64::from(scale).saturating_mul(ratio) >> 16).unwrap_or(0)
+        } else {
+            scale
+        };
+        // Reduced at once, given back by at most a step per sample ("Release").
         self.regen_scale_q16 = scale.min(self.regen_scale_q16.saturating_add(RELEASE_STEP_Q16));
-        self.correct_lag(i_q_measured.to_bits());
+        if self.regen_scale_q16 == SCALE_ONE {
+            self.reduction_speed = 0;
+        }
+        self.correct_lag(i_q_measured.to_bits(), v <= self.regen_start);
     }
 
-    /// Integrates how much more the motor brakes than the last reduced reference asked (the measured q current
-    /// against [`Self::braking_reference`], in the braking direction), by half of it per sample: the correction
+    /// Integrates how much more the motor brakes than the last reference asked (the measured q current against
+    /// [`Self::braking_reference`], in the braking direction), by half of it per sample: the correction
     /// [`Self::limit`] moves the next reference by (module documentation, "The current, not its reference").
-    /// None while the reduction does not act or the motor did not brake.
-    fn correct_lag(&mut self, i_q_measured: i32) {
-        if self.regen_scale_q16 == SCALE_ONE || self.braking_sign == 0 {
+    /// Below the band it is given back by an eighth of the current limit per sample (as the factor is, "Release");
+    /// none while the motor did not brake.
+    fn correct_lag(&mut self, i_q_measured: i32, below_band: bool) {
+        if self.braking_sign == 0 {
             self.lag_correction = 0;
-            self.braking_sign = 0;
+            return;
+        }
+        if below_band {
+            // Dropped at once it would hand the loops' full braking current back in one step.
+            let give_back = (self.limit_bits >> 3).max(1);
+            self.lag_correction = self.lag_correction.saturating_sub(give_back).max(0);
             return;
         }
         // Braking currents have the sign opposite to the velocity: s x (reference - measured) > 0 when the motor
@@ -226,7 +263,7 @@ impl BusVoltageLimiter {
     /// Whether either action acts now.
     #[must_use]
     pub const fn active(&self) -> bool {
-        self.loss_current != 0 || self.regen_scale_q16 != SCALE_ONE
+        self.loss_current != 0 || self.regen_scale_q16 != SCALE_ONE || self.lag_correction != 0
     }
 
     /// 0x3202:06: [`STATE_LOSS_BRAKING`] and [`STATE_REGEN_REDUCED`].
@@ -236,7 +273,7 @@ impl BusVoltageLimiter {
         if self.loss_current != 0 {
             bits |= STATE_LOSS_BRAKING;
         }
-        if self.regen_scale_q16 != SCALE_ONE {
+        if self.regen_scale_q16 != SCALE_ONE || self.lag_correction != 0 {
             bits |= STATE_REGEN_REDUCED;
         }
         bits
@@ -317,8 +354,8 @@ mod tests {
 
     /// A steady bus at `v` (two samples: no rise to look ahead by).
     fn steady(l: &mut BusVoltageLimiter, v: f64) {
-        l.observe(mv(v), Amps::ZERO, amps(LIMIT));
-        l.observe(mv(v), Amps::ZERO, amps(LIMIT));
+        l.observe(mv(v), Amps::ZERO, amps(LIMIT), 1);
+        l.observe(mv(v), Amps::ZERO, amps(LIMIT), 1);
     }
 
     fn near(a: Amps, expected_a: f64) -> bool {
@@ -390,7 +427,7 @@ mod tests {
         // Back below: given back an eighth per sample, then all gone.
         for _ in 0..8 {
             assert!(l.active());
-            l.observe(mv(40.0), Amps::ZERO, amps(LIMIT));
+            l.observe(mv(40.0), Amps::ZERO, amps(LIMIT), 1);
         }
         assert!(!l.active());
     }
@@ -405,12 +442,12 @@ mod tests {
         assert_eq!(l.limit(amps(-8.0), 1).q, Amps::ZERO);
         // 8 A braking on the bus at 40 V: 1, 2, ... 7 A, then 8 A untouched (the limiter off).
         for eighths in 1..8 {
-            l.observe(mv(40.0), amps(-f64::from(eighths - 1)), amps(LIMIT));
+            l.observe(mv(40.0), amps(-f64::from(eighths - 1)), amps(LIMIT), 1);
             let i = l.limit(amps(-8.0), 1);
             assert!(near(i.q, -f64::from(eighths)), "{eighths}: {i:?}");
             assert!(l.braking_limited());
         }
-        l.observe(mv(40.0), amps(-7.0), amps(LIMIT));
+        l.observe(mv(40.0), amps(-7.0), amps(LIMIT), 1);
         assert!(!l.active());
         assert_eq!(l.limit(amps(-8.0), 1), Dq::new(Amps::ZERO, amps(-8.0)));
     }
@@ -425,46 +462,95 @@ mod tests {
         steady(&mut l, 55.0);
         assert_eq!(l.limit(amps(-6.0), 1).q, Amps::ZERO);
         // The current loop still brakes with -3 A (a rotor the load accelerates): half of it moves the reference.
-        l.observe(mv(55.0), amps(-3.0), amps(LIMIT));
+        l.observe(mv(55.0), amps(-3.0), amps(LIMIT), 1);
         assert!(near(l.limit(amps(-6.0), 1).q, 1.5));
         // Still -1 A against +1.5 A asked: 1.25 A more.
-        l.observe(mv(55.0), amps(-1.0), amps(LIMIT));
+        l.observe(mv(55.0), amps(-1.0), amps(LIMIT), 1);
         assert!(near(l.limit(amps(-6.0), 1).q, 2.75));
         // The measured current follows (+2.75 A): the correction holds; a current above its reference takes it back.
-        l.observe(mv(55.0), amps(2.75), amps(LIMIT));
+        l.observe(mv(55.0), amps(2.75), amps(LIMIT), 1);
         assert!(near(l.limit(amps(-6.0), 1).q, 2.75));
-        l.observe(mv(55.0), amps(4.75), amps(LIMIT));
+        l.observe(mv(55.0), amps(4.75), amps(LIMIT), 1);
         assert!(near(l.limit(amps(-6.0), 1).q, 1.75));
-        // Negative velocity: the same in the mirror.
+        // Negative velocity: the same in the mirror (the correction given back below the band first).
         steady(&mut l, 40.0);
         for _ in 0..8 {
-            l.observe(mv(40.0), Amps::ZERO, amps(LIMIT));
+            l.observe(mv(40.0), Amps::ZERO, amps(LIMIT), 1);
         }
         assert!(!l.active());
         steady(&mut l, 55.0);
         assert_eq!(l.limit(amps(6.0), -1).q, Amps::ZERO);
-        l.observe(mv(55.0), amps(3.0), amps(LIMIT));
+        l.observe(mv(55.0), amps(3.0), amps(LIMIT), 1);
         assert!(near(l.limit(amps(6.0), -1).q, -1.5));
         // Never beyond the current limit.
         for _ in 0..20 {
-            l.observe(mv(55.0), amps(9.0), amps(LIMIT));
+            l.observe(mv(55.0), amps(9.0), amps(LIMIT), 1);
         }
         assert_eq!(l.limit(amps(6.0), -1).q, amps(-LIMIT));
         // A motor that does not brake gets no correction (and resets it).
         assert_eq!(l.limit(amps(-6.0), -1).q, amps(-6.0));
-        l.observe(mv(55.0), amps(9.0), amps(LIMIT));
+        l.observe(mv(55.0), amps(9.0), amps(LIMIT), 1);
         assert_eq!(l.limit(amps(6.0), -1).q, Amps::ZERO);
+    }
+
+    #[test]
+    fn the_correction_is_given_back_step_by_step_when_the_bus_leaves_the_band() {
+        // Bus at 55 V, -6 A asked, -3 A measured: +1.5 A handed out, then -1 A measured: +2.75 A. The bus falls to
+        // 40 V: the factor grows by an eighth and the correction falls by an eighth of the 10 A limit per sample, so
+        // the braking reference comes back in steps of at most 0.75 + 1.25 A, not all at once (module
+        // documentation, "Release": the loops' full braking at once lifted the geared preset's bus to the trip).
+        let mut d = Dictionary::new(1);
+        d.set(h::BUS_LIMITER_LOSS_BRAKING_GAIN, 0);
+        let mut l = BusVoltageLimiter::default();
+        l.refresh(&d);
+        steady(&mut l, 55.0);
+        assert_eq!(l.limit(amps(-6.0), 1).q, Amps::ZERO);
+        l.observe(mv(55.0), amps(-3.0), amps(LIMIT), 1);
+        assert!(near(l.limit(amps(-6.0), 1).q, 1.5));
+        l.observe(mv(55.0), amps(-1.0), amps(LIMIT), 1);
+        assert!(near(l.limit(amps(-6.0), 1).q, 2.75));
+        // 1/8 x -6 + (2.75 - 1.25) = +0.75 A; 2/8 x -6 + 0.25 = -1.25 A; 3/8 x -6 + 0 = -2.25 A.
+        for expected in [0.75, -1.25, -2.25] {
+            l.observe(mv(40.0), Amps::ZERO, amps(LIMIT), 1);
+            let i = l.limit(amps(-6.0), 1);
+            assert!(near(i.q, expected), "{expected}: {i:?}");
+            assert!(l.active() && l.state_bits() & STATE_REGEN_REDUCED != 0);
+        }
+    }
+
+    #[test]
+    fn above_the_speed_the_reduction_began_at_the_factor_shrinks_with_the_speed() {
+        // The reduction begins at speed 1,000 (any unit: only the ratio counts) with the bus at 54 V (factor one
+        // half); the load throws the rotor to 2,000 and 4,000 with the bus where it was: a quarter, an eighth of
+        // the braking current, the same braking power (module documentation, "Power, not current").
+        let mut d = Dictionary::new(1);
+        d.set(h::BUS_LIMITER_LOSS_BRAKING_GAIN, 0);
+        let mut l = BusVoltageLimiter::default();
+        l.refresh(&d);
+        l.observe(mv(54.0), Amps::ZERO, amps(LIMIT), 1000);
+        l.observe(mv(54.0), Amps::ZERO, amps(LIMIT), 1000);
+        assert!(near(l.limit(amps(-8.0), 1000).q, -4.0));
+        l.observe(mv(54.0), Amps::ZERO, amps(LIMIT), 2000);
+        assert!(near(l.limit(amps(-8.0), 2000).q, -2.0));
+        l.observe(mv(54.0), Amps::ZERO, amps(LIMIT), 4000);
+        assert!(near(l.limit(amps(-8.0), 4000).q, -1.0));
+        // Slower than at the start: the factor of the voltage alone, one half, reached by the release's eighths
+        // (1/8 -> 2/8 -> 3/8 -> 4/8).
+        for expected in [-2.0, -3.0, -4.0, -4.0] {
+            l.observe(mv(54.0), Amps::ZERO, amps(LIMIT), 500);
+            assert!(near(l.limit(amps(-8.0), 500).q, expected), "{expected}");
+        }
     }
 
     #[test]
     fn a_rising_bus_is_met_where_it_will_be_two_slow_periods_later() {
         // 50.0 V, then 50.6 V: a rise of 0.6 V per period looks like 51.8 V, 0.8 V into loss braking (4 A).
         let mut l = limiter();
-        l.observe(mv(50.0), Amps::ZERO, amps(LIMIT));
-        l.observe(mv(50.6), Amps::ZERO, amps(LIMIT));
+        l.observe(mv(50.0), Amps::ZERO, amps(LIMIT), 1);
+        l.observe(mv(50.6), Amps::ZERO, amps(LIMIT), 1);
         assert!(near(l.limit(amps(-1.0), 1).d, -4.0));
         // A falling bus is taken as it is.
-        l.observe(mv(50.5), Amps::ZERO, amps(LIMIT));
+        l.observe(mv(50.5), Amps::ZERO, amps(LIMIT), 1);
         assert!(!l.active());
     }
 

@@ -297,6 +297,15 @@ fn dual_loop(args: &DualLoopScenario, dir: &Path) -> Result<(), String> {
         dual::SETTLE_WINDOW_S * 1000.0,
         f.load_settle_error_inc
     );
+    match f.load_settle_time_s {
+        Some(t) => {
+            println!("  within +-{:.0} load inc from                   {t:7.3} s after the move", dual::SETTLE_BAND_INC)
+        }
+        None => println!(
+            "  within +-{:.0} load inc                          not at the end of the hold",
+            dual::SETTLE_BAND_INC
+        ),
+    }
     println!("  |motor / gear - load| peak                   {:7.3} deg at the load", f.motor_load_deviation_peak_deg);
     println!(
         "  the drive's 0x60F4 peak during the move       {:7.1} inc (the master's units)",
@@ -321,6 +330,10 @@ fn dual_loop(args: &DualLoopScenario, dir: &Path) -> Result<(), String> {
     println!("load_following_error_peak_inc={:.1}", f.load_following_error_peak_inc);
     println!("load_settle_error_inc={:.1}", f.load_settle_error_inc);
     println!("motor_load_deviation_peak_deg={:.3}", f.motor_load_deviation_peak_deg);
+    match f.load_settle_time_s {
+        Some(t) => println!("load_settle_time_s={t:.3}"),
+        None => println!("load_settle_time_s=none"),
+    }
     Ok(())
 }
 
@@ -728,18 +741,22 @@ fn identify(args: &IdentifyArgs) -> Result<(), String> {
     }
 }
 
-fn bench(seconds: f64) -> Result<(), String> {
+fn bench(seconds: f64, drives: usize) -> Result<(), String> {
     if cfg!(debug_assertions) {
         println!("note: a debug build; the figure is for `cargo run --release`");
     }
-    let b = scenarios::bench(seconds).map_err(|e| e.to_string())?;
+    let b = scenarios::bench(seconds, drives).map_err(|e| e.to_string())?;
     println!(
-        "bench: {:.2} s of drive time ({} fast ticks with the plant, slow tick every 10th) in {:.3} s wall-clock",
+        "bench: {:.2} s of drive time on each of {} drive(s) ({} fast ticks each with the plant, slow tick every \
+         10th) in {:.3} s wall-clock, on one thread",
         b.simulated_s,
+        b.drives,
         (b.simulated_s * 25_000.0).round(),
         b.wall_s
     );
     println!();
+    println!("drives={}", b.drives);
+    println!("sim_speed_ratio_total={:.2}", b.sim_speed_ratio * b.drives as f64);
     println!("sim_speed_ratio={:.2}", b.sim_speed_ratio);
     Ok(())
 }
@@ -1114,7 +1131,9 @@ fn main() -> ExitCode {
             });
             canopen::run(args, config).map_err(|e| format!("canopen: {e}"))
         }
-        Command::Bench(args) => scenarios::with_plant(plant(args.plant.as_ref()), || bench(args.seconds)),
+        Command::Bench(args) => {
+            scenarios::with_plant(plant(args.plant.as_ref()), || bench(args.seconds, usize::from(args.drives)))
+        }
         Command::Identify(args) => {
             print_plant(args.common.plant.as_ref());
             scenarios::with_plant(plant(args.common.plant.as_ref()), || identify(args))

@@ -41,6 +41,12 @@ pub(super) struct Coeffs {
     pub(super) c_bus: f64,
     /// Conductance of the braking resistor while the chopper conducts this period, in S (0: off or none).
     pub(super) g_chopper: f64,
+    /// Reciprocals for the switching intervals' inner loop (a multiplication instead of a division): `1 / Ld`,
+    /// `1 / Lq` (1/H), `1 / C_bus` (1/F), `1 / R_source` (S).
+    pub(super) inv_ld: f64,
+    pub(super) inv_lq: f64,
+    pub(super) inv_c_bus: f64,
+    pub(super) g_source: f64,
 }
 
 impl Coeffs {
@@ -53,6 +59,14 @@ impl Coeffs {
         } else {
             i.max(0.0)
         }
+    }
+
+    /// [`Coeffs::bus_inflow`] with the source's conductance instead of its resistance (the switching intervals').
+    #[inline(always)]
+    pub(super) fn bus_inflow_fast(&self, v_bus: f64) -> f64 {
+        let i = (self.v_source - v_bus) * self.g_source;
+        let source = if self.source_sinks { i } else { i.max(0.0) };
+        source - self.g_chopper * v_bus
     }
 
     /// Current into the bus capacitor from outside the inverter at bus voltage `v_bus`: the source's, less the
@@ -90,6 +104,10 @@ impl Plant {
             source_sinks: p.source_sinks_current,
             c_bus: p.bus_capacitance_f,
             g_chopper: if self.chopper_gate { 1.0 / p.chopper_resistance_ohm } else { 0.0 },
+            inv_ld: 1.0 / p.ld_h,
+            inv_lq: 1.0 / p.lq_h,
+            inv_c_bus: 1.0 / p.bus_capacitance_f,
+            g_source: 1.0 / p.source_resistance_ohm,
         }
     }
 

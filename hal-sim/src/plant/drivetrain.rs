@@ -14,7 +14,7 @@
 //!   contact only pushes (a torque that would pull the teeth apart is zero) and the damper acts only in contact.
 //!   The motor sees `T_s` through the gear with the efficiency on the side that delivers power; the load obeys
 //!   `J_load d omega_l / dt = T_s - T_load - T_cl sgn(omega_l)` with the same stiction rule as the motor (a load
-//!   at rest stays at rest while `|T_s - T_load| <= T_cl`, decided at the start of each segment).
+//!   at rest stays at rest while `|T_s - T_load| <= T_cl`, decided at the start of each segment or half-period stretch).
 
 use super::PlantParams;
 

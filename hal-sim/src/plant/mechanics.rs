@@ -1,10 +1,12 @@
 //! The shaft: the electromagnetic torque, the equation of motion with viscous and Coulomb friction (stiction
-//! included), how each integration segment moves the shaft ([`SegmentMotion`]) and the load ([`ShaftSegment`]), and
-//! the load torque acting at the output ([`super::drivetrain`] joins the two).
+//! included), how each integration segment moves the shaft ([`SegmentMotion`]) and the load ([`ShaftSegment`]),
+//! the load torque acting at the output ([`super::drivetrain`] joins the two), and the shaft held over a stretch of
+//! switching intervals ([`Stretch`]).
 
 use super::coeffs::Coeffs;
 use super::drivetrain::LoadMotion;
-use super::{Mechanics, Plant};
+use super::electrical::{abc_to_dq, dq_to_abc, remove_phase_current, rk4};
+use super::{Mechanics, Plant, PERIOD_S};
 
 fn sign(x: f64) -> f64 {
     if x > 0.0 {
@@ -95,7 +97,100 @@ fn friction_motion(omega: f64, drive: f64, t_coulomb: f64) -> Option<f64> {
     }
 }
 
+/// The shaft over a stretch of switching intervals (half a period: from the period start to the sample instant,
+/// or from there to the period end; shorter where the outputs stop switching, where the torque breaks a held motor
+/// away, and, with a load profile, to one segment of at most `T / substeps_per_period`).
+///
+/// The shaft's time constants are far longer than a period (the reference plant's mechanical time constant is
+/// seconds, the geared preset's coupling resonance 60 Hz), so over a stretch the electrical intervals see it turn
+/// at a constant speed `omega_m`: the speed at the start plus half a stretch of the acceleration the last stretch
+/// had (a predictor: the angle at the end is then what a constant acceleration gives). The stretch collects the
+/// integral of the electromagnetic torque; [`Plant::finish_stretch`] then moves the shaft and the load over the
+/// stretch with its mean, in one RK4 step.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Stretch {
+    /// Start, in s into the period.
+    t0: f64,
+    /// How the motor and the load move (decided at the start, as for a segment).
+    shaft: ShaftSegment,
+    /// Integral of the electromagnetic torque since the start, in N m s.
+    pub(super) torque_integral: f64,
+    /// The motor's mechanical speed the electrical intervals assume, in rad/s.
+    pub(super) omega_m: f64,
+    /// Sine of the electrical angle at the start of the next interval.
+    pub(super) sin: f64,
+    /// Cosine of the electrical angle at the start of the next interval.
+    pub(super) cos: f64,
+    /// The free motor is held by static friction over the stretch: the stretch ends where the torque breaks it
+    /// away ([`Plant::stretch_breaks_away`]).
+    held: bool,
+}
+
 impl Plant {
+    /// A stretch of switching intervals starting at `t0` into the period: the load torque then, and the shaft's
+    /// motion decided from the torques at that instant.
+    pub(super) fn start_stretch(&mut self, k: &Coeffs, t0: f64) -> Stretch {
+        self.update_load(t0);
+        let shaft = self.shaft_segment(k);
+        let omega_m = match shaft.motor {
+            SegmentMotion::Frozen => 0.0,
+            SegmentMotion::Driven(w) => w,
+            SegmentMotion::Free { .. } => self.omega_m + self.stretch_acceleration * 0.25 * PERIOD_S,
+        };
+        let (sin, cos) = (k.p * self.theta_m).sin_cos();
+        let held = self.mechanics == Mechanics::Free && matches!(shaft.motor, SegmentMotion::Frozen);
+        Stretch { t0, shaft, torque_integral: 0.0, omega_m, sin, cos, held }
+    }
+
+    /// The motor held by static friction over `stretch` breaks away with the currents now: the stretch ends here,
+    /// so that the motion starts at the interval where it would (as the stiction rule of a segment decides).
+    pub(super) fn stretch_breaks_away(&self, k: &Coeffs, stretch: &Stretch) -> bool {
+        stretch.held && (k.torque(self.i_d, self.i_q) - stretch.shaft.motor_load).abs() > k.t_coulomb
+    }
+
+    /// End a stretch at `t1` into the period: the shaft and the load move over it under the mean electromagnetic
+    /// torque (one RK4 step of `[omega_m, theta_m, omega_l, theta_l]`), with the same friction, stiction and
+    /// sign-change rules as a segment; then the encoder follows.
+    pub(super) fn finish_stretch(&mut self, k: &Coeffs, stretch: Stretch, t1: f64) {
+        let h = t1 - stretch.t0;
+        if h <= 0.0 {
+            return;
+        }
+        let torque = stretch.torque_integral / h;
+        let (omega_before, omega_l_before) = (self.omega_m, self.omega_l);
+        let shaft = &stretch.shaft;
+        match shaft.motor {
+            SegmentMotion::Free { zero_speed_friction_sign } if !k.drive.compliant => {
+                // One mass: `d omega / dt = drive - decay omega` with constant `drive` over the stretch.
+                let inv_j = 1.0 / k.j;
+                let drive = (torque - shaft.motor_load - k.t_coulomb * zero_speed_friction_sign) * inv_j;
+                let decay = k.b_visc * inv_j;
+                let m0 = [self.omega_m, self.theta_m];
+                [self.omega_m, self.theta_m] = rk4(&m0, h, |m: &[f64; 2]| [drive - decay * m[0], m[0]]);
+            }
+            _ => {
+                let m0 = [self.omega_m, self.theta_m, self.omega_l, self.theta_l];
+                let m1 = rk4(&m0, h, |m: &[f64; 4]| k.mechanical_derivatives(shaft, torque, *m));
+                [self.omega_m, self.theta_m, self.omega_l, self.theta_l] = m1;
+            }
+        }
+        self.end_segment(k, &stretch.shaft, omega_before, omega_l_before);
+        // An open phase ([`super::faults::PlantFaults::phase_open`]) ends every interval at exactly zero current;
+        // at the rotor's new angle (a few microradians from the frame the intervals used) it still does.
+        if let Some(x) = self.faults.phase_open.filter(|&x| x < 3) {
+            let (sn, cs) = (k.p * self.theta_m).sin_cos();
+            let mut i = dq_to_abc(self.i_d, self.i_q, sn, cs);
+            remove_phase_current(&mut i, x);
+            [self.i_d, self.i_q] = abc_to_dq(i, sn, cs);
+        }
+        // The predictor of the next stretch; none after a stop (friction ended the motion) or without free motion.
+        self.stretch_acceleration = match stretch.shaft.motor {
+            SegmentMotion::Free { .. } if self.omega_m != 0.0 => (self.omega_m - omega_before) / h,
+            _ => 0.0,
+        };
+        self.update_encoder();
+    }
+
     /// Evaluate the load torque (constant plus profile, at the output) at `t_in_period` into the period, for the
     /// next segment. The profile sees the load's angle and speed (the motor's over the ratio when rigid).
     pub(super) fn update_load(&mut self, t_in_period: f64) {

@@ -65,7 +65,7 @@
 //!   line-to-line EMF above `V_bus + 2 V_diode` charges the bus, and below it the currents decay to zero and stay
 //!   there. This part works in abc coordinates with the mean inductance `(Ld + Lq) / 2` (exact when `Ld = Lq`).
 //! * **Injected power faults** ([`faults::PlantFaults`]): an open motor phase carries no current, its terminal
-//!   floating at its back-EMF above the star point of the two others (`open_phase_terminal`), switching or not; a
+//!   floating at its back-EMF above the star point of the two others (`electrical`), switching or not; a
 //!   short between two outputs is a resistance between their poles ([`inverter::OutputShort`]), loading the legs,
 //!   their shunts, the bus and the over-current comparator while they switch.
 //! * **Safe Torque Off** ([`Plant::set_sto_inputs`]): either STO input de-energised keeps the bridge from
@@ -80,27 +80,46 @@
 //! # Integration
 //!
 //! The period is cut at every switching instant of the three legs (edges and dead-time ends) and at the sample
-//! instant; each interval is split into equal segments no longer than `T / substeps_per_period` (8 by default:
-//! 5 us, so a period has about 14 to 20 segments). The pole voltages are therefore constant on each segment apart
-//! from the bus voltage, which is part of the state, and each segment is one classical Runge-Kutta (RK4) step of
-//! the joint state (`i_d, i_q, w, theta, V_bus`, and the load's `w_l, theta_l`, integrated only on a compliant
-//! coupling: the coupling's resonance, 60 Hz for the geared preset, is slow against the 5 us step). The fastest dynamics are the bus (`R_source C` = 23.5 us, at
-//! least 4.7 steps per time constant: RK4 local error about `(h / tau)^5 / 120` = 3e-6 relative) and the winding
-//! (`L / R` = 0.61 ms, over 120 steps per time constant). Against a 128-sub-step run of 0.24 s of switching and
-//! coasting, the default differs by at most 1.2e-4 A in the currents, 0.6 mV on the bus and 1.4e-4 rad/s in speed:
-//! the model's own idealisations (ideal switches, constant diode drops) dominate by orders of magnitude. An exact
-//! discretisation of the RL part alone would not cover its coupling with the bus and the back-EMF, and RK4 needs no
-//! matrix exponentials. Angles inside a segment are advanced by a rotation instead of new `sin_cos` calls. The
-//! thermal nodes (time constants of 20 s and more) take one Euler step per period. No allocation in `step`: one
-//! simulated second costs about 0.05 s of CPU in release builds.
+//! instant: about 14 intervals, on each of which every pole voltage is `a V_bus + b` with constant `a`, `b` (the
+//! dead-time diode chosen by the current's sign at the interval's start).
+//!
+//! * **Outputs switching** (`switching`): the shaft is held over each half period (`mechanics::Stretch`): the
+//!   electrical intervals see it turn at a constant speed (the speed at the start of the half plus half a half period
+//!   of the last half's acceleration, so that the angle at the end is what a constant acceleration gives) while they
+//!   collect the integral of the electromagnetic torque (Simpson's rule per interval); at the sample instant and at the
+//!   period end the shaft and the load then move over the half under its mean torque (one RK4 step of `w, theta, w_l,
+//!   theta_l`; the load's pair only on a compliant coupling, whose resonance, 60 Hz for the geared preset, is slow
+//!   against 20 us); the dq currents carry over to the rotor's new angle (a few microradians from the frame the
+//!   intervals used; an open phase is held at zero there too). A motor held by static friction is released at the end
+//!   of the interval where the torque breaks it away; with a load profile (an end stop's stiff spring) the intervals
+//!   are split into segments of at most `T / substeps_per_period`, each a stretch of its own, so the profile is
+//!   evaluated as often as before. With the shaft's speed fixed, the electrical state `[i_d, i_q, V_bus]` is a linear
+//!   system whose only time dependence is the rotation of the rotor frame, and each interval is one classical
+//!   Runge-Kutta (RK4) step of it, the frame's sine and cosine at the step's start, midpoint and end reached by
+//!   rotation (one `sin_cos` per half period). The fastest dynamics are the bus (`R_source C` = 23.5 us against
+//!   intervals of at most 20 us, mostly under 10 us: RK4 local error about `(h / tau)^5 / 120`, below 4e-3 of the bus's
+//!   few millivolts of ripple at 20 us) and the winding (`L / R` = 0.61 ms).
+//! * **Outputs off** (`freewheel`): each interval is split into equal segments no longer than
+//!   `T / substeps_per_period` (8 by default: 5 us), each one RK4 step of the joint state (`i_abc, w, theta, V_bus`,
+//!   `w_l, theta_l`): the diodes stop conducting at a segment's end.
+//!
+//! Held against the reference integrator the plant used before (RK4 segments of at most 5 us of the joint state
+//! with the shaft; kept for the tests in `reference`, itself within 1.2e-4 A, 0.6 mV and 1.4e-4 rad/s of a
+//! 128-sub-step run), fed the same commands: a 5 A current step on the free reference rotor differs by 0.2 mA in
+//! the currents, 0.02 mV on the bus and 0.002 rad/s in speed, a run at 3,000 rpm with a load step by 0.4 mA, and
+//! with the shaft's motion given (dynamometer, currents crossing zero in the dead times) by 1e-7 A; the sampled
+//! codes differ by at most one. The model's own idealisations (ideal switches, constant diode drops) dominate by
+//! orders of magnitude. The thermal nodes (time constants of 20 s and more) take one Euler step per period. No
+//! allocation in `step`: one simulated second costs about 0.03 s of CPU in release builds (`drive-sim bench`).
 //!
 //! # Code layout
 //!
-//! This file holds the plant's state, the period loop ([`Plant::step`]) and the public accessors and hooks. The
-//! rest is split by job: `coeffs` (the constants of one period), `switching` and `freewheel` (one integration
-//! segment with the legs switching, and with all switches off), `electrical` (the transforms, back-EMF and RK4
-//! step both use), `mechanics` (torque, friction, stiction, load), `thermal` (the temperature nodes) and
-//! `sampling` (the encoder after each segment, the sample at the period centre); the public modules [`inverter`],
+//! This file holds the plant's state, the period loop ([`Plant::step`]) and the public accessors and hooks. The rest is
+//! split by job: `coeffs` (the constants of one period), `switching` and `freewheel` (one integration interval with the
+//! legs switching, and one segment with all switches off), `electrical` (the transforms, back-EMF, rotations and RK4
+//! step both use), `mechanics` (torque, friction, stiction, load, the shaft held over a half period), `reference` (the
+//! reference integrator, tests only), `thermal` (the temperature nodes) and `sampling` (the encoder after each segment
+//! and stretch, the sample at the period centre); the public modules [`inverter`],
 //! [`sensors`], [`faults`], [`io`] and [`rng`] hold the leg patterns, the sensor functions, the injected faults, the
 //! digital I/O and the noise source.
 
@@ -114,6 +133,8 @@ pub mod inverter;
 pub mod io;
 mod mechanics;
 mod params;
+#[cfg(test)]
+mod reference;
 pub mod rng;
 mod sampling;
 pub mod sensors;
@@ -213,8 +234,9 @@ pub struct PeriodAverages {
     pub copper_loss_w: f64,
 }
 
-/// A load-torque profile: `f(time_s, theta_l_rad, omega_l_rad_s) -> N m` at the gear output, from the load's angle
-/// and speed (the motor's for the direct-drive reference plant), evaluated at the start of every integration segment.
+/// A load-torque profile: `f(time_s, theta_l_rad, omega_l_rad_s) -> N m` at the gear output, from the load's angle and
+/// speed (the motor's for the direct-drive reference plant), evaluated at the start of every integration segment (at
+/// most `T / substeps_per_period`, with the outputs switching or not).
 pub type LoadProfile = Box<dyn FnMut(f64, f64, f64) -> f64 + Send>;
 
 /// The simulated plant: PMSM, mechanics, inverter, DC bus, thermal nodes and sensors. See the module docs.
@@ -265,6 +287,12 @@ pub struct Plant {
     chopper_energy_j: f64,
     /// The Safe Torque Off inputs ([`sto`]): either one de-energised keeps the bridge from switching.
     sto: firmware::hal::sto::StoInputs,
+    /// The motor's acceleration over the last stretch of switching intervals, in rad/s^2: the speed predictor of
+    /// the next ([`mechanics::Stretch`]); 0 after anything else moved the shaft.
+    stretch_acceleration: f64,
+    /// Integrate with the reference integrator (RK4 segments of the joint state, `reference`) instead: only the
+    /// tests set it.
+    reference_integration: bool,
 }
 
 impl core::fmt::Debug for Plant {
@@ -314,6 +342,8 @@ impl Plant {
             chopper_gate: false,
             chopper_energy_j: 0.0,
             sto: firmware::hal::sto::StoInputs::RELEASED,
+            stretch_acceleration: 0.0,
+            reference_integration: false,
             params,
         };
         plant.last_count = plant.count_now();
@@ -359,10 +389,10 @@ impl Plant {
     ///   the last entry into the index state since the previous sample; `hall`: the Hall state at the sample. The
     ///   injected sensor faults ([`faults::PlantFaults`]: wire break, noise burst, lost index, stuck Halls) act on
     ///   these three only.
-    /// * `break_input`: the over-current comparator (any leg current, the phase current plus the share of an
-    ///   injected output short, beyond `break_current_a`, checked every sub-step while the outputs are enabled)
-    ///   has tripped. The trip latches and forces the outputs off until a command
-    ///   with `enabled == false` acknowledges it.
+    /// * `break_input`: the over-current comparator (any leg current, the phase current plus the share of an injected
+    ///   output short, beyond `break_current_a`, checked after every switching interval while the outputs are enabled)
+    ///   has tripped. The trip latches and forces the outputs off until a command with `enabled == false` acknowledges
+    ///   it.
     pub fn step(&mut self, cmd: &PwmCommand) -> Measurements {
         let p = &self.params;
         let k = self.coeffs();
@@ -391,26 +421,71 @@ impl Plant {
         let mut sampled = false;
         let mut measurements = self.last_measurements;
         let mut t = 0.0;
+        // The shaft held over the switching intervals since its start ([`mechanics::Stretch`]).
+        let mut stretch: Option<mechanics::Stretch> = None;
         for &b in breaks[..n_breaks].iter() {
-            let span = b - t;
-            if span > 1e-13 {
-                // Split the interval into equal segments no longer than the maximum step.
-                let n = (span / h_max - 1e-9).ceil().max(1.0);
-                let h = span / n;
+            if b - t > 1e-13 {
+                // While the outputs switch, the interval between two switching instants is one step: every pole
+                // voltage is constant over it. With the outputs off (and with the reference integrator), and with a
+                // load profile (an end stop's stiff spring, a cogging map: evaluated as often as before), it is
+                // split into equal segments no longer than the maximum step.
+                let one_step = enabled && !self.break_latched && !self.reference_integration;
+                let n = if one_step && self.load_profile.is_none() {
+                    1.0
+                } else {
+                    ((b - t) / h_max - 1e-9).ceil().max(1.0)
+                };
+                let h = (b - t) / n;
                 let mut j = 0.0;
                 while j < n {
                     let t0 = t + j * h;
                     let t1 = if j + 1.0 >= n { b } else { t0 + h };
-                    self.integrate_segment(&k, &patterns, enabled, t0, t1, &mut acc);
                     j += 1.0;
+                    if enabled && !self.break_latched && !self.reference_integration {
+                        // A segment of a split interval is a stretch of its own.
+                        if n > 1.0 {
+                            if let Some(s) = stretch.take() {
+                                self.finish_stretch(&k, s, t0);
+                            }
+                        }
+                        let s = match stretch.as_mut() {
+                            Some(s) => s,
+                            None => stretch.insert(self.start_stretch(&k, t0)),
+                        };
+                        let i = self.switching_interval(&k, &patterns, s, t0, t1, &mut acc);
+                        if i.iter().any(|x| x.abs() > self.params.break_current_a) {
+                            self.break_latched = true;
+                        }
+                        if self.stretch_breaks_away(&k, s) {
+                            if let Some(s) = stretch.take() {
+                                self.finish_stretch(&k, s, t1);
+                            }
+                        }
+                        continue;
+                    }
+                    if let Some(s) = stretch.take() {
+                        self.finish_stretch(&k, s, t0);
+                    }
+                    #[cfg(test)]
+                    if enabled && !self.break_latched {
+                        self.reference_segment(&k, &patterns, t0, t1, &mut acc);
+                        continue;
+                    }
+                    self.freewheel_segment(&k, t0, t1, &mut acc);
                 }
                 t = b;
             }
             if !sampled && t >= sample_t - 1e-15 {
+                if let Some(s) = stretch.take() {
+                    self.finish_stretch(&k, s, t);
+                }
                 sampled = true;
                 let switching_now = enabled && !self.break_latched;
                 measurements = self.sample(&patterns, switching_now, sample_t, t);
             }
+        }
+        if let Some(s) = stretch.take() {
+            self.finish_stretch(&k, s, t);
         }
 
         // Period bookkeeping: averages, thermal nodes, leg levels.
@@ -428,34 +503,23 @@ impl Plant {
         measurements
     }
 
-    /// One integration segment `[t0, t1)` of the period: the load torque at its start, then the switching model
-    /// (tripping the over-current break if a leg current exceeds it) or, with the outputs off or the break
-    /// tripped, the diode bridge; then the encoder follows the shaft.
-    fn integrate_segment(
-        &mut self,
-        k: &Coeffs,
-        patterns: &[LegPattern; 3],
-        enabled: bool,
-        t0: f64,
-        t1: f64,
-        acc: &mut PeriodAverages,
-    ) {
+    /// One integration segment `[t0, t1)` of the period with all switches off (outputs disabled or the break
+    /// tripped): the load torque at its start, the diode bridge ([`freewheel`]), then the encoder follows the shaft.
+    fn freewheel_segment(&mut self, k: &Coeffs, t0: f64, t1: f64, acc: &mut PeriodAverages) {
+        self.stretch_acceleration = 0.0;
         self.update_load(t0);
-        if enabled && !self.break_latched {
-            let i = self.segment_switching(k, patterns, t0, t1, acc);
-            if i.iter().any(|x| x.abs() > self.params.break_current_a) {
-                self.break_latched = true;
-            }
-        } else {
-            self.segment_freewheel(k, t1 - t0, acc);
-        }
+        self.segment_freewheel(k, t1 - t0, acc);
         self.update_encoder();
     }
 
     fn state_at(&self, t_in_period: f64) -> PlantState {
+        self.state_with(t_in_period, self.i_abc())
+    }
+
+    /// The state at `t_in_period` with the phase currents `i_abc` (those now, computed by the caller).
+    fn state_with(&self, t_in_period: f64, i_abc: [f64; 3]) -> PlantState {
         let p = &self.params;
         let pp = f64::from(p.pole_pairs);
-        let i_abc = self.i_abc();
         let r = self.phase_resistance();
         let k = self.coeffs();
         PlantState {
@@ -515,6 +579,7 @@ impl Plant {
     /// Choose how the shaft moves (free, locked, driven at a speed). A load on a compliant coupling stays free.
     pub fn set_mechanics(&mut self, mechanics: Mechanics) {
         self.mechanics = mechanics;
+        self.stretch_acceleration = 0.0;
         match mechanics {
             Mechanics::Free => {}
             Mechanics::Locked => self.omega_m = 0.0,
@@ -541,6 +606,7 @@ impl Plant {
     pub fn set_rotor_state(&mut self, theta_m_rad: f64, omega_m_rad_s: f64) {
         self.theta_m = theta_m_rad;
         self.omega_m = omega_m_rad_s;
+        self.stretch_acceleration = 0.0;
         self.follow_motor(self.params.gear_ratio);
         self.last_count = self.count_now();
         self.ssi_latched = self.ssi_frame_now();

@@ -164,8 +164,10 @@ pub struct PlantParams {
     pub temp_noise_lsb_rms: f64,
 
     // ---- Integration ----
-    /// Sub-steps per PWM period: the integrator's maximum step is `T / substeps_per_period`. The switching
-    /// instants and the sample instant are always segment boundaries. 8 by default (5 us steps).
+    /// Sub-steps per PWM period: with the outputs off, the integrator's maximum step is `T / substeps_per_period`
+    /// (the instants where a diode stops conducting are found to that step). The switching instants and the sample
+    /// instant are always segment boundaries; with the outputs switching each interval between them is one step.
+    /// 8 by default (5 us steps).
     pub substeps_per_period: u32,
 
     // ---- Digital I/O ----

@@ -1,4 +1,4 @@
-//! What the sensors capture: the encoder counter and its index latch, followed after every segment; at the centre
+//! What the sensors capture: the encoder counter and its index latch, followed after every segment and half-period stretch; at the centre
 //! of the period, the ADC sample of the shunts, the bus voltage and the temperatures, and the encoder and Hall
 //! readings, with their noise and the injected sensor faults ([`super::faults::PlantFaults`]).
 
@@ -89,9 +89,10 @@ impl Plant {
     }
 
     /// The currents through the shunts A, B, C at `t` into the period (with the legs switching by `patterns`, or
-    /// all off): the phase current, plus a short's share, where the low switch or the low diode conducts, else 0.
-    fn shunt_currents(&self, patterns: &[LegPattern; 3], switching: bool, t: f64) -> [f64; 3] {
-        let mut i = self.i_abc();
+    /// all off) with the phase currents `i_abc`: the phase current, plus a short's share, where the low switch or
+    /// the low diode conducts, else 0.
+    fn shunt_currents(&self, patterns: &[LegPattern; 3], switching: bool, t: f64, i_abc: [f64; 3]) -> [f64; 3] {
+        let mut i = i_abc;
         // A short between two outputs ([`inverter::OutputShort`]) adds its current to what the two legs carry
         // (zero at the centre while both low switches are on).
         let short = inverter::OutputShort::new(self.faults.phase_short, self.params.switch_resistance_ohm);
@@ -132,7 +133,8 @@ impl Plant {
         t: f64,
     ) -> Measurements {
         self.apply_encoder_noise();
-        let shunt = self.shunt_currents(patterns, switching, sample_t);
+        let i_abc = self.i_abc();
+        let shunt = self.shunt_currents(patterns, switching, sample_t, i_abc);
         let p = &self.params;
         let mut phase_currents = [0u16; 3];
         for x in 0..3 {
@@ -164,7 +166,7 @@ impl Plant {
             digital_inputs: self.io.input_levels(&p.io, self.last_count),
             ssi_frame: self.ssi_frame(),
         };
-        let mut state = self.state_at(t);
+        let mut state = self.state_with(t, i_abc);
         state.shunt_currents_a = shunt;
         self.at_sample = state;
         Measurements {

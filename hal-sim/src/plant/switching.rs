@@ -1,39 +1,50 @@
-//! One integration segment with the outputs switching: each leg's pole set by its switch or, in dead time, by the
+//! One integration interval with the outputs switching: each leg's pole set by its switch or, in dead time, by the
 //! body diode that carries its current; a leg in dead time without current floating with the motor; the injected
 //! open phase and output short ([`super::faults::PlantFaults`]); the diodes blocking reverse current at the end of
-//! the segment; and the segment's share of the period averages.
+//! the interval; and the interval's share of the period averages.
+//!
+//! The interval runs between two switching instants (or the sample instant), so every pole voltage is `a V_bus + b`
+//! with constant `a`, `b` over it. The shaft is held over the interval ([`super::mechanics::Stretch`]: constant
+//! speed, the angle advancing with it), which leaves the electrical state `[i_d, i_q, V_bus]` a linear system
+//! whose only time dependence is the rotation of the frame; one classical RK4 step integrates it, with the frame's
+//! sine and cosine at the three instants RK4 needs (start, midpoint, end) reached by rotation.
 
 use super::coeffs::Coeffs;
 use super::electrical::{
-    abc_to_dq, back_emf, dq_to_abc, open_phase_terminal, remove_phase_current, rk4, LegDrive, SegmentAngle,
+    abc_to_dq, back_emf, dq_to_abc, open_phase_terminal_drive, remove_phase_current, rotate, small_rotation, LegDrive,
     ZERO_CURRENT_A,
 };
 use super::inverter::{LegPattern, LegState, OutputShort};
-use super::mechanics::ShaftSegment;
+use super::mechanics::Stretch;
 use super::{PeriodAverages, Plant};
 
 impl Plant {
-    /// One RK4 segment `[t0, t1)` with the outputs switching; returns the currents out of the three legs at its end
-    /// (the phase currents, plus a short's share, [`OutputShort`]): what the over-current comparator sees.
+    /// One RK4 step over the interval `[t0, t1)` (between two consecutive switching instants) with the outputs
+    /// switching and the shaft held by `stretch`; returns the currents out of the three legs at its end (the phase
+    /// currents, plus a short's share, [`OutputShort`]): what the over-current comparator sees.
     ///
     /// A disconnected phase ([`super::faults::PlantFaults::phase_open`]) is a leg whose motor terminal floats at
-    /// [`open_phase_terminal`], recomputed at every RK4 stage, draws nothing from the bus, and ends every segment at
-    /// exactly zero current (the projection of [`Plant::stop_phases`], as for a diode that stopped conducting). The
-    /// current a phase carried when it was opened is cut at once (the arc of a real break lasts microseconds; its
-    /// energy is dropped).
-    pub(super) fn segment_switching(
+    /// its back-EMF above the star point of the two others (`open_phase_terminal_drive`, at each RK4 instant),
+    /// draws nothing from the bus, and ends every interval at exactly zero current (the projection of
+    /// [`Plant::stop_phases`], as for a diode that stopped conducting). The current a phase carried when it was
+    /// opened is cut at once (the arc of a real break lasts microseconds; its energy is dropped).
+    pub(super) fn switching_interval(
         &mut self,
         k: &Coeffs,
         patterns: &[LegPattern; 3],
+        stretch: &mut Stretch,
         t0: f64,
         t1: f64,
         acc: &mut PeriodAverages,
     ) -> [f64; 3] {
         let h = t1 - t0;
-        let mid = 0.5 * (t0 + t1);
-        let angle = SegmentAngle::new(k.p * self.theta_m);
-        let i0 = dq_to_abc(self.i_d, self.i_q, angle.sin, angle.cos);
-        let (mut legs, off, mut floating) = legs_at(patterns, mid, i0, k.v_diode);
+        let omega_e = k.p * stretch.omega_m;
+        let start = (stretch.sin, stretch.cos);
+        let half = small_rotation(0.5 * omega_e * h);
+        let mid_angle = rotate(start, half);
+        let end = rotate(mid_angle, half);
+        let i0 = dq_to_abc(self.i_d, self.i_q, start.0, start.1);
+        let (mut legs, off, mut floating) = legs_at(patterns, 0.5 * (t0 + t1), i0, k.v_diode);
         // Injected faults: a disconnected phase is taken out of the neutral of the floating legs below.
         let open = self.faults.phase_open.filter(|&x| x < 3);
         if let Some(x) = open {
@@ -41,34 +52,35 @@ impl Plant {
         }
         let short = OutputShort::new(self.faults.phase_short, k.r_switch);
         if floating.iter().any(|f| *f) {
-            // Back-EMF frozen over the segment (at most the 0.5 us dead time).
-            let e0 = back_emf(k.p * self.omega_m, k.psi, angle.sin, angle.cos);
+            // Back-EMF frozen over the interval (at most the 0.5 us dead time).
+            let e0 = back_emf(omega_e, k.psi, start.0, start.1);
             drive_floating_legs(&mut legs, &mut floating, e0, self.v_bus, k.v_diode);
         }
-        // The inverter's poles (what the averages and a short see); the motor terminal of an open phase is
-        // computed in the stages.
+        // The inverter's poles (what the averages and a short see); the motor terminal of an open phase follows
+        // the back-EMF at each instant.
         let inverter_legs = legs;
         if let Some(x) = open {
             legs[x] = LegDrive::default();
         }
-        let segment = SwitchingSegment { k, legs, inverter_legs, open, short, angle, shaft: self.shaft_segment(k) };
-        let (omega_before, omega_l_before) = (self.omega_m, self.omega_l);
-        let s0 = [self.i_d, self.i_q, self.omega_m, self.theta_m, self.v_bus, self.omega_l, self.theta_l];
-        let s1 = rk4(&s0, h, |s: &[f64; 7]| segment.derivatives(s));
-        [self.i_d, self.i_q, self.omega_m, self.theta_m, self.v_bus, self.omega_l, self.theta_l] = s1;
-        self.end_segment(k, &segment.shaft, omega_before, omega_l_before);
-        let (sn1, cs1) = angle.sin_cos_at(k.p * s1[3]);
-        let mut i1 = dq_to_abc(self.i_d, self.i_q, sn1, cs1);
+        let interval = SwitchingInterval::new(k, &legs, &inverter_legs, open, short, omega_e, [start, mid_angle, end]);
+        let s0 = [self.i_d, self.i_q, self.v_bus];
+        let (s1, s_mid) = interval.rk4(&s0, h);
+        [self.i_d, self.i_q, self.v_bus] = s1;
+        let mut i1 = dq_to_abc(self.i_d, self.i_q, end.0, end.1);
         let stopped = stopped_phases(&legs, off, floating, open, i1);
-        self.stop_phases(stopped, &mut i1, sn1, cs1);
-        segment.accumulate_averages(acc, h, &s0, &s1, i0, i1);
-        segment.leg_currents(i1, self.v_bus)
+        self.stop_phases(stopped, &mut i1, end.0, end.1);
+        // Simpson's rule over the interval (the torque at the midpoint from the currents there).
+        let torques = [k.torque(s0[0], s0[1]), k.torque(s_mid[0], s_mid[1]), k.torque(self.i_d, self.i_q)];
+        stretch.torque_integral += h * (1.0 / 6.0) * (torques[0] + 4.0 * torques[1] + torques[2]);
+        (stretch.sin, stretch.cos) = end;
+        interval.accumulate_averages(acc, h, &s0, &s1, i0, i1, mid_angle);
+        interval.leg_currents(i1, self.v_bus)
     }
 
     /// Diodes block reverse current: each phase in `stopped` ends the segment at exactly zero current. One such
     /// phase: the current vector `i1` (at the electrical angle of sine `sn1` and cosine `cs1`) is projected onto the
     /// plane `i_x = 0`; two or three leave no current at all. Sets the plant's dq currents and `i1` to the result.
-    fn stop_phases(&mut self, stopped: [bool; 3], i1: &mut [f64; 3], sn1: f64, cs1: f64) {
+    pub(super) fn stop_phases(&mut self, stopped: [bool; 3], i1: &mut [f64; 3], sn1: f64, cs1: f64) {
         match stopped.iter().filter(|s| **s).count() {
             0 => {}
             1 => {
@@ -84,12 +96,16 @@ impl Plant {
         }
     }
 }
-
 /// Each leg's drive over a segment, from its state at the segment's midpoint `mid` and the phase currents `i0` at
 /// the segment's start: its switch, or in dead time the body diode that carries its current. Returns the drives,
 /// which legs are in dead time, and which of those carry no current: they float, their drive still to be found
 /// ([`drive_floating_legs`]).
-fn legs_at(patterns: &[LegPattern; 3], mid: f64, i0: [f64; 3], v_diode: f64) -> ([LegDrive; 3], [bool; 3], [bool; 3]) {
+pub(super) fn legs_at(
+    patterns: &[LegPattern; 3],
+    mid: f64,
+    i0: [f64; 3],
+    v_diode: f64,
+) -> ([LegDrive; 3], [bool; 3], [bool; 3]) {
     let upper_diode = LegDrive::upper_diode(v_diode);
     let lower_diode = LegDrive::lower_diode(v_diode);
     let mut legs = [LegDrive::default(); 3];
@@ -115,7 +131,13 @@ fn legs_at(patterns: &[LegPattern; 3], mid: f64, i0: [f64; 3], v_diode: f64) -> 
 /// A leg in dead time with no current floats: its terminal follows the motor (back-EMF `e0` plus the neutral set
 /// by the driven legs) so that its current stays zero, unless that would pass a rail of the bus at `v_bus`, where
 /// its diode starts to conduct (then it no longer floats). Sets the drive of every floating leg.
-fn drive_floating_legs(legs: &mut [LegDrive; 3], floating: &mut [bool; 3], e0: [f64; 3], v_bus: f64, v_diode: f64) {
+pub(super) fn drive_floating_legs(
+    legs: &mut [LegDrive; 3],
+    floating: &mut [bool; 3],
+    e0: [f64; 3],
+    v_bus: f64,
+    v_diode: f64,
+) {
     let n_fixed = floating.iter().filter(|f| !**f).count();
     let (mut a_n, mut b_n) = (0.5, 0.0);
     if n_fixed > 0 {
@@ -145,7 +167,7 @@ fn drive_floating_legs(legs: &mut [LegDrive; 3], floating: &mut [bool; 3], e0: [
 
 /// The phases that end the segment at exactly zero current, given the phase currents `i1` at its end: a leg in
 /// dead time whose current reached zero (or that floated), and a disconnected phase.
-fn stopped_phases(
+pub(super) fn stopped_phases(
     legs: &[LegDrive; 3],
     off: [bool; 3],
     floating: [bool; 3],
@@ -164,66 +186,123 @@ fn stopped_phases(
     stopped
 }
 
-/// How the inverter drives the motor over one segment with the outputs switching.
-struct SwitchingSegment<'a> {
-    k: &'a Coeffs,
-    /// The drive of the motor terminals (an open phase's is zero: its terminal is computed in the stages).
-    legs: [LegDrive; 3],
-    /// The drive of the inverter's poles (what the averages and a short see).
-    inverter_legs: [LegDrive; 3],
-    /// The disconnected phase ([`super::faults::PlantFaults::phase_open`]).
-    open: Option<usize>,
-    /// The short between two outputs ([`super::faults::PlantFaults::phase_short`]).
-    short: Option<OutputShort>,
-    /// The electrical angle at the segment start.
-    angle: SegmentAngle,
-    /// How the motor shaft and the load move in the segment.
-    shaft: ShaftSegment,
+/// The linear model of one instant of the interval, in the rotor frame at that instant: the terminal voltage
+/// `v_dq = a_dq V_bus + b_dq` and the inverter's bus current `c_dq . i_dq`.
+#[derive(Clone, Copy, Debug, Default)]
+struct FrameAt {
+    a_dq: [f64; 2],
+    b_dq: [f64; 2],
+    c_dq: [f64; 2],
 }
 
-impl SwitchingSegment<'_> {
-    /// The derivatives of the state `[i_d, i_q, omega_m, theta_m, V_bus, omega_l, theta_l]`.
-    #[inline(always)]
-    fn derivatives(&self, s: &[f64; 7]) -> [f64; 7] {
-        let (k, legs, inverter_legs) = (self.k, self.legs, self.inverter_legs);
-        let [i_d, i_q, omega, theta, v, omega_l, theta_l] = *s;
-        let (sn, cs) = self.angle.sin_cos_at(k.p * theta);
-        let mut u = [legs[0].a * v + legs[0].b, legs[1].a * v + legs[1].b, legs[2].a * v + legs[2].b];
-        if let Some(x) = self.open {
-            u[x] = open_phase_terminal(u, back_emf(k.p * omega, k.psi, sn, cs), x);
+/// How the inverter drives the motor over one interval with the outputs switching, at the interval's start,
+/// midpoint and end (the instants of an RK4 step).
+struct SwitchingInterval<'a> {
+    k: &'a Coeffs,
+    /// The drive of the inverter's poles (what the averages and a short see).
+    inverter_legs: [LegDrive; 3],
+    /// The drive of the motor terminals (an open phase's is zero: [`FrameAt`] holds its terminal).
+    legs: [LegDrive; 3],
+    /// The short between two outputs ([`super::faults::PlantFaults::phase_short`]).
+    short: Option<OutputShort>,
+    /// Electrical speed, in rad/s.
+    omega_e: f64,
+    /// The model at the start, the midpoint and the end.
+    frames: [FrameAt; 3],
+    /// A short's share of the bus current: `short_g v + short_0`, in S and A.
+    short_g: f64,
+    short_0: f64,
+}
+
+impl<'a> SwitchingInterval<'a> {
+    /// The interval's model with the legs `legs` at the motor terminals, `inverter_legs` at the poles, at the
+    /// electrical angles of sine and cosine `angles` (start, midpoint, end).
+    fn new(
+        k: &'a Coeffs,
+        legs: &[LegDrive; 3],
+        inverter_legs: &[LegDrive; 3],
+        open: Option<usize>,
+        short: Option<OutputShort>,
+        omega_e: f64,
+        angles: [(f64, f64); 3],
+    ) -> Self {
+        // The pole drives and the bus-current shares in alpha-beta once; each instant only turns them.
+        let a = clarke(legs.map(|l| l.a));
+        let b = clarke(legs.map(|l| l.b));
+        // c . i_abc = c' . i_alphabeta with i_abc the inverse Clarke of i_alphabeta.
+        let c = legs.map(|l| l.c);
+        let c_ab = [c[0] - 0.5 * (c[1] + c[2]), HALF_SQRT3 * (c[1] - c[2])];
+        let frames = angles.map(|(sn, cs)| {
+            let (a, b) = match open {
+                // The open phase's terminal: its back-EMF above the star point of the two others, at this instant.
+                Some(x) => {
+                    let mut drive = *legs;
+                    (drive[x].a, drive[x].b) = open_phase_terminal_drive(legs, back_emf(omega_e, k.psi, sn, cs), x);
+                    (clarke(drive.map(|l| l.a)), clarke(drive.map(|l| l.b)))
+                }
+                None => (a, b),
+            };
+            FrameAt { a_dq: park(a, sn, cs), b_dq: park(b, sn, cs), c_dq: park(c_ab, sn, cs) }
+        });
+        let (mut short_g, mut short_0) = (0.0, 0.0);
+        if let Some(s) = short {
+            // The short's current is linear in the poles: it leaves through the high switch of the leg at the
+            // higher pole.
+            let c = inverter_legs.map(|l| l.c);
+            short_g = dot(c, s.leg_currents(inverter_legs.map(|l| l.a)));
+            short_0 = dot(c, s.leg_currents(inverter_legs.map(|l| l.b)));
         }
-        let [v_d, v_q] = abc_to_dq(u, sn, cs);
-        let omega_e = k.p * omega;
-        let di_d = (v_d - k.r * i_d + omega_e * k.lq * i_q) / k.ld;
-        let di_q = (v_q - k.r * i_q - omega_e * (k.ld * i_d + k.psi)) / k.lq;
-        let i = dq_to_abc(i_d, i_q, sn, cs);
-        let mut i_dc = legs[0].c * i[0] + legs[1].c * i[1] + legs[2].c * i[2];
-        if let Some(short) = self.short {
-            // The short's current leaves through the high switch of the leg at the higher pole.
-            let poles = inverter_legs.map(|l| l.a * v + l.b);
-            let s = short.leg_currents(poles);
-            i_dc += inverter_legs[0].c * s[0] + inverter_legs[1].c * s[1] + inverter_legs[2].c * s[2];
-        }
-        let dv = (k.bus_inflow(v) - i_dc) / k.c_bus;
-        let [dw, dth, dwl, dthl] =
-            k.mechanical_derivatives(&self.shaft, k.torque(i_d, i_q), [omega, theta, omega_l, theta_l]);
-        [di_d, di_q, dw, dth, dv, dwl, dthl]
+        Self { k, inverter_legs: *inverter_legs, legs: *legs, short, omega_e, frames, short_g, short_0 }
     }
 
-    /// Adds the segment of length `h` to the period integrals `acc` (trapezoidal in the bus voltage and currents),
-    /// from the states `s0`, `s1` at its ends (`s1` as integrated) and the phase currents `i0`, `i1` at its ends
-    /// (`i1` after the diodes stopped any).
+    /// The derivatives of `[i_d, i_q, V_bus]` at the instant of `frame`.
+    #[inline(always)]
+    fn derivatives(&self, frame: &FrameAt, s: &[f64; 3]) -> [f64; 3] {
+        let k = self.k;
+        let [i_d, i_q, v] = *s;
+        let v_d = frame.a_dq[0] * v + frame.b_dq[0];
+        let v_q = frame.a_dq[1] * v + frame.b_dq[1];
+        let di_d = (v_d - k.r * i_d + self.omega_e * k.lq * i_q) * k.inv_ld;
+        let di_q = (v_q - k.r * i_q - self.omega_e * (k.ld * i_d + k.psi)) * k.inv_lq;
+        let i_dc = frame.c_dq[0] * i_d + frame.c_dq[1] * i_q + self.short_g * v + self.short_0;
+        let dv = (k.bus_inflow_fast(v) - i_dc) * k.inv_c_bus;
+        [di_d, di_q, dv]
+    }
+
+    /// One classical RK4 step of length `h` from `s0`: the state at the end, and at the midpoint (the cubic
+    /// Hermite interpolation between the ends with the derivatives there, fourth-order accurate like the step).
+    #[inline(always)]
+    fn rk4(&self, s0: &[f64; 3], h: f64) -> ([f64; 3], [f64; 3]) {
+        let add =
+            |x: &[f64; 3], d: &[f64; 3], w: f64| -> [f64; 3] { [x[0] + w * d[0], x[1] + w * d[1], x[2] + w * d[2]] };
+        let [start, mid, end] = &self.frames;
+        let k1 = self.derivatives(start, s0);
+        let k2 = self.derivatives(mid, &add(s0, &k1, 0.5 * h));
+        let k3 = self.derivatives(mid, &add(s0, &k2, 0.5 * h));
+        let k4 = self.derivatives(end, &add(s0, &k3, h));
+        let w = h * (1.0 / 6.0);
+        let s1: [f64; 3] = core::array::from_fn(|i| s0[i] + w * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]));
+        // y(h/2) = (y0 + y1) / 2 + h (y'0 - y'1) / 8, with k4 standing for y'1.
+        let s_mid = core::array::from_fn(|i| 0.5 * (s0[i] + s1[i]) + 0.125 * h * (k1[i] - k4[i]));
+        (s1, s_mid)
+    }
+
+    /// Adds the interval of length `h` to the period integrals `acc` (trapezoidal in the bus voltage and currents),
+    /// from the states `s0`, `s1` (`[i_d, i_q, V_bus]`, `s1` as integrated) at its ends and the phase currents
+    /// `i0`, `i1` at its ends (`i1` after the diodes stopped any), the frame taken at the midpoint angle `mid`.
+    #[allow(clippy::too_many_arguments)]
     fn accumulate_averages(
         &self,
         acc: &mut PeriodAverages,
         h: f64,
-        s0: &[f64; 7],
-        s1: &[f64; 7],
+        s0: &[f64; 3],
+        s1: &[f64; 3],
         i0: [f64; 3],
         i1: [f64; 3],
+        mid: (f64, f64),
     ) {
         let (k, legs, inverter_legs) = (self.k, self.legs, self.inverter_legs);
-        let v_mid = 0.5 * (s0[4] + s1[4]);
+        let v_mid = 0.5 * (s0[2] + s1[2]);
         let mut poles = [0.0; 3];
         for x in 0..3 {
             let i_mid = 0.5 * (i0[x] + i1[x]);
@@ -237,8 +316,7 @@ impl SwitchingSegment<'_> {
                 acc.bus_current_a += inverter_legs[x].c * s_mid[x] * h;
             }
         }
-        let (sn, cs) = self.angle.sin_cos_at(k.p * 0.5 * (s0[3] + s1[3]));
-        let vdq = abc_to_dq(poles, sn, cs);
+        let vdq = park(clarke(poles), mid.0, mid.1);
         acc.dq_voltage_v[0] += vdq[0] * h;
         acc.dq_voltage_v[1] += vdq[1] * h;
         acc.bus_voltage_v += v_mid * h;
@@ -258,4 +336,24 @@ impl SwitchingSegment<'_> {
         }
         legs_i
     }
+}
+
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+const HALF_SQRT3: f64 = 0.866_025_403_784_438_6;
+
+/// The amplitude-invariant Clarke transform (as [`abc_to_dq`]'s first half, multiplying by constants).
+#[inline(always)]
+fn clarke(x: [f64; 3]) -> [f64; 2] {
+    const THIRD: f64 = 1.0 / 3.0;
+    const INV_SQRT3: f64 = 0.577_350_269_189_625_8;
+    [(2.0 * x[0] - x[1] - x[2]) * THIRD, (x[1] - x[2]) * INV_SQRT3]
+}
+
+/// The Park transform: alpha-beta into the frame at the angle of sine `sn` and cosine `cs`.
+#[inline(always)]
+fn park(x: [f64; 2], sn: f64, cs: f64) -> [f64; 2] {
+    [x[0] * cs + x[1] * sn, -x[0] * sn + x[1] * cs]
 }

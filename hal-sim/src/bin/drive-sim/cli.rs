@@ -65,7 +65,7 @@ pub enum Command {
     /// CiA 402 CSP: a 10-revolution jerk-limited move with set-points every 1 ms; following error and settling.
     Csp(CspScenario),
     /// The dual loop (EPOS4 AN ch. 10) on a plant with a load encoder: a CSP move of the load closed by the load
-    /// encoder; load_following_error_peak_inc, load_settle_error_inc, motor_load_deviation_peak_deg.
+    /// encoder; load_following_error_peak_inc, load_settle_error_inc, motor_load_deviation_peak_deg, load_settle_time_s.
     DualLoop(DualLoopScenario),
     /// CiA 402 CSV: a 100 rpm velocity step and a sine sweep of the velocity loop (velocity_bandwidth_hz).
     CsvSweep(Scenario),
@@ -239,6 +239,9 @@ pub struct BenchArgs {
     /// Simulated seconds of drive time to run.
     #[arg(long, value_name = "S", default_value_t = 2.0, value_parser = parse_seconds, allow_negative_numbers = true)]
     pub seconds: f64,
+    /// Drives simulated side by side on one thread (1..=64); `sim_speed_ratio` is then each drive's.
+    #[arg(long, value_name = "N", default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=64))]
+    pub drives: u16,
 }
 
 /// ethercat's options.
