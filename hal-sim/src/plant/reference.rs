@@ -9,7 +9,7 @@ use super::coeffs::Coeffs;
 use super::electrical::{abc_to_dq, back_emf, dq_to_abc, open_phase_terminal, rk4, LegDrive, SegmentAngle};
 use super::inverter::{LegPattern, OutputShort};
 use super::mechanics::ShaftSegment;
-use super::switching::{drive_floating_legs, legs_at, stopped_phases};
+use super::switching::{currents_out_of_legs, drive_floating_legs, legs_at, stopped_phases};
 use super::{PeriodAverages, Plant};
 
 impl Plant {
@@ -173,17 +173,10 @@ impl SwitchingSegment<'_> {
         acc.copper_loss_w += 1.5 * (k.r - k.r_switch) * i_sq * h;
     }
 
-    /// The currents out of the three legs with the phase currents `i` and the bus at `v_bus`: the phase currents
-    /// plus a short's share.
+    /// The currents out of the three legs with the phase currents `i` and the bus at `v_bus`
+    /// ([`currents_out_of_legs`]).
     fn leg_currents(&self, i: [f64; 3], v_bus: f64) -> [f64; 3] {
-        let mut legs_i = i;
-        if let Some(short) = self.short {
-            let s_end = short.leg_currents(self.inverter_legs.map(|l| l.a * v_bus + l.b));
-            for x in 0..3 {
-                legs_i[x] += s_end[x];
-            }
-        }
-        legs_i
+        currents_out_of_legs(self.short, &self.inverter_legs, i, v_bus)
     }
 }
 

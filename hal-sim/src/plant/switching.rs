@@ -324,18 +324,29 @@ impl<'a> SwitchingInterval<'a> {
         acc.copper_loss_w += 1.5 * (k.r - k.r_switch) * i_sq * h;
     }
 
-    /// The currents out of the three legs with the phase currents `i` and the bus at `v_bus`: the phase currents
-    /// plus a short's share.
+    /// The currents out of the three legs with the phase currents `i` and the bus at `v_bus`
+    /// ([`currents_out_of_legs`]).
     fn leg_currents(&self, i: [f64; 3], v_bus: f64) -> [f64; 3] {
-        let mut legs_i = i;
-        if let Some(short) = self.short {
-            let s_end = short.leg_currents(self.inverter_legs.map(|l| l.a * v_bus + l.b));
-            for x in 0..3 {
-                legs_i[x] += s_end[x];
-            }
-        }
-        legs_i
+        currents_out_of_legs(self.short, &self.inverter_legs, i, v_bus)
     }
+}
+
+/// The currents out of the three legs driven as `inverter_legs` with the phase currents `i` and the bus at `v_bus`:
+/// the phase currents plus a short's share (the plant's integrator and the tests' reference integrator alike).
+pub(super) fn currents_out_of_legs(
+    short: Option<OutputShort>,
+    inverter_legs: &[LegDrive; 3],
+    i: [f64; 3],
+    v_bus: f64,
+) -> [f64; 3] {
+    let mut legs_i = i;
+    if let Some(short) = short {
+        let s_end = short.leg_currents(inverter_legs.map(|l| l.a * v_bus + l.b));
+        for x in 0..3 {
+            legs_i[x] += s_end[x];
+        }
+    }
+    legs_i
 }
 
 fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
