@@ -358,6 +358,29 @@ mod tests {
         l.observe(mv(v), Amps::ZERO, amps(LIMIT), 1);
     }
 
+    /// The limiter with the defaults but loss braking off (gain 0), to see the factor and the correction alone.
+    fn limiter_without_loss_braking() -> BusVoltageLimiter {
+        let mut d = Dictionary::new(1);
+        d.set(h::BUS_LIMITER_LOSS_BRAKING_GAIN, 0);
+        let mut l = BusVoltageLimiter::default();
+        l.refresh(&d);
+        l
+    }
+
+    /// Bus at the zero level (55 V), -6 A asked: the braking reference is zero; the current loop still brakes with
+    /// -3 A (a rotor the load accelerates), so half of it moves the reference to +1.5 A; then -1 A against +1.5 A
+    /// asked: 1.25 A more, +2.75 A. Each step asserted on the way.
+    fn lagging_braking_corrected_to_2_75_a() -> BusVoltageLimiter {
+        let mut l = limiter_without_loss_braking();
+        steady(&mut l, 55.0);
+        assert_eq!(l.limit(amps(-6.0), 1).q, Amps::ZERO);
+        l.observe(mv(55.0), amps(-3.0), amps(LIMIT), 1);
+        assert!(near(l.limit(amps(-6.0), 1).q, 1.5));
+        l.observe(mv(55.0), amps(-1.0), amps(LIMIT), 1);
+        assert!(near(l.limit(amps(-6.0), 1).q, 2.75));
+        l
+    }
+
     fn near(a: Amps, expected_a: f64) -> bool {
         (f64::from(a.to_milliamps()) / 1000.0 - expected_a).abs() <= 0.002
     }
@@ -407,15 +430,11 @@ mod tests {
     #[test]
     fn a_braking_q_current_falls_to_zero_across_the_band() {
         // Defaults: zero at 55 V, band 2 V; loss braking off (gain 0) to see the factor alone.
-        let mut d = Dictionary::new(1);
-        d.set(h::BUS_LIMITER_LOSS_BRAKING_GAIN, 0);
-        let mut l = BusVoltageLimiter::default();
-        l.refresh(&d);
+        let mut l = limiter_without_loss_braking();
         steady(&mut l, 53.0);
         assert_eq!(l.limit(amps(-4.0), 1).q, amps(-4.0));
         // A bus that stands at 54 V from the start (a step up would be looked ahead by, a step down released slowly).
-        let mut l = BusVoltageLimiter::default();
-        l.refresh(&d);
+        let mut l = limiter_without_loss_braking();
         steady(&mut l, 54.0);
         assert!(near(l.limit(amps(-4.0), 1).q, -2.0));
         assert!(l.braking_limited());
@@ -434,10 +453,7 @@ mod tests {
 
     #[test]
     fn the_factor_is_given_back_an_eighth_per_sample_after_the_bus_left_the_band() {
-        let mut d = Dictionary::new(1);
-        d.set(h::BUS_LIMITER_LOSS_BRAKING_GAIN, 0);
-        let mut l = BusVoltageLimiter::default();
-        l.refresh(&d);
+        let mut l = limiter_without_loss_braking();
         steady(&mut l, 55.0);
         assert_eq!(l.limit(amps(-8.0), 1).q, Amps::ZERO);
         // 8 A braking on the bus at 40 V: 1, 2, ... 7 A, then 8 A untouched (the limiter off).
@@ -455,18 +471,7 @@ mod tests {
     #[test]
     fn a_braking_current_that_lags_its_reduced_reference_moves_the_reference_toward_driving() {
         // Defaults without loss braking; bus at the zero level: a braking q reference becomes zero.
-        let mut d = Dictionary::new(1);
-        d.set(h::BUS_LIMITER_LOSS_BRAKING_GAIN, 0);
-        let mut l = BusVoltageLimiter::default();
-        l.refresh(&d);
-        steady(&mut l, 55.0);
-        assert_eq!(l.limit(amps(-6.0), 1).q, Amps::ZERO);
-        // The current loop still brakes with -3 A (a rotor the load accelerates): half of it moves the reference.
-        l.observe(mv(55.0), amps(-3.0), amps(LIMIT), 1);
-        assert!(near(l.limit(amps(-6.0), 1).q, 1.5));
-        // Still -1 A against +1.5 A asked: 1.25 A more.
-        l.observe(mv(55.0), amps(-1.0), amps(LIMIT), 1);
-        assert!(near(l.limit(amps(-6.0), 1).q, 2.75));
+        let mut l = lagging_braking_corrected_to_2_75_a();
         // The measured current follows (+2.75 A): the correction holds; a current above its reference takes it back.
         l.observe(mv(55.0), amps(2.75), amps(LIMIT), 1);
         assert!(near(l.limit(amps(-6.0), 1).q, 2.75));
@@ -499,16 +504,7 @@ mod tests {
         // 40 V: the factor grows by an eighth and the correction falls by an eighth of the 10 A limit per sample, so
         // the braking reference comes back in steps of at most 0.75 + 1.25 A, not all at once (module
         // documentation, "Release": the loops' full braking at once lifted the geared preset's bus to the trip).
-        let mut d = Dictionary::new(1);
-        d.set(h::BUS_LIMITER_LOSS_BRAKING_GAIN, 0);
-        let mut l = BusVoltageLimiter::default();
-        l.refresh(&d);
-        steady(&mut l, 55.0);
-        assert_eq!(l.limit(amps(-6.0), 1).q, Amps::ZERO);
-        l.observe(mv(55.0), amps(-3.0), amps(LIMIT), 1);
-        assert!(near(l.limit(amps(-6.0), 1).q, 1.5));
-        l.observe(mv(55.0), amps(-1.0), amps(LIMIT), 1);
-        assert!(near(l.limit(amps(-6.0), 1).q, 2.75));
+        let mut l = lagging_braking_corrected_to_2_75_a();
         // 1/8 x -6 + (2.75 - 1.25) = +0.75 A; 2/8 x -6 + 0.25 = -1.25 A; 3/8 x -6 + 0 = -2.25 A.
         for expected in [0.75, -1.25, -2.25] {
             l.observe(mv(40.0), Amps::ZERO, amps(LIMIT), 1);
@@ -523,10 +519,7 @@ mod tests {
         // The reduction begins at speed 1,000 (any unit: only the ratio counts) with the bus at 54 V (factor one
         // half); the load throws the rotor to 2,000 and 4,000 with the bus where it was: a quarter, an eighth of
         // the braking current, the same braking power (module documentation, "Power, not current").
-        let mut d = Dictionary::new(1);
-        d.set(h::BUS_LIMITER_LOSS_BRAKING_GAIN, 0);
-        let mut l = BusVoltageLimiter::default();
-        l.refresh(&d);
+        let mut l = limiter_without_loss_braking();
         l.observe(mv(54.0), Amps::ZERO, amps(LIMIT), 1000);
         l.observe(mv(54.0), Amps::ZERO, amps(LIMIT), 1000);
         assert!(near(l.limit(amps(-8.0), 1000).q, -4.0));
