@@ -36,6 +36,15 @@ from can_common import Fail, connect, emit, main, parser
 MASTER_HB_ID = 127
 
 
+def map_synchronous(pdo, variables):
+    """Maps `variables` ((index,) or (index, subindex) each) into `pdo`, synchronous (transmission type 1), enabled."""
+    pdo.clear()
+    for variable in variables:
+        pdo.add_variable(*variable)
+    pdo.trans_type = 1
+    pdo.enabled = True
+
+
 def configure(node, tpdo_fe, period_us, tpdo_sensors=False, ssi=False):
     if ssi:
         # The SSI absolute encoder as the only sensor (IDX 0x3000:01 sensor 2 type 3), written in PRE-OPERATIONAL with
@@ -47,38 +56,15 @@ def configure(node, tpdo_fe, period_us, tpdo_sensors=False, ssi=False):
     for pdo in (node.rpdo, node.tpdo):
         for n in range(1, 5):
             pdo[n].enabled = False
-    r = node.rpdo[1]
-    r.clear()
-    r.add_variable(0x6040)
-    r.add_variable(0x607A)
-    r.trans_type = 1
-    r.enabled = True
-    t = node.tpdo[1]
-    t.clear()
-    t.add_variable(0x6041)
-    t.add_variable(0x6064)
-    t.trans_type = 1
-    t.enabled = True
+    map_synchronous(node.rpdo[1], [(0x6040,), (0x607A,)])
+    map_synchronous(node.tpdo[1], [(0x6041,), (0x6064,)])
     if tpdo_fe:
-        t2 = node.tpdo[2]
-        t2.clear()
-        t2.add_variable(0x60F4)
-        t2.trans_type = 1
-        t2.enabled = True
+        map_synchronous(node.tpdo[2], [(0x60F4,)])
     if tpdo_sensors:
         # The positions of sensor 1 (motor encoder) and sensor 2 (load encoder, the dual loop's main sensor).
-        t3 = node.tpdo[3]
-        t3.clear()
-        t3.add_variable(0x60E4, 1)
-        t3.add_variable(0x60E4, 2)
-        t3.trans_type = 1
-        t3.enabled = True
+        map_synchronous(node.tpdo[3], [(0x60E4, 1), (0x60E4, 2)])
     if ssi:
-        t4 = node.tpdo[4]
-        t4.clear()
-        t4.add_variable(0x3012, 9)
-        t4.trans_type = 1
-        t4.enabled = True
+        map_synchronous(node.tpdo[4], [(0x3012, 9)])
     node.rpdo.save()
     node.tpdo.save()
     # Read back what the node holds now.

@@ -9,7 +9,7 @@ use super::coeffs::Coeffs;
 use super::electrical::{abc_to_dq, back_emf, dq_to_abc, open_phase_terminal, rk4, LegDrive, SegmentAngle};
 use super::inverter::{LegPattern, OutputShort};
 use super::mechanics::ShaftSegment;
-use super::switching::{currents_out_of_legs, drive_floating_legs, legs_at, stopped_phases};
+use super::switching::{accumulate_leg_averages, currents_out_of_legs, drive_floating_legs, legs_at, stopped_phases};
 use super::{PeriodAverages, Plant};
 
 impl Plant {
@@ -149,21 +149,10 @@ impl SwitchingSegment<'_> {
         i0: [f64; 3],
         i1: [f64; 3],
     ) {
-        let (k, legs, inverter_legs) = (self.k, self.legs, self.inverter_legs);
+        let k = self.k;
         let v_mid = 0.5 * (s0[4] + s1[4]);
-        let mut poles = [0.0; 3];
-        for x in 0..3 {
-            let i_mid = 0.5 * (i0[x] + i1[x]);
-            poles[x] = inverter_legs[x].a * v_mid + inverter_legs[x].b - k.r_switch * i_mid;
-            acc.pole_voltage_v[x] += poles[x] * h;
-            acc.bus_current_a += legs[x].c * i_mid * h;
-        }
-        if let Some(short) = self.short {
-            let s_mid = short.leg_currents(inverter_legs.map(|l| l.a * v_mid + l.b));
-            for x in 0..3 {
-                acc.bus_current_a += inverter_legs[x].c * s_mid[x] * h;
-            }
-        }
+        let poles =
+            accumulate_leg_averages(acc, h, k.r_switch, &self.legs, &self.inverter_legs, self.short, v_mid, i0, i1);
         let (sn, cs) = self.angle.sin_cos_at(k.p * 0.5 * (s0[3] + s1[3]));
         let vdq = abc_to_dq(poles, sn, cs);
         acc.dq_voltage_v[0] += vdq[0] * h;

@@ -301,21 +301,10 @@ impl<'a> SwitchingInterval<'a> {
         i1: [f64; 3],
         mid: (f64, f64),
     ) {
-        let (k, legs, inverter_legs) = (self.k, self.legs, self.inverter_legs);
+        let k = self.k;
         let v_mid = 0.5 * (s0[2] + s1[2]);
-        let mut poles = [0.0; 3];
-        for x in 0..3 {
-            let i_mid = 0.5 * (i0[x] + i1[x]);
-            poles[x] = inverter_legs[x].a * v_mid + inverter_legs[x].b - k.r_switch * i_mid;
-            acc.pole_voltage_v[x] += poles[x] * h;
-            acc.bus_current_a += legs[x].c * i_mid * h;
-        }
-        if let Some(short) = self.short {
-            let s_mid = short.leg_currents(inverter_legs.map(|l| l.a * v_mid + l.b));
-            for x in 0..3 {
-                acc.bus_current_a += inverter_legs[x].c * s_mid[x] * h;
-            }
-        }
+        let poles =
+            accumulate_leg_averages(acc, h, k.r_switch, &self.legs, &self.inverter_legs, self.short, v_mid, i0, i1);
         let vdq = park(clarke(poles), mid.0, mid.1);
         acc.dq_voltage_v[0] += vdq[0] * h;
         acc.dq_voltage_v[1] += vdq[1] * h;
@@ -329,6 +318,38 @@ impl<'a> SwitchingInterval<'a> {
     fn leg_currents(&self, i: [f64; 3], v_bus: f64) -> [f64; 3] {
         currents_out_of_legs(self.short, &self.inverter_legs, i, v_bus)
     }
+}
+
+/// Adds the pole voltages and the bus current of an interval of length `h` to the period integrals `acc`, with the
+/// bus at `v_mid` and the phase currents `i0`, `i1` at its ends (trapezoidal), the legs driven as `legs` (phase
+/// currents) and `inverter_legs` (a short's share); returns the pole voltages at the midpoint (the plant's
+/// integrator and the tests' reference integrator alike).
+#[allow(clippy::too_many_arguments)]
+pub(super) fn accumulate_leg_averages(
+    acc: &mut PeriodAverages,
+    h: f64,
+    r_switch: f64,
+    legs: &[LegDrive; 3],
+    inverter_legs: &[LegDrive; 3],
+    short: Option<OutputShort>,
+    v_mid: f64,
+    i0: [f64; 3],
+    i1: [f64; 3],
+) -> [f64; 3] {
+    let mut poles = [0.0; 3];
+    for x in 0..3 {
+        let i_mid = 0.5 * (i0[x] + i1[x]);
+        poles[x] = inverter_legs[x].a * v_mid + inverter_legs[x].b - r_switch * i_mid;
+        acc.pole_voltage_v[x] += poles[x] * h;
+        acc.bus_current_a += legs[x].c * i_mid * h;
+    }
+    if let Some(short) = short {
+        let s_mid = short.leg_currents(inverter_legs.map(|l| l.a * v_mid + l.b));
+        for x in 0..3 {
+            acc.bus_current_a += inverter_legs[x].c * s_mid[x] * h;
+        }
+    }
+    poles
 }
 
 /// The currents out of the three legs driven as `inverter_legs` with the phase currents `i` and the bus at `v_bus`:
