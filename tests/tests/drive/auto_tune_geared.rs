@@ -4,9 +4,8 @@
 //! auto-tuning's elastic design (`firmware::drive::tuning`, "Position loop"), and the scenarios of issue 18 "What
 //! it must show" on that plant, scaled as `drive-sim --plant` scales them.
 //!
-//! Each bound is the figure reached (seed 1) plus a tolerance stated at the assertion; the rigid rule the elastic
-//! design replaces (`Kp = Kd wc / 4`) gave a CSP peak of 290 increments, rms 157 and 88 left after the move, so
-//! the CSP bounds fail without it.
+//! The CSP bounds are the issue's; the others the figure reached (seed 1) plus a tolerance stated at the
+//! assertion.
 
 use hal_sim::plant::PlantParams;
 use hal_sim::scenarios::identification::{self, Outcome};
@@ -25,19 +24,17 @@ fn auto_tuned(params: &PlantParams) -> identification::Parameters {
     run.parameters
 }
 
-/// CSP (4 revolutions up to 1,200 rpm, jerk-limited, 1 ms set-points): following error peak 190 increments
-/// (13.7 deg of the motor shaft; the issue asks 3 deg = 41.7, out of reach of the motor-side design's D gain, see
-/// `firmware::drive::tuning`), rms 63.6, 34 increments 20 ms after the last set-point. Tolerances: the largest
-/// figure of seeds 1..3 (`drive-sim csp --plant ... --auto-tune --seed N`: peak 115 to 190, rms 58.8 to 64.3,
-/// settle 29 to 34) +10 %: the seed moves the identified inertia and resonance pair the gains come from, and
-/// where the motor stops in the backlash under stiction. These figures are worse than the 84 to 112 / 39.5 to 49.0
-/// / 11 to 20 reached while the identification counted its run-up from rest: that made the inertia 5 to 11 % high,
-/// near what the motor needs while it drives the load through the 90 % gear (+10.4 %); with the total inertia right
-/// (-1.3 % on seed 1) the acceleration feed-forward `J / kt` is about 10 % short while the motor drives and 9 % long
-/// while the load drives it back, the likely cause (not measured apart from the gains' own change). The velocity step (100 rpm x
-/// 0.4): overshoot <= 15 % (the issue's). The current step: overshoot <= 10 % (the issue's).
+/// CSP (4 revolutions up to 1,200 rpm x 0.4, jerk-limited, 1 ms set-points), the issue's figures: following error
+/// peak <= 3 deg of the motor shaft (41.7 increments at 5,000 counts/rev; reached 23) and within +-1 increment 20 ms
+/// after the last set-point (reached 0); rms <= 10.3 (the largest of seeds 1..3, `drive-sim csp --plant ...
+/// --auto-tune --seed N`: 8.0 to 9.4, +10 % for the seed's identified inertia and resonance pair the gains come
+/// from). The elastic design's `Kp` (`firmware::drive::tuning`, "Position loop": the servo twice as stiff as the
+/// coupling) makes these; the former rule (`Kp` at 0.54 x the anti-resonance) gave 115 to 190 / 25 to 34 left, so
+/// the bounds fail without it. Seeds 4 and 6, whose identified inertia is 5 to 6 % low, reach 39 to 42 and leave 5
+/// to 6 increments (not asserted; the design's documentation says so). The velocity step (100 rpm x 0.4):
+/// overshoot <= 15 % (the issue's). The current step: overshoot <= 10 % (the issue's).
 #[test]
-fn auto_tuned_geared_axis_follows_csp_within_its_reached_figures() {
+fn auto_tuned_geared_axis_follows_csp_within_3_degrees_and_settles_within_1_increment() {
     let params = geared();
     let parameters = auto_tuned(&params);
     let (csp, velocity, step) = scenarios::with_plant(params, || {
@@ -56,9 +53,10 @@ fn auto_tuned_geared_axis_follows_csp_within_its_reached_figures() {
             (csp, velocity, step)
         })
     });
-    assert!(csp.following_error_peak_inc <= 190.0 * 1.1, "csp peak {} inc", csp.following_error_peak_inc);
-    assert!(csp.following_error_rms_inc <= 64.3 * 1.1, "csp rms {} inc", csp.following_error_rms_inc);
-    assert!(csp.settle_error_inc <= 34.0 * 1.1, "csp settle {} inc", csp.settle_error_inc);
+    let three_degrees_inc = 3.0 / 360.0 * 5000.0;
+    assert!(csp.following_error_peak_inc <= three_degrees_inc, "csp peak {} inc", csp.following_error_peak_inc);
+    assert!(csp.following_error_rms_inc <= 9.4 * 1.1, "csp rms {} inc", csp.following_error_rms_inc);
+    assert!(csp.settle_error_inc <= 1.0, "csp settle {} inc", csp.settle_error_inc);
     assert!(velocity.overshoot_pct <= 15.0, "csv step overshoot {} %", velocity.overshoot_pct);
     assert!(step.overshoot_pct <= 10.0, "current step overshoot {} %", step.overshoot_pct);
 }
