@@ -50,6 +50,17 @@
 //!   adaptation's accelerations include the friction's share) doubles its current, and blocks in which the shaft
 //!   stood count in no fit (static friction is not `Tc sign(w)`).
 //!
+//! - Friction split: the relay's speed sweeps between its two reversals, so the fit separates the Coulomb term
+//!   from the viscous one only as far as the friction it saw depends on the speed. On a servo axis at a fraction
+//!   of its rated speed the Coulomb part dominates (reference plant: the fitted viscous torque at the relay's mean
+//!   speed, 700 rpm, is 0.20 to 0.25 mNm against 2.9 mNm of Coulomb friction). Where the fit puts more than a quarter of the Coulomb friction into the
+//!   viscous term at that speed ([`VISCOUS_SHARE_DIVISOR`]), in either sign, it has split a friction it did not
+//!   resolve: on the geared preset, whose gear losses and backlash change with the relay's phase, seeds 1 to 6
+//!   gave B from -57 to +200 x the plant's (Coulomb 0.004 to 0.040 Nm), while the sum at the relay's mean speed
+//!   stayed within 0.0287 to 0.0328 Nm. The drive then keeps that sum as Coulomb friction and B = 0: the velocity
+//!   feed-forwards `B / kt` (0x30A1:04, 0x30A2:03) pushed the geared CSP 39 to 42 increments off its path with
+//!   the large B of seeds 4 and 6 (1.8 to 2.1 A of feed-forward at the move's 980 rpm), 26 and 25 with B = 0.
+//!
 //! Each fit accumulates its normal equations in `i128` ([`Regression3`]) and is solved once at the end by
 //! Cramer's rule on the equations scaled to 40 bits. Cost per slow tick: a few dozen 64-bit products; the solve
 //! at the end, spread over three slow ticks: 3 x 4 determinants of the scaled equations (64 x 64-bit minors, one
@@ -62,6 +73,9 @@ use crate::control::wide;
 /// Ticks per block of the mechanical fit (3.2 ms at 2.5 kHz): long enough that the second difference of the
 /// position is many counts, short enough for many equations per half cycle.
 pub const BLOCK_TICKS: u32 = 8;
+/// The viscous torque at the relay's mean speed may be at most the Coulomb friction over this, else the fit's
+/// split of the friction is not kept (module documentation, "Friction split").
+pub const VISCOUS_SHARE_DIVISOR: i64 = 4;
 /// Ticks over which the speed for the relay and the limit is a position difference (3.2 ms).
 pub const SPEED_TICKS: u32 = 8;
 /// Ticks the probe holds one current level before it doubles it (100 ms).
@@ -727,6 +741,7 @@ impl MechanicalIdentification {
         if sat_mul(coulomb.saturating_abs(), 65_536).max(viscous_torque) >= relay_torque {
             return None;
         }
+        let (coulomb, viscous) = split_friction(coulomb, viscous, relay_speed_rpm);
         let clamp_u32 = |x: i64| u32::try_from(x.max(0)).unwrap_or(u32::MAX);
         Some(MechanicalResult {
             torque_constant: u32::try_from(kt).unwrap_or(u32::MAX),
@@ -740,6 +755,20 @@ impl MechanicalIdentification {
             relay_speed_rpm,
             ticks: self.ticks,
         })
+    }
+}
+
+/// The fitted Coulomb (uNm) and viscous (0.001 uNm/rpm) friction as the drive keeps them (module documentation,
+/// "Friction split"): as fitted while the viscous torque at the relay's mean speed (half `relay_speed_rpm`) is at
+/// most a quarter of the Coulomb friction ([`VISCOUS_SHARE_DIVISOR`]), else `(Tc + B w_mean, 0)`: the friction the
+/// relay saw, all of it Coulomb.
+fn split_friction(coulomb: i64, viscous: i64, relay_speed_rpm: u32) -> (i64, i64) {
+    // B [0.001 uNm/rpm] x w_mean [rpm] / 1000 = uNm.
+    let viscous_torque = sat_mul(viscous, i64::from(relay_speed_rpm / 2)) / 1000;
+    if sat_mul(viscous_torque.saturating_abs(), VISCOUS_SHARE_DIVISOR) > coulomb {
+        (coulomb.saturating_add(viscous_torque), 0)
+    } else {
+        (coulomb, viscous)
     }
 }
 

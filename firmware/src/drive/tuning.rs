@@ -80,7 +80,7 @@
 //!
 //! Measured with `drive-sim csp --plant hal-sim/presets/geared-36v.toml --auto-tune --seed N` (seeds 1..3;
 //! following error peak / rms / left 20 ms after the last set-point, increments at 5,000 counts/rev):
-//! - this design: 22 to 23 / 8.0 to 9.4 / 0 to 2;
+//! - this design: 23 / 8.0 to 8.3 / 0 to 1 (seeds 4 to 6: 23 to 26 / 8.2 to 10.0 / 0 to 1);
 //! - the former rule `Kp = 3 Kd wc` with the motor-side `Kd` (`Kp` crossing over at 0.54 `w_ar`): 115 to 190 /
 //!   54 to 64 / 25 to 34. The motor and the load then swing together near the anti-resonance, and every change
 //!   of acceleration rings the coupling into the motor's path;
@@ -92,17 +92,11 @@
 //!   at 1.5; 3.25 x it with `Kp` at 1.7 `w_ar` leaves 5 to 6, and 4 x it with 1.9 `w_ar` rings (27 to 59 left).
 //!
 //! On variants of the preset (seed 1; peak / left, the former rule's in brackets): a 7:1 gear 18 / 4 (30 / 4), half
-//! the load inertia 14 / 2 (47 / 6), a coupling twice as stiff (85 / 21 Hz) 45 / 4 (359 / 122), a load of 3 x the
+//! the load inertia 14 / 1 (47 / 6), a coupling twice as stiff (85 / 21 Hz) 36 / 1 (359 / 122), a load of 3 x the
 //! reflected rotor (rho 4) 15 / 3 (12 / 3); a coupling half as stiff (42 / 10.6 Hz) 64 / 13 (102 / 2), the one
-//! variant left worse after the move. Seeds 4 and 6 of the preset, whose identified inertia is 5 to 6 % low (so
-//! are `Kp` and the acceleration feed-forward `J / kt`), reach 39 to 42 / 5 to 6.
-//!
-//! On variants of the preset (same seeds, peak / left): a 7:1 gear 18 / 4 (former rule 30 / 4 to 7), half the
-//! load inertia 14 / 2 (47 / 5 to 6), a coupling twice as stiff (85 / 21 Hz) 45 / 4 (359 to 429 / 122 to 159), a
-//! load of 3 x the reflected rotor (rho 4) 15 / 3 (12 / 3); a coupling half as stiff (42 / 10.6 Hz) 64 / 13
-//! against the former 102 / 2, the one variant left worse after the move. Seeds 4 and 6 of the preset, whose
-//! identified inertia is 5 to 6 % low (so are `Kp` and the acceleration feed-forward `J / kt`), reach 39 to 42 / 5
-//! to 6.
+//! variant left worse after the move. The figures of seeds 2 to 6 and of the variants count the identification's
+//! friction split (`super::mechanical_identification`, "Friction split"), without which the viscous friction of
+//! seeds 4 and 6 came out 175 to 200 x the plant's and their velocity feed-forward held them 39 to 42 / 5 to 6.
 //!
 //! # Dual loop's main loop (0x30AE:01..03, EPOS4 AN ch. 10.4; S1 L9149-9190, Tab. 10-94/10-96)
 //! In the dual loop (0x3000:02 = 0x04021111) the load encoder closes a proportional loop whose output is the

@@ -26,12 +26,11 @@ fn auto_tuned(params: &PlantParams) -> identification::Parameters {
 
 /// CSP (4 revolutions up to 1,200 rpm x 0.4, jerk-limited, 1 ms set-points), the figures: following error
 /// peak <= 3 deg of the motor shaft (41.7 increments at 5,000 counts/rev; reached 23) and within +-1 increment 20 ms
-/// after the last set-point (reached 0); rms <= 10.3 (the largest of seeds 1..3, `drive-sim csp --plant ...
-/// --auto-tune --seed N`: 8.0 to 9.4, +10 % for the seed's identified inertia and resonance pair the gains come
-/// from). The elastic design's `Kp` (`firmware::drive::tuning`, "Position loop": the servo twice as stiff as the
-/// coupling) makes these; the former rule (`Kp` at 0.54 x the anti-resonance) gave 115 to 190 / 25 to 34 left, so
-/// the bounds fail without it. Seeds 4 and 6, whose identified inertia is 5 to 6 % low, reach 39 to 42 and leave 5
-/// to 6 increments (not asserted; the design's documentation says so). The velocity step (100 rpm x 0.4):
+/// after the last set-point (reached 0); rms <= 11 (the largest of seeds 1..6, `drive-sim csp --plant ...
+/// --auto-tune --seed N`: peak 23 to 26, rms 8.0 to 10.0, 0 to 1 left; +10 % for the seed's identified inertia
+/// and resonance pair the gains come from). The elastic design's `Kp` (`firmware::drive::tuning`, "Position loop":
+/// the servo twice as stiff as the coupling) makes these; the former rule (`Kp` at 0.54 x the anti-resonance) gave
+/// 115 to 190 / 25 to 34 left, so the bounds fail without it. The velocity step (100 rpm x 0.4):
 /// overshoot <= 15 % (the issue's). The current step: overshoot <= 10 % (the issue's).
 #[test]
 fn auto_tuned_geared_axis_follows_csp_within_3_degrees_and_settles_within_1_increment() {
@@ -55,8 +54,39 @@ fn auto_tuned_geared_axis_follows_csp_within_3_degrees_and_settles_within_1_incr
     });
     let three_degrees_inc = 3.0 / 360.0 * 5000.0;
     assert!(csp.following_error_peak_inc <= three_degrees_inc, "csp peak {} inc", csp.following_error_peak_inc);
-    assert!(csp.following_error_rms_inc <= 9.4 * 1.1, "csp rms {} inc", csp.following_error_rms_inc);
+    assert!(csp.following_error_rms_inc <= 10.0 * 1.1, "csp rms {} inc", csp.following_error_rms_inc);
     assert!(csp.settle_error_inc <= 1.0, "csp settle {} inc", csp.settle_error_inc);
     assert!(velocity.overshoot_pct <= 15.0, "csv step overshoot {} %", velocity.overshoot_pct);
     assert!(step.overshoot_pct <= 10.0, "current step overshoot {} %", step.overshoot_pct);
+}
+
+/// Seed 4 of the geared preset, whose relay fit put 175 x the plant's viscous friction and a quarter of its Coulomb
+/// friction into the split (`firmware::drive::mechanical_identification`, "Friction split"): kept, its velocity
+/// feed-forward (1.8 A at the move's 980 rpm) held the CSP 39 increments off its path and 5 from the target; with
+/// the split folded into Coulomb friction the 3 deg (41.7 increments; reached 26) and +-1 increment
+/// (reached 0) hold, as on seed 1. 0x30A1:04 (the velocity feed-forward `B / kt`) is 0.
+#[test]
+fn an_unresolved_friction_split_leaves_no_velocity_feed_forward_and_seed_4_follows_csp_within_3_degrees() {
+    let params = geared();
+    let run = identification::identify(&params, 4, |_| {});
+    assert_eq!(run.outcome, Outcome::Done, "identification finished");
+    let ff_velocity = run.parameters.values.iter().find(|(index, sub, _)| *index == 0x30A1 && *sub == 4);
+    assert_eq!(ff_velocity.map(|(_, _, data)| data.as_slice()), Some(&[0u8, 0, 0, 0][..]), "0x30A1:04");
+    let csp = scenarios::with_plant(params, || {
+        scenarios::with_parameters(run.parameters, || {
+            let sc = PlantScale::current_plant();
+            let d = motion::CspConfig::default();
+            let config = motion::CspConfig {
+                seed: 4,
+                revolutions: d.revolutions * sc.speed,
+                max_rpm: d.max_rpm * sc.speed,
+                peak_rpm_per_s: d.peak_rpm_per_s * sc.speed,
+                ..d
+            };
+            motion::csp(&config).expect("csp").0
+        })
+    });
+    let three_degrees_inc = 3.0 / 360.0 * 5000.0;
+    assert!(csp.following_error_peak_inc <= three_degrees_inc, "csp peak {} inc", csp.following_error_peak_inc);
+    assert!(csp.settle_error_inc <= 1.0, "csp settle {} inc", csp.settle_error_inc);
 }

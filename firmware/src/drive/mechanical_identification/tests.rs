@@ -613,3 +613,19 @@ fn the_run_up_from_rest_adds_nothing_to_the_mechanical_fit() {
     );
     assert_eq!(id.mechanical, [Regression3::default(); 2], "equations of the run-up in the mechanical fit");
 }
+
+/// Friction split (module documentation): a fit whose viscous torque at the relay's mean speed is at most a
+/// quarter of its Coulomb friction is kept as it is (the reference plant's: 2,957 uNm and 282 x 0.001 uNm/rpm at
+/// a 1,400 rpm relay, 0.20 mNm at 700 rpm); a larger share, in either sign, becomes all Coulomb friction, the sum
+/// at the mean speed (the geared preset's seed 4: 6,863 uNm + 182,614 x 116 / 1000 = 28,046 uNm, B 0; a negative
+/// B likewise: 20,000 - 80,000 x 116 / 1000 = 10,720 uNm).
+#[test]
+fn a_viscous_share_the_relay_could_not_resolve_is_kept_as_coulomb_friction() {
+    assert_eq!(split_friction(2_957, 282, 1_400), (2_957, 282));
+    assert_eq!(split_friction(6_863, 182_614, 232), (28_046, 0));
+    assert_eq!(split_friction(20_000, -80_000, 232), (10_720, 0));
+    // At the limit: 4 x 5,000 uNm of viscous torque at 500 rpm (B = 10,000) against 20,000 uNm is kept, one more
+    // uNm of it is not.
+    assert_eq!(split_friction(20_000, 10_000, 1_000), (20_000, 10_000));
+    assert_eq!(split_friction(20_000, 10_002, 1_000), (25_001, 0));
+}
