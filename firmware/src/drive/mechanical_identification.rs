@@ -53,13 +53,14 @@
 //! - Friction split: the relay's speed sweeps between its two reversals, so the fit separates the Coulomb term
 //!   from the viscous one only as far as the friction it saw depends on the speed. On a servo axis at a fraction
 //!   of its rated speed the Coulomb part dominates (reference plant: the fitted viscous torque at the relay's mean
-//!   speed, 700 rpm, is 0.20 to 0.25 mNm against 2.9 mNm of Coulomb friction). Where the fit puts more than a quarter of the Coulomb friction into the
-//!   viscous term at that speed ([`VISCOUS_SHARE_DIVISOR`]), in either sign, it has split a friction it did not
-//!   resolve: on the geared preset, whose gear losses and backlash change with the relay's phase, seeds 1 to 6
-//!   gave B from -57 to +200 x the plant's (Coulomb 0.004 to 0.040 Nm), while the sum at the relay's mean speed
-//!   stayed within 0.0287 to 0.0328 Nm. The drive then keeps that sum as Coulomb friction and B = 0: the velocity
-//!   feed-forwards `B / kt` (0x30A1:04, 0x30A2:03) pushed the geared CSP 39 to 42 increments off its path with
-//!   the large B of seeds 4 and 6 (1.8 to 2.1 A of feed-forward at the move's 980 rpm), 26 and 25 with B = 0.
+//!   speed, 700 rpm, is 0.20 to 0.25 mNm against 2.9 mNm of Coulomb friction). Where the fit puts more than a
+//!   quarter of the Coulomb friction into the viscous term at that speed ([`VISCOUS_SHARE_DIVISOR`]), in either
+//!   sign, it has split a friction it did not resolve: on the geared preset, whose gear losses and backlash change
+//!   with the relay's phase, seeds 1 to 6 gave B from -57 to +200 x the plant's (Coulomb 0.004 to 0.040 Nm), while
+//!   the sum at the relay's mean speed stayed within 0.0287 to 0.0328 Nm. The drive then keeps that sum as Coulomb
+//!   friction and B = 0: the velocity feed-forwards `B / kt` (0x30A1:04, 0x30A2:03) pushed the geared CSP 39 to 42
+//!   increments off its path with the large B of seeds 4 and 6 (1.8 to 2.1 A of feed-forward at the move's
+//!   980 rpm), 26 and 25 with B = 0.
 //!
 //! Each fit accumulates its normal equations in `i128` ([`Regression3`]) and is solved once at the end by
 //! Cramer's rule on the equations scaled to 40 bits. Cost per slow tick: a few dozen 64-bit products; the solve

@@ -68,9 +68,9 @@
 //! inertia J moves with the motor; above it the load swings on the coupling against the motor, and the motor holds
 //! its path only if the servo's stiffness `kt Kp` is well above the coupling's at the motor shaft,
 //! `J (1 - 1 / rho) w_ar^2` (the load's share of the inertia on its own frequency). So `Kp` is set by the
-//! anti-resonance, not by the velocity loop: `Kp = J (1.4 w_ar)^2 / kt` ([`ELASTIC_POSITION_CROSSOVER_OVER_ANTI_RESONANCE`]),
-//! `Kp` alone crossing over on J at 1.4 `w_ar`, a servo stiffness 1.96 rho / (rho - 1) times the coupling's
-//! (2.09 on the geared preset). `Kd` is twice the motor-side design `J_motor wc_s / kt`
+//! anti-resonance, not by the velocity loop: `Kp = J (1.4 w_ar)^2 / kt`
+//! ([`ELASTIC_POSITION_CROSSOVER_OVER_ANTI_RESONANCE`]), `Kp` alone crossing over on J at 1.4 `w_ar`, a servo
+//! stiffness 1.96 rho / (rho - 1) times the coupling's (2.09 on the geared preset). `Kd` is twice the motor-side design `J_motor wc_s / kt`
 //! ([`ELASTIC_POSITION_D_OVER_MOTOR_SIDE`]; `wc_s` is the crossover of the requested stiffness): it damps `Kp` on
 //! J with `zeta = kt Kd / (2 J 1.4 w_ar)` = 0.24 on the geared preset, and puts the motor-side crossover at `2 wc_s`
 //! (its D part's fixed 390.61 rad/s filter, `control::position`, lies below it, so above the filter `Kd` acts as a
@@ -183,9 +183,9 @@ const POSITION_PROPORTIONAL_RATIO: f32 = 4.0;
 const POSITION_INTEGRAL_RATIO: f32 = 3.5;
 /// Position PID, elastic load: `Kp = J (c w_ar)^2 / kt` with `c` this factor, the crossover of `Kp` alone on the
 /// total inertia over the anti-resonance (module documentation, "Position loop").
-const ELASTIC_POSITION_CROSSOVER_OVER_ANTI_RESONANCE: f32 = 1.4;
+pub const ELASTIC_POSITION_CROSSOVER_OVER_ANTI_RESONANCE: f32 = 1.4;
 /// Position PID, elastic load: `Kd` is this multiple of the motor-side design's (`J_motor wc_s / kt`).
-const ELASTIC_POSITION_D_OVER_MOTOR_SIDE: f32 = 2.0;
+pub const ELASTIC_POSITION_D_OVER_MOTOR_SIDE: f32 = 2.0;
 /// Position PID, elastic load: `Ki = Kp wc / 30`.
 const ELASTIC_POSITION_INTEGRAL_RATIO: f32 = 30.0;
 /// Dual loop, elastic load: `K_High` is the anti-resonance (rad/s) divided by this (module documentation, "Dual
