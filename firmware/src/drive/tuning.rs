@@ -89,7 +89,7 @@
 //!   1.35: 24 to 25, at 1.5: 21 to 22; at 1.6 (9 x the former `Kp`) 4 to 12 increments are left after the move
 //!   with `Kd` up to twice the motor-side design;
 //! - `Kd` of the motor-side design alone (zeta 0.12): peak 25 to 36 at 1.35 to 1.5 `w_ar`, and 6 increments left
-//!   at 1.5; 3.25 x it with `Kp` at 1.7 `w_ar` leaves 5 to 6, and 4 x it with 1.9 `w_ar` rings (27 to 59 left).
+//!   at 1.5; 3.25 x it with `Kp` at 1.7 `w_ar` leaves 5 to 6, and 4 x it with 2.1 `w_ar` rings (27 to 59 left).
 //!
 //! On variants of the preset (seed 1; peak / left, the former rule's in brackets): a 7:1 gear 18 / 4 (30 / 4), half
 //! the load inertia 14 / 1 (47 / 6), a coupling twice as stiff (85 / 21 Hz) 36 / 1 (359 / 122), a load of 3 x the
