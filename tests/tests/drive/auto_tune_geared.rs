@@ -60,7 +60,7 @@ fn auto_tuned_geared_axis_follows_csp_within_3_degrees_and_settles_within_1_incr
     assert!(step.overshoot_pct <= 10.0, "current step overshoot {} %", step.overshoot_pct);
 }
 
-/// Seed 4 of the geared preset, whose relay fit put 175 x the plant's viscous friction and a quarter of its Coulomb
+/// Seed 4 of the geared preset, whose relay fit put 175 x the plant's viscous friction and 43 % of its Coulomb
 /// friction into the split (`firmware::drive::mechanical_identification`, "Friction split"): kept, its velocity
 /// feed-forward (1.8 A at the move's 980 rpm) held the CSP 39 increments off its path and 5 from the target; with
 /// the split folded into Coulomb friction the 3 deg (41.7 increments; reached 26) and +-1 increment
