@@ -8,6 +8,7 @@
 use core::f64::consts::PI;
 
 use firmware::hal::power::{Measurements, PwmCommand, PWM_PERIOD_TICKS};
+use hal_sim::plant::true_state_current_loop::TrueStateCurrentLoop;
 use hal_sim::plant::{Mechanics, Plant, PlantParams, PlantState, PERIOD_S};
 
 const ARR: f64 = PWM_PERIOD_TICKS as f64;
@@ -26,52 +27,10 @@ fn dead_time_error(p: &PlantParams, v_bus: f64) -> f64 {
     (v_bus + 2.0 * p.diode_drop_v) * p.dead_time_s / PERIOD_S
 }
 
-/// A dq current controller on the true currents (PI with back-EMF/cross decoupling, 1 kHz bandwidth) and
-/// min-max centred modulation; the voltage is rotated by the angle advance of one period, the delay from the sample
-/// to the middle of the period the duties act in.
-struct CurrentLoop {
-    kp: f64,
-    ki: f64,
-    int: [f64; 2],
-    p: PlantParams,
-}
-
-impl CurrentLoop {
-    fn new(p: &PlantParams) -> Self {
-        let wc = 2.0 * PI * 1000.0;
-        let r = p.phase_resistance_ohm + p.switch_resistance_ohm;
-        Self { kp: p.lq_h * wc, ki: r * wc, int: [0.0; 2], p: p.clone() }
-    }
-
-    fn update(&mut self, s: &PlantState, reference_dq: [f64; 2]) -> PwmCommand {
-        let p = &self.p;
-        let v_lim = s.bus_voltage_v / 3f64.sqrt();
-        let mut v = [0.0; 2];
-        for k in 0..2 {
-            let e = reference_dq[k] - s.i_dq_a[k];
-            self.int[k] = (self.int[k] + self.ki * PERIOD_S * e).clamp(-v_lim, v_lim);
-            v[k] = self.kp * e + self.int[k];
-        }
-        let we = s.omega_e_rad_s;
-        v[0] -= we * p.lq_h * s.i_dq_a[1];
-        v[1] += we * (p.ld_h * s.i_dq_a[0] + p.flux_linkage_wb);
-        let th = s.theta_e_rad + we * PERIOD_S;
-        let (sn, cs) = th.sin_cos();
-        let alpha = v[0] * cs - v[1] * sn;
-        let beta = v[0] * sn + v[1] * cs;
-        let mut ph = [alpha, -0.5 * alpha + 0.5 * 3f64.sqrt() * beta, -0.5 * alpha - 0.5 * 3f64.sqrt() * beta];
-        let mid = (ph.iter().cloned().fold(f64::MIN, f64::max) + ph.iter().cloned().fold(f64::MAX, f64::min)) / 2.0;
-        for x in ph.iter_mut() {
-            *x -= mid;
-        }
-        cmd(ph.map(|x| 0.5 + x / s.bus_voltage_v))
-    }
-}
-
 /// Run the current loop for `periods` periods, calling `observe` after each.
 fn run_current_loop(
     plant: &mut Plant,
-    ctl: &mut CurrentLoop,
+    ctl: &mut TrueStateCurrentLoop,
     reference_dq: [f64; 2],
     periods: usize,
     mut observe: impl FnMut(&Plant),
@@ -138,7 +97,7 @@ fn free_acceleration_with_constant_q_current_follows_kt_i_over_j() {
     // 0.5 % on average).
     let p = PlantParams::reference();
     let mut plant = Plant::new(p.clone(), 2);
-    let mut ctl = CurrentLoop::new(&p);
+    let mut ctl = TrueStateCurrentLoop::new(&p);
     let periods = 2500;
     let mut iq_sum = 0.0;
     run_current_loop(&mut plant, &mut ctl, [0.0, 2.0], periods, |pl| iq_sum += pl.state().i_dq_a[1]);
@@ -307,7 +266,7 @@ fn braking_regenerates_into_the_bus() {
     let run = |sinks: bool| -> (f64, f64, f64) {
         let p = PlantParams { source_sinks_current: sinks, ..PlantParams::reference() };
         let mut plant = Plant::new(p.clone(), 7);
-        let mut ctl = CurrentLoop::new(&p);
+        let mut ctl = TrueStateCurrentLoop::new(&p);
         while plant.state().omega_m_rad_s < 100.0 {
             run_current_loop(&mut plant, &mut ctl, [0.0, 2.0], 1, |_| {});
         }
@@ -340,7 +299,7 @@ fn disabled_outputs_freewheel_into_the_bus_then_block() {
     //    zero within 2 periods (di/dt about (V_bus + 2 V_d) / L = 150 A/ms), then stays exactly zero.
     let mut plant = Plant::new(p.clone(), 8);
     plant.lock_rotor(true);
-    let mut ctl = CurrentLoop::new(&p);
+    let mut ctl = TrueStateCurrentLoop::new(&p);
     run_current_loop(&mut plant, &mut ctl, [5.0, 0.0], 200, |_| {});
     assert!((plant.state().i_dq_a[0] - 5.0).abs() < 0.05);
     plant.step(&PwmCommand::OFF);
@@ -529,7 +488,7 @@ fn copper_losses_heat_the_winding() {
     let p = PlantParams::reference();
     let mut plant = Plant::new(p.clone(), 15);
     plant.lock_rotor(true);
-    let mut ctl = CurrentLoop::new(&p);
+    let mut ctl = TrueStateCurrentLoop::new(&p);
     run_current_loop(&mut plant, &mut ctl, [5.0, 0.0], 50_000, |_| {});
     let s = plant.state();
     let rise = s.winding_temp_c - 25.0;

@@ -141,6 +141,7 @@ pub mod sensors;
 mod sto;
 mod switching;
 mod thermal;
+pub mod true_state_current_loop;
 
 pub use file::PlantFileError;
 pub use io::{BrakeParams, InputSource, InputWiring, IoParams};

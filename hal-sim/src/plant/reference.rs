@@ -174,52 +174,8 @@ impl SwitchingSegment<'_> {
 /// the reference plant's true state, so the two see identical duties and any difference is the integration's.
 #[cfg(test)]
 mod tests {
-    use core::f64::consts::PI;
-
-    use firmware::hal::power::{PwmCommand, PWM_PERIOD_TICKS};
-
-    use crate::plant::{Mechanics, Plant, PlantParams, PlantState};
-
-    /// A dq current controller on the true currents (PI with back-EMF and cross decoupling, 1 kHz bandwidth) and
-    /// min-max centred modulation, as `hal-sim/tests/plant.rs` uses.
-    struct CurrentLoop {
-        kp: f64,
-        ki: f64,
-        int: [f64; 2],
-        p: PlantParams,
-    }
-
-    impl CurrentLoop {
-        fn new(p: &PlantParams) -> Self {
-            let wc = 2.0 * PI * 1000.0;
-            let r = p.phase_resistance_ohm + p.switch_resistance_ohm;
-            Self { kp: p.lq_h * wc, ki: r * wc, int: [0.0; 2], p: p.clone() }
-        }
-
-        fn update(&mut self, s: &PlantState, reference_dq: [f64; 2]) -> PwmCommand {
-            let p = &self.p;
-            let period = crate::plant::PERIOD_S;
-            let v_lim = s.bus_voltage_v / 3f64.sqrt();
-            let mut v = [0.0; 2];
-            for k in 0..2 {
-                let e = reference_dq[k] - s.i_dq_a[k];
-                self.int[k] = (self.int[k] + self.ki * period * e).clamp(-v_lim, v_lim);
-                v[k] = self.kp * e + self.int[k];
-            }
-            let we = s.omega_e_rad_s;
-            v[0] -= we * p.lq_h * s.i_dq_a[1];
-            v[1] += we * (p.ld_h * s.i_dq_a[0] + p.flux_linkage_wb);
-            let (sn, cs) = (s.theta_e_rad + we * period).sin_cos();
-            let alpha = v[0] * cs - v[1] * sn;
-            let beta = v[0] * sn + v[1] * cs;
-            let h = 0.5 * 3f64.sqrt();
-            let ph = [alpha, -0.5 * alpha + h * beta, -0.5 * alpha - h * beta];
-            let mid = 0.5 * (ph.iter().cloned().fold(f64::MIN, f64::max) + ph.iter().cloned().fold(f64::MAX, f64::min));
-            let arr = f64::from(PWM_PERIOD_TICKS);
-            let duty = ph.map(|x| ((0.5 + (x - mid) / s.bus_voltage_v).clamp(0.0, 1.0) * arr).round() as u16);
-            PwmCommand { duty, enabled: true }
-        }
-    }
+    use crate::plant::true_state_current_loop::TrueStateCurrentLoop;
+    use crate::plant::{Mechanics, Plant, PlantParams};
 
     /// The largest differences between the two integrators over a run, at the sample instants.
     #[derive(Debug, Default)]
@@ -252,7 +208,7 @@ mod tests {
         reference.set_reference_integration(true);
         setup(&mut fast);
         setup(&mut reference);
-        let mut ctl = CurrentLoop::new(params);
+        let mut ctl = TrueStateCurrentLoop::new(params);
         let mut cmd = ctl.update(&reference.state_at_sample(), reference_dq(0));
         let mut d = Deviation::default();
         for n in 0..periods {
