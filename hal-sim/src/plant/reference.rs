@@ -9,7 +9,9 @@ use super::coeffs::Coeffs;
 use super::electrical::{abc_to_dq, back_emf, dq_to_abc, open_phase_terminal, rk4, LegDrive, SegmentAngle};
 use super::inverter::{LegPattern, OutputShort};
 use super::mechanics::ShaftSegment;
-use super::switching::{accumulate_leg_averages, currents_out_of_legs, drive_floating_legs, legs_at, stopped_phases};
+use super::switching::{
+    accumulate_dq_averages, accumulate_leg_averages, currents_out_of_legs, drive_floating_legs, legs_at, stopped_phases,
+};
 use super::{PeriodAverages, Plant};
 
 impl Plant {
@@ -155,11 +157,7 @@ impl SwitchingSegment<'_> {
             accumulate_leg_averages(acc, h, k.r_switch, &self.legs, &self.inverter_legs, self.short, v_mid, i0, i1);
         let (sn, cs) = self.angle.sin_cos_at(k.p * 0.5 * (s0[3] + s1[3]));
         let vdq = abc_to_dq(poles, sn, cs);
-        acc.dq_voltage_v[0] += vdq[0] * h;
-        acc.dq_voltage_v[1] += vdq[1] * h;
-        acc.bus_voltage_v += v_mid * h;
-        let i_sq = 0.5 * (s0[0] * s0[0] + s0[1] * s0[1] + s1[0] * s1[0] + s1[1] * s1[1]);
-        acc.copper_loss_w += 1.5 * (k.r - k.r_switch) * i_sq * h;
+        accumulate_dq_averages(acc, h, k, vdq, v_mid, [s0[0], s0[1]], [s1[0], s1[1]]);
     }
 
     /// The currents out of the three legs with the phase currents `i` and the bus at `v_bus`

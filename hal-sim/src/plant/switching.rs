@@ -306,11 +306,7 @@ impl<'a> SwitchingInterval<'a> {
         let poles =
             accumulate_leg_averages(acc, h, k.r_switch, &self.legs, &self.inverter_legs, self.short, v_mid, i0, i1);
         let vdq = park(clarke(poles), mid.0, mid.1);
-        acc.dq_voltage_v[0] += vdq[0] * h;
-        acc.dq_voltage_v[1] += vdq[1] * h;
-        acc.bus_voltage_v += v_mid * h;
-        let i_sq = 0.5 * (s0[0] * s0[0] + s0[1] * s0[1] + s1[0] * s1[0] + s1[1] * s1[1]);
-        acc.copper_loss_w += 1.5 * (k.r - k.r_switch) * i_sq * h;
+        accumulate_dq_averages(acc, h, k, vdq, v_mid, [s0[0], s0[1]], [s1[0], s1[1]]);
     }
 
     /// The currents out of the three legs with the phase currents `i` and the bus at `v_bus`
@@ -350,6 +346,26 @@ pub(super) fn accumulate_leg_averages(
         }
     }
     poles
+}
+
+/// Adds the rest of an interval of length `h` to the period integrals `acc`: the dq voltage `vdq` at its midpoint,
+/// the bus at `v_mid`, and the winding's copper loss from the dq currents `idq0`, `idq1` at its ends (trapezoidal
+/// in their squares); the switches' share of the resistance is the inverter's loss, not the motor's (the plant's
+/// integrator and the tests' reference integrator alike).
+pub(super) fn accumulate_dq_averages(
+    acc: &mut PeriodAverages,
+    h: f64,
+    k: &Coeffs,
+    vdq: [f64; 2],
+    v_mid: f64,
+    idq0: [f64; 2],
+    idq1: [f64; 2],
+) {
+    acc.dq_voltage_v[0] += vdq[0] * h;
+    acc.dq_voltage_v[1] += vdq[1] * h;
+    acc.bus_voltage_v += v_mid * h;
+    let i_sq = 0.5 * (idq0[0] * idq0[0] + idq0[1] * idq0[1] + idq1[0] * idq1[0] + idq1[1] * idq1[1]);
+    acc.copper_loss_w += 1.5 * (k.r - k.r_switch) * i_sq * h;
 }
 
 /// The currents out of the three legs driven as `inverter_legs` with the phase currents `i` and the bus at `v_bus`:
