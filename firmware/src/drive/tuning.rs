@@ -869,9 +869,9 @@ mod tests {
         }
     }
 
-    /// The low crossover `wc` of a design: `Kd kt / J`, rad/s.
+    /// The low crossover `wc` of a design: the velocity loop's gain on the total inertia, `Kp_v kt / J`, rad/s.
     fn low_crossover(g: &TunedGains, plant: &TuningPlant) -> f64 {
-        f64::from(g.position.d_ua_s_per_rad) * 1e-6 * f64::from(plant.torque_constant_nm_per_a)
+        f64::from(g.velocity.p_ua_s_per_rad) * 1e-6 * f64::from(plant.torque_constant_nm_per_a)
             / f64::from(plant.inertia_kg_m2)
     }
 
@@ -901,7 +901,7 @@ mod tests {
         let kd = f64::from(g.position.d_ua_s_per_rad) * 1e-6;
         let motor_side = kd * kt / (j / 16.0);
         assert!(within(motor_side, 2.0 * 475.85, 0.01), "motor-side crossover of Kd {motor_side} rad/s");
-        let wc = low_crossover(&g, &plant) / 2.0;
+        let wc = low_crossover(&g, &plant);
         let ki_over_kp = f64::from(g.position.i_ua_per_rad_s) * 1e-6 / kp;
         assert!(within(ki_over_kp, wc / 30.0, 0.005), "Ki/Kp {ki_over_kp}, wc {wc}");
     }
