@@ -215,17 +215,10 @@ fn seconds_plot(trace: &Trace, title: &str, signals: &[(&str, &str)], y_label: &
 }
 
 fn csp(args: &CspScenario, dir: &Path) -> Result<(), String> {
-    let seed = args.scenario.common.seed;
-    let sc = PlantScale::current_plant();
-    let d = CspConfig::default();
     let cfg = CspConfig {
-        seed,
         position_gains: args.position_gains,
         torque_feedforward: args.torque_feedforward,
-        revolutions: d.revolutions * sc.speed,
-        max_rpm: d.max_rpm * sc.speed,
-        peak_rpm_per_s: d.peak_rpm_per_s * sc.speed,
-        ..d
+        ..CspConfig::scaled_to_current_plant(args.scenario.common.seed)
     };
     println!(
         "csp: plant (seed {}), CiA 402 CSP, set-points every {:.1} ms (0x60C2 the same), {} revolutions, \

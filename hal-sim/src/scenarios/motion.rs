@@ -219,6 +219,23 @@ impl Default for CspConfig {
     }
 }
 
+impl CspConfig {
+    /// The default move on the scenario plant, seeded with `seed`: its distance, speed and acceleration scaled by
+    /// the plant's maximum speed ([`super::PlantScale`], `drive-sim --plant`'s scaling), so that it keeps its timing.
+    #[must_use]
+    pub fn scaled_to_current_plant(seed: u64) -> Self {
+        let speed = super::PlantScale::current_plant().speed;
+        let d = Self::default();
+        Self {
+            seed,
+            revolutions: d.revolutions * speed,
+            max_rpm: d.max_rpm * speed,
+            peak_rpm_per_s: d.peak_rpm_per_s * speed,
+            ..d
+        }
+    }
+}
+
 /// Figures of the CSP scenario.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CspFigures {

@@ -39,14 +39,7 @@ fn auto_tuned_geared_axis_follows_csp_within_3_degrees_and_settles_within_1_incr
     let (csp, velocity, step) = scenarios::with_plant(params, || {
         scenarios::with_parameters(parameters, || {
             let sc = PlantScale::current_plant();
-            let d = motion::CspConfig::default();
-            let config = motion::CspConfig {
-                revolutions: d.revolutions * sc.speed,
-                max_rpm: d.max_rpm * sc.speed,
-                peak_rpm_per_s: d.peak_rpm_per_s * sc.speed,
-                ..d
-            };
-            let (csp, _) = motion::csp(&config).expect("csp");
+            let (csp, _) = motion::csp(&motion::CspConfig::scaled_to_current_plant(1)).expect("csp");
             let (velocity, _) = motion::csv_step(1, 100.0 * sc.speed).expect("csv step");
             let step = scenarios::current_step(&Setup::default(), 2.0 * sc.current).expect("current step").figures;
             (csp, velocity, step)
@@ -74,16 +67,7 @@ fn an_unresolved_friction_split_leaves_no_velocity_feed_forward_and_seed_4_follo
     assert_eq!(ff_velocity.map(|(_, _, data)| data.as_slice()), Some(&[0u8, 0, 0, 0][..]), "0x30A1:04");
     let csp = scenarios::with_plant(params, || {
         scenarios::with_parameters(run.parameters, || {
-            let sc = PlantScale::current_plant();
-            let d = motion::CspConfig::default();
-            let config = motion::CspConfig {
-                seed: 4,
-                revolutions: d.revolutions * sc.speed,
-                max_rpm: d.max_rpm * sc.speed,
-                peak_rpm_per_s: d.peak_rpm_per_s * sc.speed,
-                ..d
-            };
-            motion::csp(&config).expect("csp").0
+            motion::csp(&motion::CspConfig::scaled_to_current_plant(4)).expect("csp").0
         })
     });
     let three_degrees_inc = 3.0 / 360.0 * 5000.0;

@@ -137,15 +137,7 @@ fn velocity_step(seed: u64) -> (motion::VelocityStepFigures, f64) {
 /// `drive-sim csp`'s move on the scenario plant (10 revolutions, 3,000 rpm, 20,000 rpm/s, scaled by its maximum
 /// speed).
 fn csp_move(seed: u64) -> motion::CspFigures {
-    let speed = PlantScale::current_plant().speed;
-    let d = motion::CspConfig { seed, ..motion::CspConfig::default() };
-    let config = motion::CspConfig {
-        revolutions: d.revolutions * speed,
-        max_rpm: d.max_rpm * speed,
-        peak_rpm_per_s: d.peak_rpm_per_s * speed,
-        ..d
-    };
-    motion::csp(&config).expect("csp").0
+    motion::csp(&motion::CspConfig::scaled_to_current_plant(seed)).expect("csp").0
 }
 
 /// Three degrees of the motor shaft in increments of the small gimbal's 16,384-count encoder: 136.5.
