@@ -18,6 +18,10 @@
 //! u      = Kp * e + xi_e + Kd * d + FFv * w_ref + FFa * a_ref
 //! u_sat  = clamp(u, +-I_max);   xi <- xi_e + Kb (u_sat - u),  Kb = Ts/Tt, Tt = Td = Kd/Kp
 //! ```
+//! The friction feedforward `FFc * s` (0x30A1:06, [`PositionGains::with_friction_feedforward`]) is added to `u`
+//! before the clamp, with `s` the sign of the demanded velocity while the demand moves, and at a standing demand
+//! (`w_ref = a_ref = 0`) the sign of the error once `|e|` exceeds [`STANDSTILL_FRICTION_BAND_INC`], else 0.
+//!
 //! The tracking time Tt of the back-calculation (S1 L757-760 names only "the anti-windup method") is the
 //! derivative time Td, the lower end of Astrom and Hagglund's Td <= Tt <= Ti: in a lasting saturation the
 //! integrator settles at `u_sat - Kp e (1 - Tt/Ti)` instead of at the limit itself (Tt = Ti), so the output
@@ -42,6 +46,23 @@
 //!   0x30A1:03 D [uA*s/rad] (S2 L4486-4498), 0x30A1:04 FF velocity [uA*s/rad] (S2 L4500-4512),
 //!   0x30A1:05 FF acceleration [uA*s^2/rad] (S2 L4514-4526).
 //!
+//! # Friction feedforward (the project's 0x30A1:06)
+//! EPOS4 compensates only speed-proportional friction (FF velocity, S1 L728); the Coulomb part is left to the
+//! integrator. On a motor whose Coulomb friction is large against what the PID's proportional part gives a few
+//! increments off the target, that leaves two faults (`hal-sim/presets/small-gimbal.toml`: 12 mA of friction, and
+//! `Kp` gives 0.44 mA per increment):
+//! - while moving, the integrator holds the friction, so when the demand stops it still pushes forward and the
+//!   motor stops past the target (2 to 3 increments of 16,384);
+//! - at standstill the integrator has to swing through twice the friction before the motor comes back, 80 to
+//!   100 ms.
+//!
+//! The feedforward carries the friction instead. While the demand moves it is the friction's own sign, so the
+//! integrator holds none of it and has nothing to unwind. At a standing demand outside the band it cancels the
+//! friction the motor must overcome to come back, so the PID moves it as if it had none; inside the band it is off
+//! and the friction holds the motor. An overestimate by a fraction `x < 1` accelerates the approach by `x` times the
+//! friction's deceleration, so the motor slides past the band's edge by at most `x` times the distance it came and
+//! each swing is shorter than the one before: the hold converges for any estimate under twice the true friction.
+//!
 //! Cost per step: [`PositionController::step`] compiles to 264 Thumb-2 instructions for thumbv7em (release,
 //! no loops, no calls, no division); [`CascadePositionController::step`] to 212.
 
@@ -56,6 +77,10 @@ use super::velocity_estimate::LowPass;
 
 /// The D filter cut-off of EPOS4's position PID, 390.61 rad/s (S1 L756), in mrad/s.
 pub const D_FILTER_CUTOFF_MILLIRAD_PER_S: u32 = 390_610;
+
+/// At a standing demand the friction feedforward pushes the motor back only while it is more than this many
+/// increments off the target: within +-1 the friction holds it (module documentation, "Friction feedforward").
+pub const STANDSTILL_FRICTION_BAND_INC: i32 = 1;
 
 /// Error clamp before the gains: +-2^24 increments.
 const ERROR_LIMIT: i32 = 1 << 24;
@@ -88,6 +113,8 @@ pub struct PositionGains {
     ff_acceleration: ScaledGain,
     /// Kb = Ts/Tt, `I1F31` bits.
     kb: i32,
+    /// FF friction: the Coulomb friction's current, 2^-32 A.
+    ff_friction: i64,
 }
 
 impl PositionGains {
@@ -107,7 +134,16 @@ impl PositionGains {
             ff_velocity: gain_current_per_velocity(ff_velocity, inc_per_rev),
             ff_acceleration: gain_current_per_acceleration(ff_acceleration, inc_per_rev),
             kb: tracking_gain(p, d),
+            ff_friction: 0,
         }
+    }
+
+    /// The same gains with the friction feedforward `ua` in uA (0x30A1:06, module documentation).
+    #[must_use]
+    pub fn with_friction_feedforward(self, ua: u32) -> Self {
+        // ua * 1e-6 A in 2^-32 A: below 2^52, within the term clamp.
+        let ff_friction = clamp_term(((i64::from(ua)) << 32) / 1_000_000);
+        Self { ff_friction, ..self }
     }
 
     /// The same gains with another back-calculation gain Kb = Ts/Tt in `I1F31` bits (negative values become 0).
@@ -150,6 +186,12 @@ impl PositionGains {
     #[must_use]
     pub const fn kb(&self) -> i32 {
         self.kb
+    }
+
+    /// FF friction (2^-32 A).
+    #[must_use]
+    pub const fn ff_friction(&self) -> i64 {
+        self.ff_friction
     }
 }
 
@@ -274,12 +316,27 @@ impl PositionController {
             .wrapping_add(clamp_term(g.kd.apply(d)))
             .wrapping_add(clamp_term(g.ff_velocity.apply(w_ref.to_bits())))
             .wrapping_add(clamp_term(g.ff_acceleration.apply(a_ref.to_bits())))
+            .wrapping_add(friction_feedforward(g.ff_friction, w_ref, a_ref, e))
             .wrapping_add(i64::from(torque.to_bits()) << 16);
         let l = limit_q32(limit);
         let u_sat = u.max(l.wrapping_neg()).min(l);
         self.saturated = u_sat != u;
         self.integral = clamp_term(xi_e.wrapping_add(back_calculation(g.kb, u_sat, u)));
         q32_to_amps(u_sat)
+    }
+}
+
+/// The friction feedforward of one step (module documentation, "Friction feedforward"): `ff` with the sign of the
+/// demanded velocity, or at a standing demand with the sign of the error `e` outside the band, else 0.
+#[inline(always)]
+fn friction_feedforward(ff: i64, w_ref: IncPerTick, a_ref: IncPerTick2, e: i32) -> i64 {
+    let standing = a_ref.to_bits() == 0;
+    match w_ref.to_bits() {
+        0 if standing && e > STANDSTILL_FRICTION_BAND_INC => ff,
+        0 if standing && e < -STANDSTILL_FRICTION_BAND_INC => ff.wrapping_neg(),
+        0 => 0,
+        w if w > 0 => ff,
+        _ => ff.wrapping_neg(),
     }
 }
 

@@ -13,6 +13,7 @@ use firmware::control::frames::Amps;
 use firmware::control::observer::{ObserverGains, VelocityObserver};
 use firmware::control::position::{
     CascadePositionController, Increments, PositionController, PositionGains, D_FILTER_CUTOFF_MILLIRAD_PER_S,
+    STANDSTILL_FRICTION_BAND_INC,
 };
 use firmware::control::velocity::{
     IncPerTick, IncPerTick2, ScaledGain, VelocityController, VelocityGains, SLOW_TICK_HZ,
@@ -119,6 +120,56 @@ fn position_gains_from_idx_units() {
     // Cascade gain: 100 /s -> 100 / 2500 = 0.04 inc/tick per inc.
     let c = CascadePositionController::new(100_000, VelocityController::default());
     assert!(close(g(c.kv()) / 65_536.0, 0.04, 1e-8));
+}
+
+/// 0x30A1:06 (`control::position`, "Friction feedforward"): with every other gain 0 the output is the friction
+/// current alone: the demanded velocity's sign while the demand moves (whatever the error), at a standing demand
+/// the error's sign beyond +-1 increment and nothing within it, nothing while a demand starts (acceleration only),
+/// and nothing with 0x30A1:06 = 0. Tolerance: one 2^-16 A step (uA to 2^-32 A floors).
+#[test]
+fn friction_feedforward_follows_the_demand_and_at_standstill_the_error_beyond_the_band() {
+    assert_eq!(STANDSTILL_FRICTION_BAND_INC, 1);
+    let friction = PositionGains::from_idx_0x30a1(0, 0, 0, 0, 0, N_ENC).with_friction_feedforward(12_000);
+    // (error in increments, demanded velocity inc/tick, demanded acceleration inc/tick^2, expected current A)
+    let cases = [
+        (0, 0.5, 0.0, 0.012),
+        (5, -0.5, 0.0, -0.012),
+        (-5, 0.5, -0.01, 0.012),
+        (2, 0.0, 0.0, 0.012),
+        (-2, 0.0, 0.0, -0.012),
+        (1, 0.0, 0.0, 0.0),
+        (-1, 0.0, 0.0, 0.0),
+        (0, 0.0, 0.0, 0.0),
+        (3, 0.0, 0.01, 0.0),
+    ];
+    for (e, w, a, expected) in cases {
+        let mut c = PositionController::new(friction);
+        let i = c.step(Increments(e), Increments(0), ipt(w), ipt2(a), amps(10.0));
+        assert!((af(i) - expected).abs() <= 1.0 / 65_536.0, "e {e} w {w} a {a}: {} A, expected {expected}", af(i));
+    }
+    let mut off = PositionController::new(PositionGains::from_idx_0x30a1(0, 0, 0, 0, 0, N_ENC));
+    assert_eq!(af(off.step(Increments(5), Increments(0), ipt(0.0), ipt2(0.0), amps(10.0))), 0.0);
+}
+
+/// The hold the friction feedforward gives (`control::position`, "Friction feedforward"): a PD whose proportional
+/// part meets the model plant's 3 mNm Coulomb friction (89.6 mA) only 18 increments off, 10 increments from a
+/// standing demand. Without the feedforward the friction holds the motor there; with the true friction and with
+/// 1.8 times it (the convergence argument's bound is 2) the motor ends within +-1 increment after 100 ms and stays
+/// for the last 40 ms (no limit cycle). Tolerance: the band itself.
+#[test]
+fn friction_feedforward_brings_a_stuck_motor_into_the_band_and_holds_it_there() {
+    let true_friction_ua = (COULOMB / KT * 1e6) as u32;
+    let hold = |ff_ua: u32| {
+        let gains = PositionGains::from_idx_0x30a1(3_260_000, 0, 66_000, 0, 0, N_ENC).with_friction_feedforward(ff_ua);
+        run_position(gains, &[(10, 0.0, 0.0); 250])
+    };
+    let stuck = hold(0);
+    assert!(stuck.iter().all(|&e| e == 10), "without the feedforward the friction holds the motor: {stuck:?}");
+    for ff in [true_friction_ua, true_friction_ua * 18 / 10] {
+        let e = hold(ff);
+        let tail = &e[150..];
+        assert!(tail.iter().all(|&x| x.abs() <= 1 && x == tail[0]), "FF {ff} uA: the last 40 ms {tail:?}");
+    }
 }
 
 #[test]

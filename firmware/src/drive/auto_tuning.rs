@@ -41,8 +41,8 @@ fn set<T: Scalar>(values: &mut [u8], handle: Handle<T>, value: T) {
 /// The plant as the motor data objects give it: 0x3002:01 (uOhm), :02 Lq and :03 Ld (uH, 0 = Lq), 0x3001:05 kt
 /// (uNm/A), 0x30A3:05 inertia (0.001 g cm^2 = 1e-10 kg m^2), 0x30A3:04 viscous friction (0.001 uNm/rpm), 0x2200:01
 /// bus voltage (0.1 V), 0x3001:01/02 nominal and peak current (mA), 0x3000:06 max speed (rpm), 0x3000:05
-/// resolution, 0x3205:03/04 the load's resonance pair (0.1 Hz; either 0 = rigid). No object holds the Coulomb
-/// friction: 0 (no gain depends on it).
+/// resolution, 0x3205:03/04 the load's resonance pair (0.1 Hz; either 0 = rigid), 0x3204:05 the identified Coulomb
+/// friction (uNm; 0 before an identification, which leaves the friction feedforward 0x30A1:06 off).
 #[must_use]
 pub fn plant_from_objects(values: &[u8]) -> TuningPlant {
     let lq = get(values, h::MOTOR_PHASE_INDUCTANCE);
@@ -65,7 +65,7 @@ pub fn plant_from_objects(values: &[u8]) -> TuningPlant {
         torque_constant_nm_per_a: get(values, h::MOTOR_TORQUE_CONSTANT) as f32 * 1e-6,
         inertia_kg_m2: get(values, h::OBSERVER_INERTIA) as f32 * 1e-10,
         viscous_friction_nm_s_per_rad: viscous,
-        coulomb_friction_nm: 0.0,
+        coulomb_friction_nm: get(values, h::IDENTIFICATION_COULOMB_FRICTION) as f32 * 1e-6,
         bus_voltage_v: f32::from(get(values, h::POWER_SUPPLY_VOLTAGE)) * 0.1,
         nominal_current_a: get(values, h::MOTOR_NOMINAL_CURRENT) as f32 * 1e-3,
         peak_current_a: get(values, h::MOTOR_OUTPUT_CURRENT_LIMIT) as f32 * 1e-3,
@@ -84,6 +84,7 @@ pub fn write_gains(values: &mut [u8], g: &TunedGains) {
     set(values, h::POSITION_CONTROLLER_D_GAIN, g.position.d_ua_s_per_rad);
     set(values, h::POSITION_CONTROLLER_FF_VELOCITY_GAIN, g.position.ff_velocity_ua_s_per_rad);
     set(values, h::POSITION_CONTROLLER_FF_ACCELERATION_GAIN, g.position.ff_acceleration_ua_s2_per_rad);
+    set(values, h::POSITION_CONTROLLER_FF_FRICTION, g.position.ff_friction_ua);
     set(values, h::VELOCITY_CONTROLLER_P_GAIN, g.velocity.p_ua_s_per_rad);
     set(values, h::VELOCITY_CONTROLLER_I_GAIN, g.velocity.i_ua_per_rad);
     set(values, h::VELOCITY_CONTROLLER_FF_VELOCITY_GAIN, g.velocity.ff_velocity_ua_s_per_rad);
@@ -140,6 +141,7 @@ const fn gain_object_code(o: GainObject) -> u8 {
         GainObject::ObserverLoad => 8,
         GainObject::ObserverFriction => 9,
         GainObject::ObserverInertia => 10,
+        GainObject::FeedForwardFriction => 11,
     }
 }
 

@@ -147,15 +147,24 @@
 //! with `kt / J` and not with any gain of the current loop (its bandwidth changes what lies above the velocity
 //! crossover only). The small gimbal (`hal-sim/presets/small-gimbal.toml`, kt / J = 50,000 1/(A s^2) against the
 //! reference's 1,903) keeps 1.8 rpm RMS of speed ripple under its 24 rpm `drive-sim csv-sweep` step (0.9 rpm
-//! without the shunt noise), which puts the step's peak 17.5 to 23.5 % over the target and leaves the CSP move
-//! stopped 1 to 5 increments (of 16,384 per turn) off its target, stuck on the Coulomb friction (12 mA) that the
-//! position PID's proportional part alone meets only 27 increments away. Tried on that preset and not taken, as
-//! they trade one figure for another or for stability (`tests/tests/drive/auto_tune_scenarios.rs`): the velocity
-//! filter at 1,250 Hz (mean peak 20.6 -> 19.3 %), the observer (0x30A3: twice the ripple, its estimate follows the
-//! model's current, not the true one), 1.5 to 2 times the velocity crossover (17 to 18 %), the velocity integral
-//! 3 times (21 %), a Coulomb friction feed-forward (22 %: a faster rise under the same ripple), the position
-//! integral 2 times (settle 1 to 3 increments; without the loops' delay it leaves the integral pair a damping of
-//! 0.13 against the design's 0.34, and 2.5 times oscillates).
+//! without the shunt noise), which puts the step's peak 17.5 to 23.5 % over the target. Tried on that preset and
+//! not taken, as they trade one figure for another or for stability (`tests/tests/drive/auto_tune_scenarios.rs`):
+//! the velocity filter at 1,250 Hz (mean peak 20.6 -> 19.3 %), the observer (0x30A3: twice the ripple, its
+//! estimate follows the model's current, not the true one), 1.5 to 2 times the velocity crossover (17 to 18 %),
+//! the velocity integral 3 times (21 %), a Coulomb friction feed-forward in the velocity loop (22 %: a faster rise
+//! under the same ripple).
+//!
+//! # Friction feedforward (0x30A1:06)
+//! The position PID's friction feedforward is the identified Coulomb friction's current `Tc / kt`
+//! (`crate::control::position`, "Friction feedforward"). Without it the small gimbal's CSP move stopped 2 to 3
+//! increments (of 16,384 per turn) past its target, on a Coulomb friction (12 mA) that the PID's proportional part
+//! meets only 27 increments away, and its integrator needed 80 to 100 ms to turn round; the position integral 2
+//! times left 1 to 3 increments (without the loops' delay it leaves the integral pair a damping of 0.13 against
+//! the design's 0.34, and 2.5 times oscillates). With it, `drive-sim csp --auto-tune --seed 1..6` stops within
+//! +-1 increment on the small gimbal (settle 0 or 1, peak 17 -> 8 to 10 increments), the reference (1 -> 0) and
+//! geared-36v (0 or 1, peak 23 to 26 -> 18 to 22). The whole identified friction is taken, not a share: the
+//! hold converges for any estimate under twice the true friction, and the identification's estimate on the gear
+//! (+43 to +49 %, the gear's losses included) is within that.
 //!
 //! All gains are rounded to their objects' units; a gain that its object (or the fixed-point range of the
 //! controller behind it: 64 V/A for 0x30A0:01, `control::pi`) cannot hold is an error naming the object.
@@ -229,7 +238,7 @@ pub struct TuningPlant {
     pub inertia_kg_m2: f32,
     /// Viscous friction at the motor shaft, Nm s/rad.
     pub viscous_friction_nm_s_per_rad: f32,
-    /// Coulomb friction at the motor shaft, Nm. Checked only: no gain depends on it (the integral parts take it).
+    /// Coulomb friction at the motor shaft, Nm: the position PID's friction feedforward (0x30A1:06).
     pub coulomb_friction_nm: f32,
     /// DC bus voltage, V (0 = not known: only [`TuningDesign::current_linear_step_a`] uses it).
     pub bus_voltage_v: f32,
@@ -285,6 +294,8 @@ pub struct PositionGainObjects {
     pub ff_velocity_ua_s_per_rad: u32,
     /// 0x30A1:05, uA s^2/rad.
     pub ff_acceleration_ua_s2_per_rad: u32,
+    /// 0x30A1:06, uA.
+    pub ff_friction_ua: u32,
 }
 
 /// 0x30A2 in its object units.
@@ -425,6 +436,8 @@ pub enum GainObject {
     ObserverFriction,
     /// 0x30A3:05.
     ObserverInertia,
+    /// 0x30A1:06.
+    FeedForwardFriction,
 }
 
 /// Why [`tune`] gave no gains.
@@ -488,6 +501,7 @@ pub fn tune(plant: &TuningPlant, request: &TuningRequest) -> Result<TunedGains, 
         d_ua_s_per_rad: object(kd_position * 1e6, GainObject::PositionD)?,
         ff_velocity_ua_s_per_rad: ff_velocity,
         ff_acceleration_ua_s2_per_rad: ff_acceleration,
+        ff_friction_ua: object(plant.coulomb_friction_nm / kt * 1e6, GainObject::FeedForwardFriction)?,
     };
     // 0x30A3:04 in 0.001 uNm/rpm: b [Nm s/rad] * 2 pi / 60 [rad/s per rpm] * 1e9; :05 in 1e-10 kg m^2.
     let observer = ObserverObjects {
@@ -904,6 +918,24 @@ mod tests {
         let wc = low_crossover(&g, &plant);
         let ki_over_kp = f64::from(g.position.i_ua_per_rad_s) * 1e-6 / kp;
         assert!(within(ki_over_kp, wc / 30.0, 0.005), "Ki/Kp {ki_over_kp}, wc {wc}");
+    }
+
+    /// 0x30A1:06 is the Coulomb friction's current `Tc / kt` in uA on every preset (small gimbal: 0.6 mNm /
+    /// 0.05 Nm/A = 12,000 uA), exact to the unit's rounding; no friction leaves it 0 (off).
+    #[test]
+    fn friction_feedforward_is_the_coulomb_friction_current() {
+        for (name, plant) in [("reference", reference()), ("small-gimbal", small_gimbal()), ("geared-36v", geared())] {
+            let g = tune(&plant, &STIFF).expect("preset tunes");
+            let expected = plant.coulomb_friction_nm / plant.torque_constant_nm_per_a * 1e6;
+            assert!(
+                (g.position.ff_friction_ua as f32 - expected).abs() <= 1.0,
+                "{name}: {}",
+                g.position.ff_friction_ua
+            );
+        }
+        assert_eq!(tune(&small_gimbal(), &STIFF).expect("tunes").position.ff_friction_ua, 12_000);
+        let frictionless = TuningPlant { coulomb_friction_nm: 0.0, ..small_gimbal() };
+        assert_eq!(tune(&frictionless, &STIFF).expect("tunes").position.ff_friction_ua, 0);
     }
 
     /// The elastic design's servo stiffness against the coupling's (module documentation, "Position loop"): `kt

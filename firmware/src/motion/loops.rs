@@ -2,7 +2,8 @@
 //! the velocity estimate they close on (0x3000:02 bits 7..4: low-pass filter 0x30A2:05 or the observer 0x30A3).
 //!
 //! EPOS4's structure (S1 Fig. 2-5, `shared/spec/control-and-protection.md` §1.4-§1.6): in the position modes the
-//! position PID with velocity and acceleration feedforward commands the current directly; in the velocity modes
+//! position PID with velocity and acceleration feedforward (and the project's friction feedforward 0x30A1:06,
+//! `crate::control::position`) commands the current directly; in the velocity modes
 //! the velocity PI with feedforward does. The active [`LoopDemand`] chooses which; torque demands bypass both.
 //! When the demand changes kind (a mode change while enabled, a stop from CSP that runs on the velocity loop), the
 //! newly active controller's integrator is preset with the last current, so the output does not jump (bumpless
@@ -53,7 +54,7 @@ impl VelocityEstimate {
 /// The raw dictionary values the loops are built from.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 struct GainObjects {
-    position: [u32; 5],
+    position: [u32; 6],
     velocity: [u32; 4],
     cutoff_hz: u32,
     observer: [u32; 5],
@@ -74,6 +75,7 @@ impl GainObjects {
                 d.get(h::POSITION_CONTROLLER_D_GAIN),
                 d.get(h::POSITION_CONTROLLER_FF_VELOCITY_GAIN),
                 d.get(h::POSITION_CONTROLLER_FF_ACCELERATION_GAIN),
+                d.get(h::POSITION_CONTROLLER_FF_FRICTION),
             ],
             velocity: [
                 d.get(h::VELOCITY_CONTROLLER_P_GAIN),
@@ -180,8 +182,8 @@ impl Loops {
             return;
         }
         let n = o.inc_per_rev.max(1);
-        let [pp, pi, pd, pfv, pfa] = o.position;
-        self.position.set_gains(PositionGains::from_idx_0x30a1(pp, pi, pd, pfv, pfa, n));
+        let [pp, pi, pd, pfv, pfa, pfc] = o.position;
+        self.position.set_gains(PositionGains::from_idx_0x30a1(pp, pi, pd, pfv, pfa, n).with_friction_feedforward(pfc));
         let [vp, vi, vfv, vfa] = o.velocity;
         self.velocity.set_gains(VelocityGains::from_idx_0x30a2(vp, vi, vfv, vfa, n));
         if o.cutoff_hz != self.objects.cutoff_hz || self.objects == GainObjects::default() {

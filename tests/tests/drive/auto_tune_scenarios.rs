@@ -14,8 +14,10 @@
 //! current carries the measurement's noise, and on 1e-6 kg m^2 with kt 0.05 Nm/A (kt / J 26 times the
 //! reference's) that is a speed ripple of 1.8 rpm RMS (0.9 rpm of it from the ADC step alone) against the
 //! velocity step of 24 rpm (100 rpm x 1,200 / 5,000). The issue's velocity overshoot (the true speed's peak over
-//! the whole 300 ms) and the +-1 increment settle are therefore checked where they measure the tuning, on the
-//! preset without the shunt noise; on the preset itself they are an open item (the ignored test below).
+//! the whole 300 ms) is therefore checked where it measures the tuning, on the preset without the shunt noise; on
+//! the preset itself it is an open item (the ignored test below). The CSP move's +-1 increment settle holds on the
+//! preset itself: the motor's 0.6 mNm of Coulomb friction (12 mA) is met by the position PID's friction feedforward
+//! (0x30A1:06, `firmware::control::position`), which the auto-tuning sets from the identified friction.
 
 use hal_sim::plant::PlantParams;
 use std::path::Path;
@@ -179,10 +181,8 @@ fn auto_tuned_small_gimbal_duty_cycle_has_no_false_trip() {
 
 /// Issue 18's velocity and settle figures measure the tuning where the current sensing does not swamp them: on the
 /// small gimbal without the shunts' noise, after its own `--auto-tune`, seeds 1..=3, the 24 rpm step's true speed
-/// peaks at most 15 % over the target (measured 11.7 to 13.6 %) and the CSP move's position is within +-2
-/// increments of its target 20 ms after the last set-point (measured 0 to 1 until the mechanical step's robust fit
-/// moved the identified inertia from +3.9 to +2.7 %; since then seed 2 stops 2 increments off on the friction:
-/// the issue's +-1 is open, as in the ignored test below). With the noise (the preset itself)
+/// peaks at most 15 % over the target (measured 11.7 to 13.6 %) and the CSP move's position is within the issue's
+/// +-1 increment of its target 20 ms after the last set-point. With the noise (the preset itself)
 /// the step's speed ripple over its last 200 ms is that noise, not an oscillation of the loop: at most 10 % of the
 /// step RMS (measured 1.8 rpm of 24; a loop without phase margin, 4 times the velocity P gain, limit-cycles at
 /// 17 rpm RMS), and at least 1.6 times the noise-free ripple (measured 1.8 against 0.9 rpm: the noise is the larger
@@ -200,8 +200,8 @@ fn auto_tuned_small_gimbal_meets_the_velocity_and_settle_figures_apart_from_the_
             step.overshoot_pct
         );
         assert!(
-            csp.settle_error_inc <= 2.0,
-            "seed {seed}: csp settle error {} inc without shunt noise (reached: +-2 inc)",
+            csp.settle_error_inc <= 1.0,
+            "seed {seed}: csp settle error {} inc without shunt noise (issue: +-1 inc)",
             csp.settle_error_inc
         );
         quiet_ripple = quiet_ripple.max(ripple);
@@ -215,15 +215,32 @@ fn auto_tuned_small_gimbal_meets_the_velocity_and_settle_figures_apart_from_the_
     assert!(ripple >= 1.6 * quiet_ripple, "ripple {ripple} rpm with the noise, {quiet_ripple} rpm without");
 }
 
+/// Issue 18 "csp ... settles within +-1 increment" on the small gimbal itself (with the shunt noise), after its own
+/// `--auto-tune`, seeds 1..=3: 20 ms after the last set-point and until the end of the run (80 ms later) the
+/// position is within +-1 increment of the target. Before the friction feedforward (0x30A1:06) the motor stopped
+/// 2 to 3 increments past it on its Coulomb friction (`firmware::control::position`, "Friction feedforward").
+/// Tolerance: the issue's bound.
+#[test]
+fn auto_tuned_small_gimbal_csp_settles_within_1_increment_with_the_current_noise() {
+    for seed in 1..=3u64 {
+        let csp = on_auto_tuned(&small_gimbal(), seed, || csp_move(seed));
+        println!("seed {seed}: {csp:?}");
+        assert!(csp.settle_error_inc <= 1.0, "seed {seed}: settle error {} inc (issue: +-1)", csp.settle_error_inc);
+        assert!(
+            csp.settle_error_max_inc <= 1.0,
+            "seed {seed}: left the +-1 band after settling: {} inc",
+            csp.settle_error_max_inc
+        );
+    }
+}
+
 /// Open item (issue 18 "What it must show" on the small gimbal as it stands): the 24 rpm step's true speed peaks
-/// at most 15 % over the target and the CSP move settles within +-1 increment. Today 19.5 % and 2 increments
-/// (seed 1; 17.5 to 23.5 % and 1 to 5 increments over seeds 1..=6): the current sensing's ripple (module
+/// at most 15 % over the target. Today 19.3 to 21.4 % (seeds 1..=3): the current sensing's ripple (module
 /// documentation), which no gain of the 2.5 kHz loops removed (velocity filter up to 1,250 Hz, the observer,
 /// velocity P gain up to 2 times, velocity or position integral up to 3 times: at best 17 % mean overshoot).
 #[test]
 #[ignore = "open: the reference power stage's current noise on the small gimbal (module documentation)"]
-fn auto_tuned_small_gimbal_meets_the_velocity_and_settle_figures_with_the_current_noise() {
-    let ((step, _), csp) = on_auto_tuned(&small_gimbal(), 1, || (velocity_step(1), csp_move(1)));
+fn auto_tuned_small_gimbal_meets_the_velocity_figure_with_the_current_noise() {
+    let (step, _) = on_auto_tuned(&small_gimbal(), 1, || velocity_step(1));
     assert!(step.overshoot_pct <= 15.0, "csv step overshoot {} % (issue: <= 15 %)", step.overshoot_pct);
-    assert!(csp.settle_error_inc <= 1.0, "csp settle error {} inc (issue: +-1 inc)", csp.settle_error_inc);
 }

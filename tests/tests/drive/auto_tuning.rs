@@ -70,6 +70,24 @@ fn written_motor_data_retune_the_current_gains_the_drive_uses() {
     assert_eq!(tier1.controller().pi_d().gains(), expected);
 }
 
+/// The Coulomb friction in 0x3204:05 (the identification's, or a master's commissioning value) becomes the position
+/// PID's friction feedforward at the next auto-tuning: 0x30A1:06 = Tc / kt in uA, with the default kt (0x3001:05 =
+/// 33,500 uNm/A) 600 uNm gives 17,910 uA (rounded). Before any identification 0x3204:05 is 0 and so is 0x30A1:06.
+#[test]
+fn the_identified_coulomb_friction_becomes_the_friction_feedforward() {
+    let (mut drive, mut store) = drive();
+    drive.sdo_write(0x3205, 1, &[1], PRE_OP, &mut store).expect("0x3205:01 = 1");
+    assert_eq!(drive.dictionary().get(h::POSITION_CONTROLLER_FF_FRICTION), 0);
+    drive.sdo_write(0x3204, 5, &600u32.to_le_bytes(), PRE_OP, &mut store).expect("0x3204:05");
+    assert_eq!(drive.dictionary().get(h::POSITION_CONTROLLER_FF_FRICTION), 0, "a friction alone changes no gain");
+    drive.sdo_write(0x3205, 1, &[1], PRE_OP, &mut store).expect("0x3205:01 = 1");
+    assert_eq!(drive.dictionary().get(h::MOTOR_TORQUE_CONSTANT), 33_500);
+    assert_eq!(drive.dictionary().get(h::POSITION_CONTROLLER_FF_FRICTION), 17_910);
+    let mut buf = [0u8; 4];
+    drive.sdo_read(0x30A1, 6, 0, &mut buf, &mut store).expect("0x30A1:06 upload");
+    assert_eq!(u32::from_le_bytes(buf), 17_910);
+}
+
 #[test]
 fn auto_tuning_refusals_are_precise_and_change_nothing() {
     let (mut drive, mut store) = drive();
