@@ -230,7 +230,7 @@ fn csp(args: &CspScenario, dir: &Path) -> Result<(), String> {
         cfg.peak_rpm_per_s
     );
     if cfg.torque_feedforward {
-        println!("  the master sends J alpha + friction in 0x60B2 each cycle (0x60B1 = 0), 0x30A1:05 = 0");
+        println!("  the master sends J alpha + friction in 0x60B2 each cycle (0x60B1 = 0), 0x30A1:05 = :06 = 0");
     }
     let (f, trace) = motion::csp(&cfg).map_err(|e| e.to_string())?;
     println!("  move: {:.3} s, peak {:.0} rpm", f.move_s, f.peak_rpm);

@@ -199,7 +199,7 @@ pub struct CspConfig {
     pub position_gains: Option<[u32; 5]>,
     /// The master sends a torque feedforward in 0x60B2 with each set-point ([`TorqueFeedforward`]; 0x60B1 stays
     /// 0: the drive derives the velocity feedforward from the set-points) and turns the drive's own acceleration
-    /// feedforward 0x30A1:05 off, which the master's replaces.
+    /// and friction feedforward (0x30A1:05 and :06) off, which the master's replaces.
     pub torque_feedforward: bool,
 }
 
@@ -268,9 +268,11 @@ pub fn csp(config: &CspConfig) -> Result<(CspFigures, Trace), SimError> {
         dict.set(h::POSITION_CONTROLLER_FF_ACCELERATION_GAIN, fa);
     }
     if config.torque_feedforward {
-        // The master's feedforward replaces the drive's acceleration feedforward (both J alpha: kept, it would
-        // count twice; measured: peak 4 inc instead of 2).
-        sim.drive.dictionary_mut().set(h::POSITION_CONTROLLER_FF_ACCELERATION_GAIN, 0u32);
+        // The master's feedforward replaces the drive's acceleration and friction feedforward (both J alpha and
+        // the Coulomb friction: kept, they would count twice; measured: peak 4 inc instead of 2 for J alpha).
+        let d = sim.drive.dictionary_mut();
+        d.set(h::POSITION_CONTROLLER_FF_ACCELERATION_GAIN, 0u32);
+        d.set(h::POSITION_CONTROLLER_FF_FRICTION, 0u32);
     }
     let cycle_us = (config.cycle_periods as f64 * PERIOD_S * 1e6).round() as u32;
     // 0x60C2 = the master cycle in ms or 100 us units.

@@ -187,7 +187,7 @@ pub struct CspScenario {
     #[arg(long, value_name = "P,I,D,FFV,FFA", value_parser = parse_position_gains)]
     pub position_gains: Option<[u32; 5]>,
     /// The master sends the move's torque feedforward (J alpha + friction, per mille of 0x6076) in 0x60B2 each
-    /// cycle, with 0x30A1:05 (the drive's own acceleration feedforward) = 0.
+    /// cycle, with 0x30A1:05 and :06 (the drive's own acceleration and friction feedforward) = 0.
     #[arg(long)]
     pub torque_feedforward: bool,
 }
