@@ -106,6 +106,15 @@ fn geared_axis_identification_is_right_or_faults_over_friction_and_seeds() {
 /// with five times it seed 4's inertia -10.42 %; the viscous term no longer gives a wrong value (it gave seed 2's
 /// inertia +11.7 % at an earlier stop; which change cured it was not isolated). None is caught by the plausibility
 /// checks yet.
+///
+/// The cause is the inverter's dead time: `drive-sim identify` on these variants with `dead_time_s = 0` gives kt
+/// -0.23 % and inertia -0.41 % (half, seed 2), -0.26 / -2.85 % (2.5 times, seed 1), -0.39 / -3.42 % (five times,
+/// seed 4). The torque-constant fit takes the dead-time voltage as `u sign(i_q)`. Two things make it depend on the
+/// relay's phase instead:
+/// - It is proportional to the bus voltage, which rises while the relay brakes. With `sign(i_q) v_bus` as the
+///   regressor, half friction's kt moved from -3.7 to -3.0 % only (tried, not kept).
+/// - At the relay's 0.7 A the phase current's PWM ripple probably crosses zero near each current zero crossing
+///   over a band that widens with the modulation index, so the dead-time voltage would fall with the speed.
 #[test]
 #[ignore = "open: geared axis kt -3.4..-3.7 % and inertia -10.1 % at 0.5 x friction, inertia -11.9 % at 2.5 x seed 1, -10.4 % at 5 x seed 4"]
 fn geared_axis_with_other_friction() {
