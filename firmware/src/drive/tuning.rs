@@ -80,7 +80,9 @@
 //!
 //! Measured with `drive-sim csp --plant hal-sim/presets/geared-36v.toml --auto-tune --seed N` (seeds 1..3;
 //! following error peak / rms / left 20 ms after the last set-point, increments at 5,000 counts/rev):
-//! - this design: 23 / 8.0 to 8.3 / 0 to 1 (seeds 4 to 6: 23 to 26 / 8.2 to 10.0 / 0 to 1);
+//! - this design: 23 / 8.0 to 8.3 / 0 to 1 (seeds 4 to 6: 23 to 26 / 8.2 to 10.0 / 0 to 1), measured before the
+//!   friction feedforward; with it (0x30A1:06, "Friction feedforward" below) seeds 1 to 6 give 18 to 22 / 7.2 to
+//!   8.9 / 0 to 1, and the comparisons below are without it;
 //! - the former rule `Kp = 3 Kd wc` with the motor-side `Kd` (`Kp` crossing over at 0.54 `w_ar`): 115 to 190 /
 //!   54 to 64 / 25 to 34. The motor and the load then swing together near the anti-resonance, and every change
 //!   of acceleration rings the coupling into the motor's path;
