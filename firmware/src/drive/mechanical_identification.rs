@@ -14,8 +14,11 @@
 //!    relay speed, rescale the current to a half cycle of [`HALF_CYCLE_TARGET_TICKS`]. A half cycle whose braking
 //!    lifts the bus near the drive's bus-voltage limiter (0x3202:02, which would add d current and cut the braking
 //!    current: `super::regeneration`) counts in no fit and lowers the relay speed by 3/4 (on the geared preset
-//!    without a chopper from 1,000 to about 230 rpm). The relay ends after [`MIN_HALF_CYCLES`] half cycles without
-//!    such a reduction and [`MIN_RELAY_TICKS`].
+//!    without a chopper from 1,000 to about 230 rpm). "Near" is 15/16 of the limiter's voltage, or half way to it
+//!    from the bus at rest where the supply sits above 7/8 of it (a 48 V supply under the default 51 V); a bus that
+//!    rests within 1/32 of it fails the step at once ([`MechanicalError::InvalidConfig`], IDX 0xFF16: 0x3202:02
+//!    against the supply). The relay ends after [`MIN_HALF_CYCLES`] half cycles without such a reduction and
+//!    [`MIN_RELAY_TICKS`].
 //! 3. Stop: the current against the speed until it changes sign; then the solution, one part per slow tick over
 //!    three ticks (no slow tick carries all of it), and the results.
 //!
@@ -113,6 +116,10 @@ const RELAY_SPEED_PERMILLE: u64 = 500;
 /// The q voltage at which the relay reverses whatever the speed, in 1/64 of the bus voltage: 29/64 = 0.45, 78 %
 /// of the linear range of space-vector modulation (v_bus / sqrt 3), leaving the current loop its headroom.
 const HEADROOM_PER_64: i64 = 29;
+/// The least headroom between the bus at rest and the limiter's voltage, `limit >> this` (1/32: 1.59 V under the
+/// default 51 V): with less, the identification refuses to start (IDX 0xFF16, the limiter's setting 0x3202:02
+/// against the supply).
+const MIN_REGENERATION_HEADROOM_SHIFT: u32 = 5;
 /// Samples of the position history for the speed: the speed is the position difference over [`SPEED_TICKS`].
 const HISTORY: usize = SPEED_TICKS as usize;
 
@@ -133,8 +140,9 @@ pub struct MechanicalConfig {
     /// The step fails with [`MechanicalError::Timeout`] after this many slow ticks.
     pub timeout_ticks: u32,
     /// The bus voltage from which the drive's bus-voltage limiter may change the currents (0x3202:02, loss
-    /// braking voltage; `Volts` of `i16::MAX` with the limiter off): from 15/16 of it, samples count in no fit
-    /// and the relay speed is lowered, so that braking from it returns less energy than the bus takes.
+    /// braking voltage; `Volts` of `i16::MAX` with the limiter off): from 15/16 of it (or half way to it from the
+    /// bus at rest, [`bus_high_voltage`]), samples count in no fit and the relay speed is lowered, so that braking
+    /// from it returns less energy than the bus takes.
     pub regeneration_limit: Volts,
 }
 
@@ -314,8 +322,10 @@ pub struct MechanicalIdentification {
     half_cycles: u16,
     /// Half cycles since the relay speed was last lowered.
     clean_half_cycles: u16,
-    /// The bus reached 15/16 of the limiter's voltage since the last reversal.
+    /// The bus reached [`Self::bus_high_voltage`] since the last reversal.
     bus_high: bool,
+    /// The bus voltage from which samples count in no fit (module documentation, "The experiment" 2).
+    bus_high_voltage: Volts,
     /// Relay tick and speed at the last reversal (the relay's start at first).
     half_start: (u32, i64),
     /// Ticks into the current block and its sums; the previous complete block.
@@ -362,6 +372,7 @@ impl MechanicalIdentification {
             half_cycles: 0,
             clean_half_cycles: 0,
             bus_high: false,
+            bus_high_voltage: Volts::from_bits(i32::MAX),
             half_start: (0, 0),
             block_tick: 0,
             block: BlockSums::default(),
@@ -450,6 +461,11 @@ impl MechanicalIdentification {
         match self.phase {
             Phase::Start { ticks } => {
                 self.phase = if ticks.saturating_add(1) >= SPEED_TICKS {
+                    // The bus at rest: the last of the start's ticks, with no current since the step began.
+                    match bus_high_voltage(sample.v_bus, self.config.regeneration_limit) {
+                        Some(voltage) => self.bus_high_voltage = voltage,
+                        None => return MechanicalStatus::Failed(MechanicalError::InvalidConfig),
+                    }
                     Phase::Probe { level: 0, ticks: 0, start_speed: speed }
                 } else {
                     Phase::Start { ticks: ticks.saturating_add(1) }
@@ -604,9 +620,7 @@ impl MechanicalIdentification {
         let i_q = i64::from(sample.i_q.to_bits());
         // Near the limiter's voltage the drive may add d current and cut the braking q current (0x3202): such
         // ticks count in neither fit, and the half cycle lowers the relay speed.
-        if i64::from(sample.v_bus.to_bits()).saturating_mul(16)
-            >= i64::from(self.config.regeneration_limit.to_bits()).saturating_mul(15)
-        {
+        if sample.v_bus >= self.bus_high_voltage {
             self.bus_high = true;
         }
         let excluded = self.bus_high;
@@ -757,6 +771,21 @@ impl MechanicalIdentification {
             ticks: self.ticks,
         })
     }
+}
+
+/// The bus voltage from which the relay's samples count in no fit, from the bus at rest `rest` and the limiter's
+/// voltage `limit`: 15/16 of the limit, or half way from the rest to the limit where the bus rests above 7/8 of it
+/// (a 48 V supply under the default 51 V: 49.5 V, where 15/16 lay under the supply itself and every sample left
+/// the fit). `None` where the bus rests less than 1/32 of the limit under it ([`MIN_REGENERATION_HEADROOM_SHIFT`]):
+/// the limiter would act on the first braking, and the relay could not keep a sample.
+fn bus_high_voltage(rest: Volts, limit: Volts) -> Option<Volts> {
+    let (rest, limit) = (rest.to_bits(), limit.to_bits());
+    let headroom = limit.saturating_sub(rest);
+    if headroom < limit >> MIN_REGENERATION_HEADROOM_SHIFT {
+        return None;
+    }
+    // rest + headroom / 2 <= limit: no wrap.
+    Some(Volts::from_bits(limit.wrapping_sub(limit >> 4).max(rest.wrapping_add(headroom >> 1))))
 }
 
 /// The fitted Coulomb (uNm) and viscous (0.001 uNm/rpm) friction as the drive keeps them (module documentation,

@@ -14,6 +14,9 @@
 //!
 //! The small gimbal with 2.5 x its Coulomb friction and seed 2 is the case that failed before (inertia +3,400 %,
 //! friction +1,400 %: the relay current fell below the breakaway torque and the stuck shaft entered the fit).
+//!
+//! The supply voltage is the other thing a user's axis changes: the reference motor on the 48 V class, under the
+//! bus-voltage limiter's default 51 V (0x3202:02), and a supply too close to it.
 
 use hal_sim::plant::PlantParams;
 use hal_sim::scenarios::identification::{identify, IdentifyRun, Outcome};
@@ -126,4 +129,32 @@ fn geared_axis_with_other_friction() {
         10.0,
     );
     assert!(wrong.is_empty(), "wrong values written:\n{}", wrong.join("\n"));
+}
+
+/// The reference motor on a 48 V supply, the common industrial class, with the limiter's default 51 V (0x3202:02):
+/// kt within 3 %, inertia within 5 % (rigid), seeds 1 and 2. The relay's "bus near the limiter" was 15/16 of
+/// 51 V = 47.8 V, under the supply itself: every sample left the fit and the step failed with 0xFF15 on every
+/// seed (`firmware::drive::mechanical_identification`, `bus_high_voltage`).
+#[test]
+fn a_48_v_supply_under_the_default_limiter_identifies_within_3_and_5_pct() {
+    let params = PlantParams { source_voltage_v: 48.0, ..preset("reference") };
+    for seed in 1..=2 {
+        let run = identify(&params, seed, |_| {});
+        let id = &run.identified;
+        let kt = IdentifyRun::error_pct(id.kt_nm_per_a, params.torque_constant_nm_per_a());
+        let inertia = IdentifyRun::error_pct(id.inertia_kg_m2, params.total_inertia_kg_m2());
+        assert_eq!(run.outcome, Outcome::Done, "seed {seed}");
+        assert!(kt.abs() <= 3.0, "seed {seed}: kt {kt:+.2} %");
+        assert!(inertia.abs() <= 5.0, "seed {seed}: inertia {inertia:+.2} %");
+    }
+}
+
+/// A 50 V supply under the limiter's 51 V: the bus rests within 1/32 of it (1.59 V), the limiter would act on the
+/// relay's first braking, and no sample could stay in the fit. The procedure refuses before the mechanical
+/// experiment drives any current: IDX 0xFF16 (parameter error: 0x3202:02 against the supply), power stage off.
+#[test]
+fn a_supply_within_2_64_of_the_limiter_voltage_fails_0xff16_with_the_power_stage_off() {
+    let params = PlantParams { source_voltage_v: 50.0, ..preset("reference") };
+    let run = identify(&params, 1, |_| {});
+    assert_eq!(run.outcome, Outcome::Fault { code: 0xFF16, power_off: true });
 }
