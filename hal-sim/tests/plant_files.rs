@@ -98,6 +98,27 @@ fn geared_36v_preset_has_the_issue_ratings() {
     assert_reference_power_stage(&p);
 }
 
+/// The 48 V class preset: what its file's comment claims, on the reference power stage; its supply 3 V under the
+/// bus-voltage limiter's default 51 V (0x3202:02), the case the identification's relay must run in.
+#[test]
+fn nema23_48v_preset_is_the_48_v_class_motor_it_claims() {
+    let p = preset("nema23-48v.toml");
+    assert_eq!(p.source_voltage_v, 48.0);
+    assert_eq!(p.pole_pairs, 4);
+    assert_eq!(p.phase_resistance_ohm, 0.3);
+    assert_eq!((p.ld_h, p.lq_h), (0.5e-3, 0.5e-3));
+    assert!(close(p.torque_constant_nm_per_a(), 0.07, 1e-12), "kt {}", p.torque_constant_nm_per_a());
+    assert_eq!((p.rotor_inertia_kg_m2, p.load_inertia_kg_m2), (120.0e-7, 240.0e-7), "120 + 240 g cm^2");
+    assert!(!p.coupling_is_compliant());
+    assert_eq!(p.encoder_counts_per_rev, 4_000, "1,000 lines");
+    assert_eq!((p.nominal_current_a, p.peak_current_a, p.max_speed_rpm), (6.0, 12.0, 3000.0));
+    // The thermal rule of the other presets: the nominal current heats the winding by 100 K.
+    let watts = 1.5 * p.phase_resistance_ohm * p.nominal_current_a * p.nominal_current_a;
+    let rise = watts * (p.winding_to_housing_k_per_w + p.housing_to_ambient_k_per_w);
+    assert!((rise - 100.0).abs() < 0.5, "{rise} K");
+    assert_reference_power_stage(&p);
+}
+
 #[test]
 fn a_missing_key_keeps_the_reference_value() {
     let p = PlantParams::from_toml_str("source_voltage_v = 12\npole_pairs = 4\n", "two-keys.toml").unwrap();

@@ -1210,6 +1210,22 @@ fn auto_tuned(args: &Scenario, params: &PlantParams) -> Result<hal_sim::scenario
         id.kt_nm_per_a,
         id.inertia_kg_m2 * 1e7,
     );
+    // The loops' gains as the auto-tuning wrote them (the objects' own units, device.toml), for a reader who wants
+    // to compare them or set them by hand.
+    let gains: Vec<String> = run
+        .parameters
+        .values
+        .iter()
+        .filter(|(index, _, _)| (0x30A0..=0x30A3).contains(index))
+        .map(|(index, sub, data)| {
+            let mut bytes = [0u8; 4];
+            for (b, d) in bytes.iter_mut().zip(data) {
+                *b = *d;
+            }
+            format!("{index:04X}:{sub:02X}={}", u32::from_le_bytes(bytes))
+        })
+        .collect();
+    println!("auto-tune: gains {}", gains.join(" "));
     match run.outcome {
         identification::Outcome::Done => Ok(run.parameters),
         other => Err(format!("--auto-tune: the identification did not finish: {other:?}")),

@@ -3,6 +3,8 @@
 //!
 //! One test binary for the area; each module is one of its test files.
 
+mod auto_tune_48v;
+mod auto_tune_belt;
 mod auto_tune_geared;
 mod auto_tune_geared_duty_cycle;
 mod auto_tune_scenarios;
