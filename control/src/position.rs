@@ -32,6 +32,15 @@
 //! discretised with the matched pole `exp(-w_c Ts)` = 0.85535 ([`super::velocity_estimate::LowPass`]), so the
 //! time constant is 1/w_c = 2.560 ms at the sample instants.
 //!
+//! # D filter (the project's 0x30A1:07)
+//! EPOS4 fixes `w_c`; here it is the object 0x30A1:07 ([`PositionGains::with_d_filter_cutoff`]), 390.61 rad/s by
+//! default. Above `w_c` the D part gives no phase lead and acts as a further proportional gain. On a rigid load the
+//! PID crosses over below it; on an elastic load the motor moves on its own inertia above the resonance, and the
+//! PD that holds it there crosses over at several hundred rad/s, where a 390 rad/s filter leaves it no phase: the
+//! loop rang at the current limit on a belt axis (`tests/tests/drive/auto_tune_belt.rs`). The auto-tuning raises
+//! the cut-off for an elastic load (`firmware::drive::tuning`, "Position loop"). A change of the cut-off keeps the
+//! filter's output ([`super::velocity_estimate::LowPass::retune`]).
+//!
 //! # Positions (convention 4 of `shared/design/ARCHITECTURE.md`)
 //! Positions are [`Increments`], a wrapping `i32`, like the CiA 402 position objects (0x6062/0x6064/0x607A,
 //! INTEGER32); the type is defined with the other units in [`super::units`] and re-exported here. The error
@@ -117,6 +126,8 @@ pub struct PositionGains {
     kb: i32,
     /// FF friction: the Coulomb friction's current, 2^-32 A.
     ff_friction: i64,
+    /// The D part's low-pass (its coefficient only; 0x30A1:07).
+    d_filter: LowPass,
 }
 
 impl PositionGains {
@@ -137,6 +148,7 @@ impl PositionGains {
             ff_acceleration: gain_current_per_acceleration(ff_acceleration, inc_per_rev),
             kb: tracking_gain(p, d),
             ff_friction: 0,
+            d_filter: LowPass::from_cutoff_millirad_per_s(D_FILTER_CUTOFF_MILLIRAD_PER_S),
         }
     }
 
@@ -146,6 +158,13 @@ impl PositionGains {
         // ua * 1e-6 A in 2^-32 A: below 2^52, within the term clamp.
         let ff_friction = clamp_term(((i64::from(ua)) << 32) / 1_000_000);
         Self { ff_friction, ..self }
+    }
+
+    /// The same gains with the D part's low-pass at `millirad_per_s` (0x30A1:07; EPOS4's is
+    /// [`D_FILTER_CUTOFF_MILLIRAD_PER_S`], module documentation "D filter").
+    #[must_use]
+    pub fn with_d_filter_cutoff(self, millirad_per_s: u32) -> Self {
+        Self { d_filter: LowPass::from_cutoff_millirad_per_s(millirad_per_s), ..self }
     }
 
     /// The same gains with another back-calculation gain Kb = Ts/Tt in `I1F31` bits (negative values become 0).
@@ -213,7 +232,8 @@ impl PositionController {
         Self {
             gains,
             integral: 0,
-            d_filter: LowPass::from_cutoff_millirad_per_s(D_FILTER_CUTOFF_MILLIRAD_PER_S),
+            // The gains' D filter: its cut-off, with output 0.
+            d_filter: gains.d_filter,
             last_error: None,
             following_error: 0,
             saturated: false,
@@ -226,9 +246,10 @@ impl PositionController {
         self.gains
     }
 
-    /// Replaces the gains, keeping the states.
+    /// Replaces the gains, keeping the states (the D filter's output too, under its new cut-off).
     pub fn set_gains(&mut self, gains: PositionGains) {
         self.gains = gains;
+        self.d_filter.retune(&gains.d_filter);
     }
 
     /// Empties the integrator and the D filter (on enable).

@@ -123,6 +123,11 @@ impl LowPass {
         self.y
     }
 
+    /// Takes the coefficient of `other` (another cut-off), keeping this filter's output and remainder.
+    pub fn retune(&mut self, other: &Self) {
+        self.c = other.c;
+    }
+
     /// Sets the output (and clears the remainder), clamped to the input range.
     pub fn preset(&mut self, y: i32) {
         self.y = y.clamp(-INPUT_LIMIT, INPUT_LIMIT);

@@ -312,6 +312,49 @@ fn d_filter_time_constant() {
     assert!(close(tau, 1.0 / 390.61, 0.02), "{tau}");
 }
 
+/// 0x30A1:07 (`PositionGains::with_d_filter_cutoff`): the D part's time constant follows the object, 1 / 1,903.4
+/// rad/s = 0.525 ms for the elastic design's cut-off (the matched pole of a first-order filter at the 2.5 kHz tick;
+/// measured on the same ramp as `d_filter_time_constant`, within 2 % plus half a tick, as the crossing is
+/// interpolated between ticks 0.4 ms apart against a 0.5 ms time constant).
+#[test]
+fn d_filter_cutoff_object_sets_the_time_constant() {
+    let gains = PositionGains::from_idx_0x30a1(0, 0, 1_000_000, 0, 0, N_ENC).with_d_filter_cutoff(1_903_400);
+    let mut c = PositionController::new(gains);
+    let big = amps(1000.0);
+    let final_value = 1.0 * TAU * 2500.0 / 4096.0;
+    let mut prev = (0.0, 0.0);
+    let mut tau = None;
+    for k in 0..40i32 {
+        let y = af(c.step(Increments(k), Increments(0), IncPerTick::ZERO, IncPerTick2::ZERO, big)) / final_value;
+        let t = f64::from(k) * TS;
+        if tau.is_none() && y >= 1.0 - (-1.0f64).exp() {
+            let (t0, y0) = prev;
+            tau = Some(t0 + (t - t0) * ((1.0 - (-1.0f64).exp()) - y0) / (y - y0));
+        }
+        prev = (t, y);
+    }
+    let tau = tau.expect("crosses 63 %");
+    assert!((tau - 1.0 / 1903.4).abs() < 0.02 / 1903.4 + TS / 2.0, "{tau}");
+    assert!(tau < 1.0 / 1000.0, "faster than EPOS4's 2.56 ms: {tau}");
+}
+
+/// A new cut-off taken while the D part holds a value keeps that value (`LowPass::retune`): new gains with
+/// another cut-off do not jump the current demand; only the rate at which the D part follows changes.
+#[test]
+fn changing_the_d_filter_cutoff_keeps_the_d_part_output() {
+    let gains = PositionGains::from_idx_0x30a1(0, 0, 1_000_000, 0, 0, N_ENC);
+    let mut c = PositionController::new(gains);
+    let big = amps(1000.0);
+    for k in 0..10i32 {
+        c.step(Increments(k), Increments(0), IncPerTick::ZERO, IncPerTick2::ZERO, big);
+    }
+    let held = c.d_filter().output();
+    c.set_gains(gains.with_d_filter_cutoff(1_903_400));
+    assert_eq!(c.d_filter().output(), held, "output kept");
+    let elastic = firmware::control::velocity_estimate::LowPass::from_cutoff_millirad_per_s(1_903_400);
+    assert_eq!(c.d_filter().coefficient(), elastic.coefficient(), "the new cut-off's coefficient");
+}
+
 // ------------------------------------------------------------------------------------------------------------
 // Counter wrap
 // ------------------------------------------------------------------------------------------------------------

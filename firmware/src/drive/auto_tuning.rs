@@ -85,6 +85,7 @@ pub fn write_gains(values: &mut [u8], g: &TunedGains) {
     set(values, h::POSITION_CONTROLLER_FF_VELOCITY_GAIN, g.position.ff_velocity_ua_s_per_rad);
     set(values, h::POSITION_CONTROLLER_FF_ACCELERATION_GAIN, g.position.ff_acceleration_ua_s2_per_rad);
     set(values, h::POSITION_CONTROLLER_FF_FRICTION, g.position.ff_friction_ua);
+    set(values, h::POSITION_CONTROLLER_D_FILTER_CUTOFF, g.position.d_filter_cutoff_mrad_per_s);
     set(values, h::VELOCITY_CONTROLLER_P_GAIN, g.velocity.p_ua_s_per_rad);
     set(values, h::VELOCITY_CONTROLLER_I_GAIN, g.velocity.i_ua_per_rad);
     set(values, h::VELOCITY_CONTROLLER_FF_VELOCITY_GAIN, g.velocity.ff_velocity_ua_s_per_rad);

@@ -54,7 +54,7 @@ impl VelocityEstimate {
 /// The raw dictionary values the loops are built from.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 struct GainObjects {
-    position: [u32; 6],
+    position: [u32; 7],
     velocity: [u32; 4],
     cutoff_hz: u32,
     observer: [u32; 5],
@@ -76,6 +76,7 @@ impl GainObjects {
                 d.get(h::POSITION_CONTROLLER_FF_VELOCITY_GAIN),
                 d.get(h::POSITION_CONTROLLER_FF_ACCELERATION_GAIN),
                 d.get(h::POSITION_CONTROLLER_FF_FRICTION),
+                d.get(h::POSITION_CONTROLLER_D_FILTER_CUTOFF),
             ],
             velocity: [
                 d.get(h::VELOCITY_CONTROLLER_P_GAIN),
@@ -182,8 +183,12 @@ impl Loops {
             return;
         }
         let n = o.inc_per_rev.max(1);
-        let [pp, pi, pd, pfv, pfa, pfc] = o.position;
-        self.position.set_gains(PositionGains::from_idx_0x30a1(pp, pi, pd, pfv, pfa, n).with_friction_feedforward(pfc));
+        let [pp, pi, pd, pfv, pfa, pfc, d_cutoff] = o.position;
+        self.position.set_gains(
+            PositionGains::from_idx_0x30a1(pp, pi, pd, pfv, pfa, n)
+                .with_friction_feedforward(pfc)
+                .with_d_filter_cutoff(d_cutoff),
+        );
         let [vp, vi, vfv, vfa] = o.velocity;
         self.velocity.set_gains(VelocityGains::from_idx_0x30a2(vp, vi, vfv, vfa, n));
         if o.cutoff_hz != self.objects.cutoff_hz || self.objects == GainObjects::default() {
@@ -381,6 +386,22 @@ mod tests {
     fn control_structure_selects_the_estimate() {
         assert_eq!(VelocityEstimate::from_control_structure(0x0001_0111), VelocityEstimate::LowPass);
         assert_eq!(VelocityEstimate::from_control_structure(0x0001_0121), VelocityEstimate::Observer);
+    }
+
+    /// 0x30A1:07 acts (an object that accepts a write acts on it): a write reaches the position PID's D filter at
+    /// the next refresh, as the coefficient of a first-order low-pass at the new cut-off.
+    #[test]
+    fn d_filter_cutoff_object_reaches_the_position_pid() {
+        use crate::control::velocity_estimate::LowPass;
+        use crate::od::generated::handles as h;
+        let mut d = dict();
+        let mut loops = Loops::new(&d);
+        let epos4 = LowPass::from_cutoff_millirad_per_s(390_610).coefficient();
+        assert_eq!(loops.position.d_filter().coefficient(), epos4, "the default: EPOS4's 390.61 rad/s");
+        d.set(h::POSITION_CONTROLLER_D_FILTER_CUTOFF, 1_903_400);
+        loops.refresh(&d);
+        let elastic = LowPass::from_cutoff_millirad_per_s(1_903_400).coefficient();
+        assert_eq!(loops.position.d_filter().coefficient(), elastic);
     }
 
     #[test]

@@ -168,7 +168,7 @@ impl Master {
 /// The objects the identification and its auto-tuning write (the drive's parameters a master saves after it and
 /// writes into a drive it commissions): motor data, winding, encoder direction and index offset, Hall offset, and
 /// the gains of the current, position and velocity loops, the observer and the dual loop's main loop.
-pub const IDENTIFIED_OBJECTS: [(u16, u8); 30] = [
+pub const IDENTIFIED_OBJECTS: [(u16, u8); 31] = [
     (0x3001, 5),
     (0x3002, 1),
     (0x3002, 2),
@@ -184,6 +184,7 @@ pub const IDENTIFIED_OBJECTS: [(u16, u8); 30] = [
     (0x30A1, 4),
     (0x30A1, 5),
     (0x30A1, 6),
+    (0x30A1, 7),
     (0x30A2, 1),
     (0x30A2, 2),
     (0x30A2, 3),

@@ -1,46 +1,40 @@
-//! Open (run with `--ignored`): the auto-tuned CSP on a light motor driving its load through a lightly damped belt.
+//! The auto-tuned CSP on elastic loads the presets do not cover: the reference motor (kt 0.0335 Nm/A, rotor
+//! 44 g cm^2, 4,096 counts/rev, 24 V) on a 3:1 belt to a load of `ratio` times its reflected rotor inertia, the
+//! belt's stiffness putting the free two-mass resonance at `f_r` (anti-resonance `f_r / sqrt(1 + ratio)`), with
+//! the coupling's damping ratio `zeta` and 20 mNm of load friction. A light motor on a light, lightly damped
+//! coupling: unlike geared-36v, neither a heavy rotor nor a gear's friction and backlash damp what the loop
+//! leaves undamped.
 //!
-//! The plant: the reference motor (kt 0.0335 Nm/A, rotor 44 g cm^2, 4,096 counts/rev, 24 V) on a 3:1 belt to a
-//! load of 10 times its reflected rotor inertia, the belt's stiffness putting the free two-mass resonance at 80 Hz
-//! (anti-resonance 24.1 Hz), 5 % damping, 20 mNm of load friction. The identification gets it right (seed 1: kt
-//! -1.7 %, inertia -2.0 %, resonance 82.7 Hz, anti-resonance 24.1 Hz), but the position PID the auto-tuning
-//! designs from it (`firmware::drive::tuning`, "Position loop": `Kp` crossing over at 1.4 times the
-//! anti-resonance on the whole inertia) rings at the current limit: `drive-sim csp --auto-tune` on this plant
-//! written as a file gives a following-error peak of 1,712 to 1,745 increments and 341 to 349 left after the move
-//! (seeds 1 to 3; the issue's bounds are 3 degrees = 34 increments and +-1).
+//! Before the elastic design's D filter and `Kp` cap (`firmware::drive::tuning`, "Position loop") the position
+//! PID rang at the current limit on most of them: on the 80 Hz / 10 x / 5 % belt a following-error peak of 1,712
+//! to 1,745 increments and 341 to 349 left after the move (seeds 1 to 3); on the family below (seed 1) 35 of the
+//! 42 plants that identify broke the issue's 3 degrees, 33 of them past 100 increments.
 //!
-//! What was measured (none of it on `main`):
-//! - The design's `Kp` puts the proportional crossover on the motor's own inertia at 1.4 times the resonance; with
-//!   `Kd`'s fixed 390.61 rad/s filter and the 2.5 kHz loop's delay that loop has no phase left above the resonance.
-//!   On the geared-36v preset the same design holds only through its friction: with half of it the CSP peaks at
-//!   40 to 47 increments and leaves 10; with none, 142 and 23.
-//! - A sweep of this belt's family (resonance 40 to 120 Hz, load 3 to 20 times, damping 2 to 15 %) with `Kp`
-//!   set by hand: on this motor a damping of 5 % or less above 60 Hz needs the proportional crossover on the
-//!   motor's own inertia under about 350 rad/s (`Kp` 15 A/rad here: peak 16, settle 0).
-//! - Capping `Kp` so that the PD on the motor's own inertia keeps a damping of 0.9 cures the family at 15 %
-//!   damping (80 to 120 Hz: from 471 to 1,456 increments of peak to 4 to 21) and leaves geared-36v unchanged,
-//!   but not 2 or 5 % (this belt: 440 to 462 / 207 to 220). Its 84 bytes did not fit in the EtherCAT + defmt
-//!   image's flash budget in this stop.
-//! - A notch on the PID's current demand at the identified resonance (Q 1.5) makes this belt settle (peak 9 to 10,
-//!   settle 0 to 1, also at 60 and 120 Hz with 2 %), but takes the phase geared-36v's loop needs at its crossover:
-//!   its peak rose from 18 to 91 and 199 increments (Q 3: 42 / 26 on seed 1).
-//!
-//! A design that holds on both needs the loop's phase near and above the resonance, not only `Kp`: a notch with a
-//! `Kp` rule that does not lean on friction, or a velocity-loop cascade for elastic loads.
+//! Tolerances: the issue's following-error peak, 3 degrees of the motor shaft (34.1 increments of 4,096); and 5
+//! increments left 20 ms after the move where the issue asks +-1: a loop that rings leaves hundreds, the
+//! standstill hunting described next up to 4. Measured: the 80 Hz belt 8 to 10 / 1 to 2 (seeds 1 to 3); the
+//! family 4 to 24 / 0 to 4, with 2 to 4 on 16 of the 42. What is left is the friction feedforward's standstill
+//! correction (0x30A1:06, `firmware::control::position`) on the light motor, which moves first against the
+//! coupling: the identified friction is the whole drivetrain's. The issue's +-1 on the family is the ignored test
+//! at the end.
 
 use hal_sim::plant::PlantParams;
 use hal_sim::scenarios::identification::{self, Outcome};
 use hal_sim::scenarios::{self, motion};
 
-/// The reference motor on the belt described in the module documentation, with the coupling's damping ratio
-/// `zeta`.
-fn belt(zeta: f64) -> PlantParams {
+/// Three degrees of the motor shaft in increments of the reference encoder (4,096 counts/rev): 34.1.
+const THREE_DEGREES_INC: f64 = 3.0 / 360.0 * 4096.0;
+/// Increments left 20 ms after the move that these cases accept (module documentation).
+const SETTLE_TOLERANCE_INC: f64 = 5.0;
+
+/// The reference motor on the belt of the module documentation.
+fn belt(resonance_hz: f64, ratio: f64, zeta: f64) -> PlantParams {
     let r = PlantParams::reference();
     let n = 3.0;
     let rotor_at_output = r.rotor_inertia_kg_m2 * n * n;
-    let load = 10.0 * rotor_at_output;
+    let load = ratio * rotor_at_output;
     let compliance = 1.0 / load + 1.0 / rotor_at_output;
-    let w_r = std::f64::consts::TAU * 80.0;
+    let w_r = std::f64::consts::TAU * resonance_hz;
     PlantParams {
         gear_ratio: n,
         gear_efficiency: 0.95,
@@ -52,21 +46,86 @@ fn belt(zeta: f64) -> PlantParams {
     }
 }
 
-/// Issue 18's CSP figures after `--auto-tune` on the 5 %-damped belt, seeds 1 to 3: following error peak at most
-/// 3 degrees of the motor shaft (34.1 increments of 4,096) and within +-1 increment 20 ms after the move.
-#[test]
-#[ignore = "open: the auto-tuned position PID rings on a lightly damped 80 Hz belt (module documentation)"]
-fn auto_tuned_csp_on_a_lightly_damped_belt_meets_the_issue_figures() {
-    let plant = belt(0.05);
-    for seed in 1..=3 {
-        let run = identification::identify(&plant, seed, |_| {});
-        assert_eq!(run.outcome, Outcome::Done, "seed {seed}");
-        let csp = scenarios::with_plant(plant.clone(), || {
-            scenarios::with_parameters(run.parameters, || {
-                motion::csp(&motion::CspConfig::scaled_to_current_plant(seed)).expect("csp").0
-            })
-        });
-        assert!(csp.following_error_peak_inc <= 3.0 / 360.0 * 4096.0, "seed {seed}: {csp:?}");
-        assert!(csp.settle_error_inc <= 1.0, "seed {seed}: {csp:?}");
+/// The CSP move (`drive-sim csp --auto-tune`) on `plant` with the parameters of its own identification, or the
+/// identification's fault code.
+fn auto_tuned_csp(plant: &PlantParams, seed: u64) -> Result<motion::CspFigures, u16> {
+    let run = identification::identify(plant, seed, |_| {});
+    match run.outcome {
+        Outcome::Done => {}
+        Outcome::Fault { code, power_off } => {
+            assert!(power_off, "fault 0x{code:04X} left the power stage on");
+            return Err(code);
+        }
+        Outcome::GaveUp => panic!("the identification never finished"),
     }
+    Ok(scenarios::with_plant(plant.clone(), || {
+        scenarios::with_parameters(run.parameters, || {
+            motion::csp(&motion::CspConfig::scaled_to_current_plant(seed)).expect("csp").0
+        })
+    }))
+}
+
+/// The family: resonance 40 to 120 Hz, load 3 to 20 times the reflected rotor, damping 2 to 15 %.
+fn family() -> Vec<(f64, f64, f64)> {
+    let mut v = Vec::new();
+    for f_r in [40.0, 60.0, 80.0, 100.0, 120.0] {
+        for ratio in [3.0, 10.0, 20.0] {
+            for zeta in [0.02, 0.05, 0.15] {
+                v.push((f_r, ratio, zeta));
+            }
+        }
+    }
+    v
+}
+
+/// The 80 Hz belt with 10 times the reflected rotor and 5 % damping, seeds 1 to 3: within the issue's 3 degrees
+/// and 5 increments of the target 20 ms after the move (module documentation).
+#[test]
+fn auto_tuned_csp_on_a_lightly_damped_belt_stays_within_3_degrees() {
+    let plant = belt(80.0, 10.0, 0.05);
+    for seed in 1..=3 {
+        let csp = auto_tuned_csp(&plant, seed).expect("identified");
+        assert!(csp.following_error_peak_inc <= THREE_DEGREES_INC, "seed {seed}: {csp:?}");
+        assert!(csp.settle_error_inc <= SETTLE_TOLERANCE_INC, "seed {seed}: {csp:?}");
+    }
+}
+
+/// Every plant of the family (seed 1) either identifies, and its auto-tuned CSP move stays within 3 degrees and
+/// 5 increments of the target after the move, or ends the identification in one of its faults (IDX 0xFF12 to
+/// 0xFF22) with the power stage off (three with 20 times the rotor at 40 Hz: 0xFF15).
+#[test]
+fn auto_tuned_csp_on_a_family_of_belts_stays_within_3_degrees() {
+    let mut wrong = Vec::new();
+    for (f_r, ratio, zeta) in family() {
+        match auto_tuned_csp(&belt(f_r, ratio, zeta), 1) {
+            Ok(csp) => {
+                println!(
+                    "{f_r} Hz, {ratio} x, zeta {zeta}: {} / {}",
+                    csp.following_error_peak_inc, csp.settle_error_inc
+                );
+                if csp.following_error_peak_inc > THREE_DEGREES_INC || csp.settle_error_inc > SETTLE_TOLERANCE_INC {
+                    wrong.push(format!("{f_r} Hz, {ratio} x, zeta {zeta}: {csp:?}"));
+                }
+            }
+            Err(code) if (0xFF12..=0xFF22).contains(&code) => {}
+            Err(code) => wrong.push(format!("{f_r} Hz, {ratio} x, zeta {zeta}: fault 0x{code:04X}")),
+        }
+    }
+    assert!(wrong.is_empty(), "{}", wrong.join("\n"));
+}
+
+/// Known open (run with `--ignored`): the issue's +-1 increment 20 ms after the move on the whole family; 16 of
+/// the 42 plants that identify leave 2 to 4 (module documentation).
+#[test]
+#[ignore = "open: 2 to 4 increments left on 16 of the belt family's 42 plants (the friction feedforward's standstill correction)"]
+fn auto_tuned_csp_on_a_family_of_belts_settles_within_1_increment() {
+    let mut wrong = Vec::new();
+    for (f_r, ratio, zeta) in family() {
+        if let Ok(csp) = auto_tuned_csp(&belt(f_r, ratio, zeta), 1) {
+            if csp.settle_error_inc > 1.0 {
+                wrong.push(format!("{f_r} Hz, {ratio} x, zeta {zeta}: {csp:?}"));
+            }
+        }
+    }
+    assert!(wrong.is_empty(), "{}", wrong.join("\n"));
 }

@@ -88,6 +88,34 @@ fn the_identified_coulomb_friction_becomes_the_friction_feedforward() {
     assert_eq!(u32::from_le_bytes(buf), 17_910);
 }
 
+/// A master's resonance pair in 0x3205:03/04 (an elastic load) moves the position PID's D filter 0x30A1:07 at the
+/// next auto-tuning from EPOS4's 390.61 rad/s to 4 x the stiffness's crossover: 1,903,400 mrad/s at 0x3205:02 =
+/// 1000 (`firmware::drive::tuning`, "Position loop"); 0 / 0 (rigid) takes it back. Uploaded over SDO.
+#[test]
+fn an_elastic_load_raises_the_position_d_filter_and_a_rigid_one_restores_it() {
+    let (mut drive, mut store) = drive();
+    let d_filter = |drive: &mut firmware::drive::Drive, store: &mut _| {
+        let mut buf = [0u8; 4];
+        drive.sdo_read(0x30A1, 7, 0, &mut buf, store).expect("0x30A1:07 upload");
+        u32::from_le_bytes(buf)
+    };
+    assert_eq!(d_filter(&mut drive, &mut store), 390_610, "the default: EPOS4's");
+    // The object's range: 10 rad/s up to the slow tick's Nyquist frequency, 7,853.981 rad/s (SDO abort codes
+    // 0609 0032 / 0609 0031).
+    let too_low = drive.sdo_write(0x30A1, 7, &9_999u32.to_le_bytes(), PRE_OP, &mut store);
+    assert_eq!(too_low, Err(SdoAbort::ValueTooLow));
+    let too_high = drive.sdo_write(0x30A1, 7, &7_853_982u32.to_le_bytes(), PRE_OP, &mut store);
+    assert_eq!(too_high, Err(SdoAbort::ValueTooHigh));
+    drive.sdo_write(0x3205, 3, &800u16.to_le_bytes(), PRE_OP, &mut store).expect("0x3205:03 = 80 Hz");
+    drive.sdo_write(0x3205, 4, &241u16.to_le_bytes(), PRE_OP, &mut store).expect("0x3205:04 = 24.1 Hz");
+    drive.sdo_write(0x3205, 1, &[1], PRE_OP, &mut store).expect("0x3205:01 = 1");
+    assert_eq!(d_filter(&mut drive, &mut store), 1_903_400);
+    drive.sdo_write(0x3205, 3, &0u16.to_le_bytes(), PRE_OP, &mut store).expect("0x3205:03 = 0");
+    drive.sdo_write(0x3205, 4, &0u16.to_le_bytes(), PRE_OP, &mut store).expect("0x3205:04 = 0");
+    drive.sdo_write(0x3205, 1, &[1], PRE_OP, &mut store).expect("0x3205:01 = 1");
+    assert_eq!(d_filter(&mut drive, &mut store), 390_610);
+}
+
 #[test]
 fn auto_tuning_refusals_are_precise_and_change_nothing() {
     let (mut drive, mut store) = drive();
