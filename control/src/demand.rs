@@ -68,16 +68,23 @@ impl DemandScale {
 
     /// Torque demand (target + offset, clamped to the max torque) in per mille, and its q current clamped to the
     /// current limit.
+    ///
+    /// The limits are not negative (0x6072 is unsigned; the current limit comes from unsigned milliamperes and
+    /// [`Self::limited_to`] floors it at 0) and are taken with max/min: `clamp` would assert the bounds' order with
+    /// a formatted panic, whose `i32` and `i64` formatting stays in the images that print panics (flash, issue 17).
+    /// With ordered bounds the results are the same.
     #[inline(always)]
     #[must_use]
     pub fn torque_to_current(&self, target_permille: i16, offset_permille: i16) -> (i16, Amps) {
         let demand = i32::from(target_permille)
             .wrapping_add(i32::from(offset_permille))
-            .clamp(self.max_torque_permille.wrapping_neg(), self.max_torque_permille);
+            .max(self.max_torque_permille.wrapping_neg())
+            .min(self.max_torque_permille);
         // |demand| <= 65,535 and the scale < 2^40 for any nominal current in 0x3001:01's range (<= 10 A: < 2^36):
         // the product < 2^57. Rounded to nearest.
         let bits = (i64::from(demand).wrapping_mul(self.bits_per_permille_q16).wrapping_add(1 << 15) >> 16)
-            .clamp(i64::from(self.current_limit_bits.wrapping_neg()), i64::from(self.current_limit_bits));
+            .max(i64::from(self.current_limit_bits.wrapping_neg()))
+            .min(i64::from(self.current_limit_bits));
         // Clamped to +-2^31 by the limit: the conversions are exact.
         (demand.clamp(i32::from(i16::MIN), i32::from(i16::MAX)) as i16, Amps::from_bits(bits as i32))
     }

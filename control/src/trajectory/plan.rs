@@ -5,7 +5,7 @@ use super::params::{ProfileParams, ProfileType};
 use super::sine::{sin_2pi_q60, sin_pi_q60, INV_2PI2_Q60, INV_2PI_Q60, ONE_Q62};
 use super::units::{Acceleration, Velocity};
 use super::ONE_Q32;
-use crate::wide::{div_shl, isqrt, mul_shr, round_shr, sat_i64};
+use crate::wide::{div_shl, isqrt, mul_shr, mul_sign, round_shr, sat_i64};
 
 /// How far (Q32 inc, 2^-8 inc) a start velocity may exceed what can be stopped within the distance before the
 /// planner treats the move as an overshoot (stop and come back) rather than as a rounding residue.
@@ -111,7 +111,7 @@ impl Segment {
     /// A ramp from `v0` to `v1` over `duration` at the mean rate `rate` (Q40, > 0; 0 for a cruise).
     fn new(start: i128, duration: i128, p0: i128, v0: i128, v1: i128, rate: i128, shape: ProfileType) -> Self {
         let dv = v1.saturating_sub(v0);
-        let accel = rate.saturating_mul(dv.signum());
+        let accel = mul_sign(rate, dv.signum());
         Self { start, duration, p0, v0, dv, area: mul_shr(dv, duration, 32), accel, shape }
     }
 
@@ -387,10 +387,10 @@ pub(super) fn plan_position(
         if s == 0 {
             break;
         }
-        // Normalised to the direction of the target: s = +-1, so the products are sign flips.
-        let dn = d.saturating_mul(s);
-        let u0 = b.v.saturating_mul(s);
-        let wn = end_velocity.saturating_mul(s).clamp(0, lim.vmax.max(0));
+        // Normalised to the direction of the target: s = +-1, so the products are sign flips (`mul_sign`).
+        let dn = mul_sign(d, s);
+        let u0 = mul_sign(b.v, s);
+        let wn = mul_sign(end_velocity, s).clamp(0, lim.vmax.max(0));
         if u0 < 0 {
             b.ramp_to(0, lim.dec);
             continue;
@@ -409,7 +409,7 @@ pub(super) fn plan_position(
                 }
                 // Continuing move: arrive faster than wn, decelerating all the way.
                 let w2 = isqrt(u0_sq.saturating_sub(twice_rate_distance(lim.dec, dn)));
-                b.ramp_to(w2.saturating_mul(s), lim.dec);
+                b.ramp_to(mul_sign(w2, s), lim.dec);
                 break;
             }
         } else if u0 < wn {
@@ -417,7 +417,7 @@ pub(super) fn plan_position(
             if wn_sq.saturating_sub(u0_sq) > room {
                 // Too short to reach the end velocity: accelerate all the way.
                 let w2 = isqrt(u0_sq.saturating_add(room));
-                b.ramp_to(w2.saturating_mul(s), lim.acc);
+                b.ramp_to(mul_sign(w2, s), lim.acc);
                 break;
             }
         }
@@ -434,14 +434,14 @@ pub(super) fn plan_position(
             isqrt(vp_sq).min(lim.vmax)
         };
         let rate = if vp >= u0 { lim.acc } else { lim.dec };
-        b.ramp_to(vp.saturating_mul(s), rate);
+        b.ramp_to(mul_sign(vp, s), rate);
         let (last_duration, last) = ramp_distance(vp, wn, lim.dec, lim.shape);
-        let cruise = target.saturating_sub(b.p).saturating_mul(s).saturating_sub(last);
+        let cruise = mul_sign(target.saturating_sub(b.p), s).saturating_sub(last);
         if cruise > 0 && vp > 0 {
             b.cruise(div_shl(cruise, vp, 32));
         }
         // b.v is vp s here (the ramp and the cruise end there): the last ramp is the one just measured.
-        b.ramp_over(wn.saturating_mul(s), lim.dec, last_duration);
+        b.ramp_over(mul_sign(wn, s), lim.dec, last_duration);
         break;
     }
     let end_velocity = b.v;

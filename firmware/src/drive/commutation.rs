@@ -350,8 +350,9 @@ impl Commutation {
         self.align_speed_q8 = self.align_speed_q8.wrapping_add(delta_q8.wrapping_sub(self.align_speed_q8) >> 4);
         let damping = i64::from(self.align_speed_q8).wrapping_mul(i64::from(cfg.damping_bits_per_count)) >> 8;
         let limit = i64::from(cfg.current.to_bits());
-        // Clamped to +-the alignment current (< 2^31): the conversion is exact.
-        let i_q = Amps::from_bits(damping.wrapping_neg().clamp(limit.wrapping_neg(), limit) as i32);
+        // Clamped to +-the alignment current (< 2^31, not negative): the conversion is exact. Max/min: `clamp`
+        // would assert the bounds' order with a formatted panic (flash in the images that print panics, issue 17).
+        let i_q = Amps::from_bits(damping.wrapping_neg().max(limit.wrapping_neg()).min(limit) as i32);
         Some(AlignmentDemand { angle, i_d: Amps::from_bits(self.align_current), i_q })
     }
 

@@ -298,10 +298,13 @@ impl BusVoltageLimiter {
         let sign: i32 = if velocity_bits > 0 { 1 } else { -1 };
         let scaled = i32::try_from(i64::from(demanded).saturating_mul(i64::from(self.regen_scale_q16)) >> 16)
             .unwrap_or(demanded);
-        // The lag correction moves the reference toward driving (the velocity's sign), at most to the limit.
+        // The lag correction moves the reference toward driving (the velocity's sign), at most to the limit (not
+        // negative: floored at 0 in `observe`). Max/min: `clamp` would assert the bounds' order with a formatted
+        // panic (flash in the images that print panics, issue 17).
         let q = scaled
             .saturating_add(sign.saturating_mul(self.lag_correction))
-            .clamp(self.limit_bits.wrapping_neg(), self.limit_bits);
+            .max(self.limit_bits.wrapping_neg())
+            .min(self.limit_bits);
         self.braking_reference = q;
         self.braking_sign = sign;
         self.braking_limited = q != demanded;

@@ -216,7 +216,8 @@ impl Monitor {
     #[must_use]
     pub fn clamp_velocity(&self, velocity: Velocity) -> (Velocity, bool) {
         let max = self.config.max_speed.0.saturating_abs();
-        let v = velocity.0.clamp(max.saturating_neg(), max);
+        // Max/min on the ordered bounds: `clamp` would keep its formatted panic for them (flash, issue 17).
+        let v = velocity.0.max(max.saturating_neg()).min(max);
         (Velocity(v), v != velocity.0)
     }
 }

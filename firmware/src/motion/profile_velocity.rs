@@ -71,7 +71,8 @@ pub struct ProfileVelocity {
 /// `velocity` bounded by ±`max` (the magnitude of 0x607F).
 fn bounded(velocity: Velocity, max: Velocity) -> Velocity {
     let max = max.to_bits().saturating_abs();
-    Velocity::from_bits(velocity.to_bits().clamp(max.saturating_neg(), max))
+    // Max/min on the ordered bounds: `clamp` would keep its formatted panic for them (flash, issue 17).
+    Velocity::from_bits(velocity.to_bits().max(max.saturating_neg()).min(max))
 }
 
 impl ProfileVelocity {
