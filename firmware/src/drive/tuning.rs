@@ -56,6 +56,15 @@
 //!   that the observer's poles stay where the defaults put them (`l_T / J` = 27,000 uNm/rad / 176,000e-10 kg m^2 =
 //!   1,534 1/s^2); friction and inertia are the plant's. Both estimates are always written, so that a later
 //!   change of 0x3000:02 finds consistent values.
+//! - Coarse encoder: one count per slow tick is a speed step of `2 pi f_s / cpr` (15.3 rad/s at 1,024 counts),
+//!   which `Kp` turns into a current step. Where that step exceeds the nominal current
+//!   ([`VELOCITY_COUNT_CURRENT_SHARE`]; the reference's is 0.30 of it, no preset comes near), the velocity loop's
+//!   crossovers, its zero and its filter come down by the excess; the position PID keeps its gains (its D filter
+//!   is five times slower than the velocity filter). Measured on a 24 V, 8 ohm, 6 mH, kt 0.15 Nm/A motor with a
+//!   256-line encoder (`tests/tests/drive/coarse_encoder.rs`): before, the 20 rpm CSV step limit-cycled between
+//!   10 and 27 rpm (59 % overshoot) with +-0.6 A of current; now 0 % overshoot, the step 12 % short after 300 ms
+//!   (its 10 mNm of friction against a softer loop). A cap at twice the nominal current gave 23 to 25 %, at 1.4
+//!   times 11 to 12 % with 4 % left.
 //!
 //! # Position loop (0x30A1): PID to the current loop (S1 Fig. 2-5)
 //! `Kd = J wc / kt`, `Kp = Kd wc / 4`, `Ki = Kp wc / 3.5`, feed-forwards as the velocity loop's. On the reference
@@ -199,6 +208,7 @@
 
 use crate::control::position::D_FILTER_CUTOFF_MILLIRAD_PER_S;
 use crate::control::power::PWM_FREQUENCY_HZ;
+use crate::control::velocity::SLOW_TICK_HZ;
 
 /// Phase margin of the current loop's design, degrees (module documentation).
 pub const CURRENT_PHASE_MARGIN_DEG: f32 = 68.0;
@@ -211,6 +221,9 @@ pub const CURRENT_LOOP_DELAY_PERIODS: f32 = 1.0;
 pub const REFERENCE_VELOCITY_CROSSOVER_RAD_S: f32 = 475.85;
 /// Accepted stiffness, per mille of [`REFERENCE_VELOCITY_CROSSOVER_RAD_S`].
 pub const STIFFNESS_RANGE_PERMILLE: core::ops::RangeInclusive<u16> = 100..=1500;
+/// Velocity PI: the largest current step one encoder count per slow tick may ask of it, as a share of the nominal
+/// current (module documentation, "Velocity loop"; the reference plant's is 0.30, the presets' at most that).
+const VELOCITY_COUNT_CURRENT_SHARE: f32 = 1.0;
 /// Velocity PI: the zero `Ki / Kp` lies this factor under the crossover.
 const VELOCITY_INTEGRAL_RATIO: f32 = 24.0;
 /// Velocity PI: the zero at most this share of the (low) crossover.
@@ -512,17 +525,25 @@ pub fn tune(plant: &TuningPlant, request: &TuningRequest) -> Result<TunedGains, 
     let j = plant.inertia_kg_m2;
     let kt = plant.torque_constant_nm_per_a;
     let kd = j * wc / kt;
+    // A coarse encoder (module documentation, "Velocity loop"): one count per slow tick is a speed step of
+    // 2 pi f_s / cpr, which the velocity P gain turns into a current step; above VELOCITY_COUNT_CURRENT_SHARE of
+    // the nominal current the loop limit-cycles on the counts, so the velocity loop's crossovers (and its filter)
+    // come down by the excess. The position PID keeps its gains: its D filter is slower.
+    let count_step = 2.0 * PI * SLOW_TICK_HZ as f32 / plant.counts_per_rev as f32;
+    let coarse = (VELOCITY_COUNT_CURRENT_SHARE * plant.nominal_current_a / (kd * count_step)).min(1.0);
+    let (wc_velocity, wc_stiff_velocity, kd_velocity) = (wc * coarse, wc_stiff * coarse, kd * coarse);
     // The PI zero: a factor 24 under the (motor-side) crossover, but at most 1/3 of the low crossover, where it
     // takes 18 deg (rigid: wc_s / 24 always).
-    let velocity_zero = (wc_stiff / VELOCITY_INTEGRAL_RATIO).min(wc * VELOCITY_ZERO_MAX_OF_CROSSOVER);
+    let velocity_zero = (wc_stiff_velocity / VELOCITY_INTEGRAL_RATIO).min(wc_velocity * VELOCITY_ZERO_MAX_OF_CROSSOVER);
     let ff_velocity = object(plant.viscous_friction_nm_s_per_rad / kt * 1e6, GainObject::FeedForwardVelocity)?;
     let ff_acceleration = object(j / kt * 1e6, GainObject::FeedForwardAcceleration)?;
     let velocity = VelocityGainObjects {
-        p_ua_s_per_rad: object(kd * 1e6, GainObject::VelocityP)?,
-        i_ua_per_rad: object(kd * velocity_zero * 1e6, GainObject::VelocityI)?,
+        p_ua_s_per_rad: object(kd_velocity * 1e6, GainObject::VelocityP)?,
+        i_ua_per_rad: object(kd_velocity * velocity_zero * 1e6, GainObject::VelocityI)?,
         ff_velocity_ua_s_per_rad: ff_velocity,
         ff_acceleration_ua_s2_per_rad: ff_acceleration,
-        filter_cutoff_hz: round(VELOCITY_FILTER_RATIO * wc_stiff / (2.0 * PI)).clamp(1, VELOCITY_FILTER_MAX_HZ),
+        filter_cutoff_hz: round(VELOCITY_FILTER_RATIO * wc_stiff_velocity / (2.0 * PI))
+            .clamp(1, VELOCITY_FILTER_MAX_HZ),
     };
     let (kp, ki, kd_position) = match plant.resonance {
         None => {
@@ -985,6 +1006,39 @@ mod tests {
         assert_eq!(tune(&small_gimbal(), &STIFF).expect("tunes").position.ff_friction_ua, 12_000);
         let frictionless = TuningPlant { coulomb_friction_nm: 0.0, ..small_gimbal() };
         assert_eq!(tune(&frictionless, &STIFF).expect("tunes").position.ff_friction_ua, 0);
+    }
+
+    /// The coarse-encoder cap (module documentation, "Velocity loop"): a 24 V stepper-class motor (8 ohm, 6 mH,
+    /// kt 0.15 Nm/A, 500 g cm^2, 0.8 A) with 1,024 counts/rev. One count per tick, 2 pi 2,500 / 1,024 = 15.34 rad/s,
+    /// would ask 2.44 A of the velocity P gain of stiffness 1000 (`J wc_s / kt` = 0.159 A s/rad); capped, it asks
+    /// the nominal current 0.8 A (+-0.1 %), the filter and the zero come down with it, and the position PID keeps
+    /// `Kd = J wc_s / kt`. The presets stay far under the cap: the reference asks 0.30 of its nominal current.
+    #[test]
+    fn a_coarse_encoder_caps_the_velocity_loop_at_the_nominal_current_per_count() {
+        let stepper = TuningPlant {
+            resistance_ohm: 8.0,
+            ld_h: 0.006,
+            lq_h: 0.006,
+            torque_constant_nm_per_a: 0.15,
+            inertia_kg_m2: 5.0e-5,
+            viscous_friction_nm_s_per_rad: 1.0e-5,
+            coulomb_friction_nm: 0.01,
+            nominal_current_a: 0.8,
+            peak_current_a: 2.0,
+            max_speed_rpm: 1000.0,
+            counts_per_rev: 1024,
+            ..reference()
+        };
+        let count_step = |cpr: u32| 2.0 * core::f64::consts::PI * f64::from(SLOW_TICK_HZ) / f64::from(cpr);
+        let g = tune(&stepper, &STIFF).expect("tunes");
+        let per_count = f64::from(g.velocity.p_ua_s_per_rad) * 1e-6 * count_step(1024);
+        assert!(within(per_count, 0.8, 0.001), "{per_count} A per count and tick");
+        let uncapped = 5.0e-5 * f64::from(REFERENCE_VELOCITY_CROSSOVER_RAD_S) / 0.15;
+        assert!(within(f64::from(g.position.d_ua_s_per_rad) * 1e-6, uncapped, 0.001), "position Kd kept");
+        assert!(g.velocity.filter_cutoff_hz < 395 / 2, "filter {} Hz", g.velocity.filter_cutoff_hz);
+        let r = tune(&reference(), &STIFF).expect("tunes");
+        let share = f64::from(r.velocity.p_ua_s_per_rad) * 1e-6 * count_step(4096) / 3.2;
+        assert!(within(share, 0.30, 0.02), "reference {share}");
     }
 
     /// A belt axis: the reference motor (kt 0.0335 Nm/A, 44 g cm^2) on a 3:1 belt to 10 x its reflected rotor,

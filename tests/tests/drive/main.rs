@@ -10,6 +10,7 @@ mod auto_tune_geared_duty_cycle;
 mod auto_tune_scenarios;
 mod auto_tuning;
 mod cia402;
+mod coarse_encoder;
 mod commutation;
 mod current_loop;
 mod dual_loop;
