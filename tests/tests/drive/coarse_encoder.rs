@@ -70,12 +70,13 @@ fn a_256_line_encoder_gives_a_velocity_step_without_a_limit_cycle() {
     }
 }
 
-/// Known open (run with `--ignored`): the identification on this motor, seed 1: R within 3 % (+0.11 %) and Ld
-/// within 5 % (-0.13 %), but Lq -16.1 % (the rotor turns under the q injection and its back-EMF, not in the
-/// inductance fit, takes a share of the voltage: with an 8,192-count encoder the same), kt -4.75 % and the inertia
-/// -4.28 % (the 1,024-count increments as the speed regressor; with 8,192 counts -0.50 and -0.42 %).
+/// Known open (run with `--ignored`): the identification on this motor, seed 1: R within 3 % (+0.11 %), Ld
+/// within 5 % (-0.13 %), kt -0.50 % and the inertia -0.01 % (the torque-constant fit over blocks of 8 ticks; over
+/// single ticks the 1,024-count increments made them -4.75 and -4.28 %), but Lq -16.1 %: the rotor turns under
+/// the q injection, and its back-EMF, not in the inductance fit, takes a share of the voltage (with an 8,192-count
+/// encoder the same).
 #[test]
-#[ignore = "open: Lq -16 % (back-EMF under the q injection) and kt -4.75 % (the coarse encoder's increments) on the stepper-class motor"]
+#[ignore = "open: Lq -16 % on the stepper-class motor (its back-EMF under the q injection)"]
 fn the_stepper_class_motor_identifies_within_the_issue_bounds() {
     let plant = stepper_class();
     let run = identification::identify(&plant, 1, |_| {});
