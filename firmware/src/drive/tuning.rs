@@ -100,8 +100,8 @@
 //! its reflected rotor, 80 Hz resonance, 5 % damping (`tests/tests/drive/auto_tune_belt.rs`): following error
 //! peak 1,712 to 1,745 increments, 341 to 349 left (seeds 1 to 3); on the same belt family (resonance 40 to
 //! 120 Hz, load 3 to 20 x, damping 2 to 15 %, 45 plants, seed 1) 35 of the 42 that identify broke the issue's
-//! 3 degrees (34 increments), 33 of them ringing past 100. With both: peak 4 to 24 increments on all 42, 2 to 4
-//! left on 16 of them (the friction feedforward's standstill correction, "Friction feedforward (0x30A1:06)"
+//! 3 degrees (34 increments), 33 of them ringing past 100. With both: peak 4 to 24 increments on all 42, 2 to 3
+//! left on 14 of them (the friction feedforward's standstill correction, "Friction feedforward (0x30A1:06)"
 //! below). Measured each alone on
 //! a sample of them: the D filter alone cured all but the 120 Hz ones (1,460 / 19 and 777 / 66, `Kp` at 1.4
 //! `w_r` = 1,056 rad/s on the motor); the cap alone only those with 15 % damping. A notch at the resonance on
@@ -112,7 +112,7 @@
 //! following error peak / rms / left 20 ms after the last set-point, increments at 5,000 counts/rev):
 //! - this design: 23 / 8.0 to 8.3 / 0 to 1 (seeds 4 to 6: 23 to 26 / 8.2 to 10.0 / 0 to 1), measured before the
 //!   friction feedforward; with it (0x30A1:06, "Friction feedforward" below) seeds 1 to 6 give 18 to 22 / 7.2 to
-//!   8.9 / 0 to 1, and with the D filter and the cap above 17 to 20 / 7.0 to 8.7 / 0 to 1; the comparisons
+//!   8.9 / 0 to 1, and with the D filter and the cap above 17 to 21 / 7.1 to 8.7 / 0 to 1; the comparisons
 //!   below are without either;
 //! - the former rule `Kp = 3 Kd wc` with the motor-side `Kd` (`Kp` crossing over at 0.54 `w_ar`): 115 to 190 /
 //!   54 to 64 / 25 to 34. The motor and the load then swing together near the anti-resonance, and every change
@@ -199,7 +199,7 @@
 //! hold converges for any estimate under twice the true friction, and the identification's estimate on the gear
 //! (+43 to +49 %, the gear's losses included) is within that. On an elastic load that bound is the motor's own
 //! friction, not the drivetrain's: at standstill the motor moves first, against the coupling (or inside a gear's
-//! backlash), and the whole identified friction then hunts it by 2 to 4 increments on a light motor
+//! backlash), and the whole identified friction then hunts it by 2 to 3 increments on a light motor
 //! (`tests/tests/drive/auto_tune_belt.rs`) and by 9 on geared-36v with half its friction; measured and open, as
 //! the identification does not split the friction between motor and load.
 //!

@@ -24,7 +24,7 @@ fn nema23() -> PlantParams {
 const THREE_DEGREES_INC: f64 = 3.0 / 360.0 * 4_000.0;
 
 /// The identification (seed 1): R and Lq within 3 %, Ld within 5 %, kt within 3 %, the inertia within 5 % (rigid),
-/// in at most 20 s of simulated time (measured: +0.45, +0.20, +0.20, +0.65, +0.45 %, 13.2 s).
+/// in at most 20 s of simulated time (measured: +0.45, +0.20, +0.20, +1.00, +0.81 %, 13.2 s).
 #[test]
 fn the_48_v_preset_identifies_within_the_issue_bounds() {
     let plant = nema23();
@@ -47,7 +47,7 @@ fn the_48_v_preset_identifies_within_the_issue_bounds() {
 /// After `--auto-tune` (seed 1): the current step (2.4 A, 2 A scaled by the peak current) overshoots at most 10 %
 /// with a -3 dB bandwidth of at least 1.5 kHz; the CSV step (60 rpm, 100 rpm scaled by the max speed) at most
 /// 15 %; the CSP move's following error peaks at most 3 degrees of the motor shaft and is within +-1 increment
-/// 20 ms after the last set-point; 60 s of duty cycle raise no fault. Measured: 1.30 %, 2,681 Hz; 1.46 %; 3 and
+/// 20 ms after the last set-point; 60 s of duty cycle raise no fault. Measured: 1.30 %, 2,681 Hz; 1.42 %; 3 and
 /// 0 increments; no trip.
 #[test]
 fn the_48_v_preset_meets_the_issue_figures_after_auto_tune() {
