@@ -221,20 +221,31 @@ impl Default for CspConfig {
 
 impl CspConfig {
     /// The default move on the scenario plant, seeded with `seed`: its distance, speed and acceleration scaled by
-    /// the plant's maximum speed ([`super::PlantScale`], `drive-sim --plant`'s scaling), so that it keeps its timing.
+    /// the plant's maximum speed ([`super::PlantScale`], `drive-sim --plant`'s scaling), so that it keeps its timing;
+    /// the acceleration at most what [`CSP_ACCELERATION_TORQUE_SHARE`] of the peak torque gives the inertia at the
+    /// motor shaft, so that the move stays one the motor can follow (the reference's asks 11 % of its peak torque,
+    /// every preset's at most 22 %; a rigid load of 30 times the reference's rotor would ask 85 %).
     #[must_use]
     pub fn scaled_to_current_plant(seed: u64) -> Self {
         let speed = super::PlantScale::current_plant().speed;
+        let p = super::scenario_plant();
+        let peak_torque_nm = p.torque_constant_nm_per_a() * p.peak_current_a;
+        let reachable_rpm_per_s =
+            CSP_ACCELERATION_TORQUE_SHARE * peak_torque_nm / p.total_inertia_kg_m2() * 60.0 / core::f64::consts::TAU;
         let d = Self::default();
         Self {
             seed,
             revolutions: d.revolutions * speed,
             max_rpm: d.max_rpm * speed,
-            peak_rpm_per_s: d.peak_rpm_per_s * speed,
+            peak_rpm_per_s: (d.peak_rpm_per_s * speed).min(reachable_rpm_per_s),
             ..d
         }
     }
 }
+
+/// The largest share of the peak torque (`kt * peak_current_a`) the scaled CSP move's acceleration asks of the
+/// inertia at the motor shaft ([`CspConfig::scaled_to_current_plant`]).
+pub const CSP_ACCELERATION_TORQUE_SHARE: f64 = 0.5;
 
 /// Figures of the CSP scenario.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -15,6 +15,7 @@ mod commutation;
 mod current_loop;
 mod dual_loop;
 mod encoder_resolution;
+mod heavy_load;
 mod identification;
 mod identification_robustness;
 mod io;

@@ -22,7 +22,8 @@ elastic design from it); --resonance F_R,F_AR (Hz) is a master's own pair instea
 the identification, followed by the auto-tuning 0x3205:01 = 1 again.
 
 Scaling against the reference plant, so a scenario means the same on every plant: speeds, accelerations and \
-distances in revolutions x max_speed_rpm / 5000 (a move keeps its timing); currents (steps, sweep bias and \
+distances in revolutions x max_speed_rpm / 5000 (a move keeps its timing; csp's acceleration at most what half \
+the peak torque kt * peak_current_a gives the inertia at the motor shaft, which no preset reaches); currents (steps, sweep bias and \
 amplitude, spinning base and high current) x peak_current_a / 10; load torques (at the output) x kt * \
 peak_current_a * gear_ratio * gear_efficiency / 0.335 N m. Scaled: current-step, spinning, csp, csv-sweep, ppm \
 (moves and quick stops), duty-cycle (velocity steps x max_speed_rpm / 5000, load torques x the peak torque at the \
