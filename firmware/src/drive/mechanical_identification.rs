@@ -145,7 +145,7 @@ pub struct MechanicalConfig {
     pub timeout_ticks: u32,
     /// The bus voltage from which the drive's bus-voltage limiter may change the currents (0x3202:02, loss
     /// braking voltage; `Volts` of `i16::MAX` with the limiter off): from 15/16 of it (or half way to it from the
-    /// bus at rest, [`bus_high_voltage`]), samples count in no fit and the relay speed is lowered, so that braking
+    /// bus at rest, `bus_high_voltage`), samples count in no fit and the relay speed is lowered, so that braking
     /// from it returns less energy than the bus takes.
     pub regeneration_limit: Volts,
 }

@@ -223,7 +223,7 @@ pub const REFERENCE_VELOCITY_CROSSOVER_RAD_S: f32 = 475.85;
 pub const STIFFNESS_RANGE_PERMILLE: core::ops::RangeInclusive<u16> = 100..=1500;
 /// Velocity PI: the largest current step one encoder count per slow tick may ask of it, as a share of the nominal
 /// current (module documentation, "Velocity loop"; the reference plant's is 0.30, the presets' at most that).
-const VELOCITY_COUNT_CURRENT_SHARE: f32 = 1.0;
+pub const VELOCITY_COUNT_CURRENT_SHARE: f32 = 1.0;
 /// Velocity PI: the zero `Ki / Kp` lies this factor under the crossover.
 const VELOCITY_INTEGRAL_RATIO: f32 = 24.0;
 /// Velocity PI: the zero at most this share of the (low) crossover.
