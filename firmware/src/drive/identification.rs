@@ -32,6 +32,7 @@
 //! `u32` turn bits as everywhere in the drive.
 
 use super::blocks::Tier1Report;
+use super::tuning::SQRT_3;
 use crate::control::angle::ElectricalAngle;
 use crate::control::frames::Amps;
 use crate::fault::table::FaultId;
@@ -258,8 +259,6 @@ const D_SWING: f32 = 0.3;
 const Q_STEP: f32 = 0.15;
 /// The square waves' bias plus amplitude stay within this share of the modulation's linear range `v_bus / sqrt 3`.
 const SQUARE_LINEAR_SHARE: f32 = 0.9;
-/// sqrt 3.
-const SQRT_3: f32 = 1.732_050_8;
 const SQUARE_SETTLE_TICKS: u32 = 25;
 const SQUARE_MEASURE_TICKS: u32 = 250;
 /// The PWM period, s (25 kHz).

@@ -270,7 +270,7 @@ const OBSERVER_LOAD_GAIN_PER_INERTIA: f32 = 1534.09;
 const CURRENT_P_GAIN_MAX_UV_PER_A: f32 = 64.0e6;
 const PI: f32 = core::f32::consts::PI;
 /// sqrt 3: the linear SVPWM reaches `V_bus / sqrt 3` of phase voltage.
-const SQRT_3: f32 = 1.732_050_8;
+pub(crate) const SQRT_3: f32 = 1.732_050_8;
 
 /// The plant the gains are computed for, SI units, at the motor shaft.
 #[derive(Clone, Copy, Debug, PartialEq)]
