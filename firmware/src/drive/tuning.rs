@@ -179,9 +179,12 @@
 //! crossover (bounded by the 2.5 kHz loops' delay, [`STIFFNESS_RANGE_PERMILLE`]); the speed ripple it leaves grows
 //! with `kt / J` and not with any gain of the current loop (its bandwidth changes what lies above the velocity
 //! crossover only). The small gimbal (`hal-sim/presets/small-gimbal.toml`, kt / J = 50,000 1/(A s^2) against the
-//! reference's 1,903) keeps 1.8 rpm RMS of speed ripple under its 24 rpm `drive-sim csv-sweep` step (0.9 rpm
-//! without the shunt noise), which puts the step's peak 17.5 to 23.5 % over the target. Tried on that preset and
-//! not taken, as they trade one figure for another or for stability (`tests/tests/drive/auto_tune_scenarios.rs`):
+//! reference's 1,903) keeps 1.8 rpm RMS of speed ripple under a velocity step (0.9 rpm without the shunt noise).
+//! Under a 24 rpm step (the reference's 100 rpm scaled by the maximum speed alone, 1.5 % of the peak current)
+//! that put the step's peak 17.5 to 23.5 % over the target; `drive-sim csv-sweep`'s step is therefore scaled by
+//! the acceleration capability too (`hal_sim::scenarios::motion::csv_step_rpm`: 394 rpm here, the reference's
+//! share of the peak current), where the ripple is 0.5 % of the step and the peak 4.4 to 5.6 % over it. Tried on
+//! that preset against the 24 rpm step and not taken, as they trade one figure for another or for stability:
 //! the velocity filter at 1,250 Hz (mean peak 20.6 -> 19.3 %), the observer (0x30A3: twice the ripple, its
 //! estimate follows the model's current, not the true one), 1.5 to 2 times the velocity crossover (17 to 18 %),
 //! the velocity integral 3 times (21 %), a Coulomb friction feed-forward in the velocity loop (22 %: a faster rise

@@ -332,14 +332,14 @@ fn dual_loop(args: &DualLoopScenario, dir: &Path) -> Result<(), String> {
 
 fn csv_sweep(seed: u64, dir: &Path) -> Result<(), String> {
     println!("csv-sweep: plant (seed {seed}), CiA 402 CSV");
-    let (step, trace) = motion::csv_step(seed, 100.0 * PlantScale::current_plant().speed).map_err(|e| e.to_string())?;
+    let (step, trace) = motion::csv_step(seed, motion::csv_step_rpm()).map_err(|e| e.to_string())?;
     println!("  velocity step 0 -> {:.0} rpm (plant's true speed):", step.step_rpm);
     println!("    overshoot          {:6.2} %   (bound <= 10 %)", step.overshoot_pct);
     println!("    settling to +-2 %  {:6.1} ms", step.settle_ms);
     println!("    steady error       {:6.2} %   (bound <= 2 %)", step.steady_error_pct);
     let plot = seconds_plot(
         &trace,
-        "CSV: velocity step 0 -> 100 rpm",
+        &format!("CSV: velocity step 0 -> {:.0} rpm", step.step_rpm),
         &[("target_rpm", "target"), ("speed_rpm", "speed")],
         "rpm",
     );
@@ -347,8 +347,8 @@ fn csv_sweep(seed: u64, dir: &Path) -> Result<(), String> {
     let (points, bw) = motion::csv_sweep(seed).map_err(|e| e.to_string())?;
     println!(
         "  velocity-loop response, {:.0} rpm +- {:.0} rpm sine (speed / velocity demand):",
-        motion::CSV_SWEEP_OFFSET_RPM,
-        motion::CSV_SWEEP_AMPLITUDE_RPM
+        motion::csv_sweep_rpm().0,
+        motion::csv_sweep_rpm().1
     );
     println!("  {:>8}  {:>8}  {:>9}", "f [Hz]", "gain[dB]", "phase[deg]");
     let mut t = Trace::new(&["freq_hz", "gain_db", "phase_deg"]);

@@ -100,6 +100,10 @@ pub struct PlantScale {
     pub torque: f64,
     /// Inertia at the motor shaft (rotor + load / N^2) over the reference's 176 g cm^2.
     pub inertia: f64,
+    /// Acceleration the peak torque at the motor shaft (`kt * peak_current_a`) gives the inertia there, over the
+    /// reference's (0.335 N m on 176 g cm^2): a velocity step this much larger asks the velocity loop for the same
+    /// share of the peak current at the same bandwidth.
+    pub acceleration: f64,
 }
 
 impl PlantScale {
@@ -108,11 +112,13 @@ impl PlantScale {
         let r = PlantParams::reference();
         let peak_torque =
             |p: &PlantParams| p.torque_constant_nm_per_a() * p.peak_current_a * p.gear_ratio * p.gear_efficiency;
+        let acceleration = |p: &PlantParams| p.torque_constant_nm_per_a() * p.peak_current_a / p.total_inertia_kg_m2();
         Self {
             speed: params.max_speed_rpm / r.max_speed_rpm,
             current: params.peak_current_a / r.peak_current_a,
             torque: peak_torque(params) / peak_torque(&r),
             inertia: params.total_inertia_kg_m2() / r.total_inertia_kg_m2(),
+            acceleration: acceleration(params) / acceleration(&r),
         }
     }
 

@@ -409,8 +409,35 @@ fn plant_inc_per_rev(sim: &Simulation) -> f64 {
     f64::from(sim.plant.params().encoder_counts_per_rev)
 }
 
+/// The velocity step of `drive-sim csv-sweep` on the reference plant, rpm.
+pub const CSV_STEP_REFERENCE_RPM: f64 = 100.0;
+
+/// The largest share of the plant's `max_speed_rpm` the scaled velocity step may reach ([`csv_step_rpm`]).
+pub const CSV_STEP_MAX_SPEED_SHARE: f64 = 0.5;
+
+/// `drive-sim csv-sweep`'s velocity step on the scenario plant, whole rpm (0x60FF's unit): the reference's
+/// [`CSV_STEP_REFERENCE_RPM`] scaled by the larger of the plant's speed scale ([`super::PlantScale::speed`]) and
+/// its acceleration scale ([`super::PlantScale::acceleration`], peak torque over inertia at the motor shaft), at
+/// most [`CSV_STEP_MAX_SPEED_SHARE`] of its maximum speed.
+///
+/// The reference's step is 2 % of its maximum speed and asks the velocity loop for 26 % of its peak current (with
+/// the reference tuning); the scaled step keeps at least both shares, so that it is neither lost in the plant's
+/// friction and encoder resolution (the speed share) nor in its current noise (the current share). Scaled by the
+/// maximum speed alone, the small gimbal's step would be 24 rpm asking 1.5 % of its peak current: a step the size
+/// of the reference power stage's current noise on that motor, which measures the noise (19 to 22 % "overshoot" of
+/// the true speed, 11 to 13 % without the shunts' noise), not the loop. Scaled by the acceleration alone, the
+/// geared preset's would be 20 rpm, which its friction holds 7 to 8 % short after 300 ms. The presets' steps:
+/// reference 100, small-gimbal 394, geared-36v 40, nema23-48v 123 rpm.
+#[must_use]
+pub fn csv_step_rpm() -> f64 {
+    let plant = super::scenario_plant();
+    let scale = super::PlantScale::of(&plant);
+    let scaled = CSV_STEP_REFERENCE_RPM * scale.speed.max(scale.acceleration);
+    scaled.min(CSV_STEP_MAX_SPEED_SHARE * plant.max_speed_rpm).round().max(1.0)
+}
+
 /// CSV: a step of the target velocity from 0 to `step_rpm` (set-points every 1 ms, no interpolation), 300 ms, on
-/// the scenarios' plant.
+/// the scenarios' plant ([`csv_step_rpm`] is `drive-sim csv-sweep`'s step).
 pub fn csv_step(seed: u64, step_rpm: f64) -> Result<(VelocityStepFigures, Trace), SimError> {
     csv_step_on(super::scenario_plant(), seed, step_rpm)
 }
@@ -478,10 +505,21 @@ pub struct ResponsePoint {
 pub const CSV_SWEEP_HZ: [f64; 10] = [5.0, 10.0, 20.0, 40.0, 60.0, 80.0, 100.0, 130.0, 160.0, 200.0];
 
 /// Amplitude and offset of the CSV sweep, rpm: small signal around a speed high enough that Coulomb friction does
-/// not reverse (the loop's small-signal response, not its friction limit cycle).
+/// not reverse (the loop's small-signal response, not its friction limit cycle). Not scaled with the plant, except
+/// that a plant slower than 1,200 rpm gets both in proportion to its half maximum speed ([`csv_sweep_rpm`]), so
+/// that the sine stays under 0x6080.
 pub const CSV_SWEEP_OFFSET_RPM: f64 = 600.0;
 /// Sine amplitude of the CSV sweep, rpm.
 pub const CSV_SWEEP_AMPLITUDE_RPM: f64 = 30.0;
+
+/// The CSV sweep's offset and amplitude on the scenario plant, rpm: [`CSV_SWEEP_OFFSET_RPM`] and
+/// [`CSV_SWEEP_AMPLITUDE_RPM`], both scaled down together where the offset would exceed half the plant's maximum
+/// speed.
+#[must_use]
+pub fn csv_sweep_rpm() -> (f64, f64) {
+    let ratio = (0.5 * super::scenario_plant().max_speed_rpm / CSV_SWEEP_OFFSET_RPM).min(1.0);
+    (CSV_SWEEP_OFFSET_RPM * ratio, CSV_SWEEP_AMPLITUDE_RPM * ratio)
+}
 
 /// Fits `a sin(wt) + b cos(wt)` to `y` at the samples `t`; returns (amplitude, phase in rad).
 fn sine_fit(t: &[f64], y: &[f64], w: f64) -> (f64, f64) {
@@ -497,14 +535,15 @@ fn sine_fit(t: &[f64], y: &[f64], w: f64) -> (f64, f64) {
 }
 
 /// CSV sweep: for each frequency, the target velocity is a sine of [`CSV_SWEEP_AMPLITUDE_RPM`] around
-/// [`CSV_SWEEP_OFFSET_RPM`], written every slow tick (set-points at the slow tick, no interpolation, so the
+/// [`CSV_SWEEP_OFFSET_RPM`] ([`csv_sweep_rpm`] on a slow plant), written every slow tick (set-points at the slow tick, no interpolation, so the
 /// demand itself carries the whole sine); the response is the plant's true speed against the drive's velocity
 /// demand, fitted over whole periods after a settling time. Returns the points and the -3 dB bandwidth
 /// (interpolated in log frequency between the points around it; NaN if the gain never falls below -3 dB).
 pub fn csv_sweep(seed: u64) -> Result<(Vec<ResponsePoint>, f64), SimError> {
+    let (offset_rpm, amplitude_rpm) = csv_sweep_rpm();
     let mut sim = prepare_motion_on(super::scenario_plant(), seed, 9)?;
     sim.drive.dictionary_mut().set(h::INTERPOLATION_TIME_PERIOD_VALUE, 0);
-    sim.drive.dictionary_mut().set(h::TARGET_VELOCITY, CSV_SWEEP_OFFSET_RPM as i32);
+    sim.drive.dictionary_mut().set(h::TARGET_VELOCITY, offset_rpm.round() as i32);
     // Reach the offset speed first.
     for k in 0..(0.3 / PERIOD_S) as u64 {
         if k % PERIODS_PER_SLOW_TICK == 0 {
@@ -523,7 +562,7 @@ pub fn csv_sweep(seed: u64) -> Result<(Vec<ResponsePoint>, f64), SimError> {
         for k in 0..periods {
             if k % PERIODS_PER_SLOW_TICK == 0 {
                 let now = sim.time_s() - t0;
-                let rpm = CSV_SWEEP_OFFSET_RPM + CSV_SWEEP_AMPLITUDE_RPM * (w * now).sin();
+                let rpm = offset_rpm + amplitude_rpm * (w * now).sin();
                 // 0x60FF is whole rpm: the rounding (at most 0.5 rpm of a 30 rpm sine) is in the demand the fit
                 // compares against, so it does not bias the gain.
                 sim.drive.dictionary_mut().set(h::TARGET_VELOCITY, rpm.round() as i32);

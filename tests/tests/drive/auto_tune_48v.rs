@@ -45,9 +45,9 @@ fn the_48_v_preset_identifies_within_the_issue_bounds() {
 }
 
 /// After `--auto-tune` (seed 1): the current step (2.4 A, 2 A scaled by the peak current) overshoots at most 10 %
-/// with a -3 dB bandwidth of at least 1.5 kHz; the CSV step (60 rpm, 100 rpm scaled by the max speed) at most
-/// 15 %; the CSP move's following error peaks at most 3 degrees of the motor shaft and is within +-1 increment
-/// 20 ms after the last set-point; 60 s of duty cycle raise no fault. Measured: 1.30 %, 2,681 Hz; 1.42 %; 3 and
+/// with a -3 dB bandwidth of at least 1.5 kHz; the CSV step (123 rpm, `motion::csv_step_rpm`: 100 rpm x the
+/// acceleration capability) at most 15 %; the CSP move's following error peaks at most 3 degrees of the motor
+/// shaft and is within +-1 increment 20 ms after the last set-point; 60 s of duty cycle raise no fault. Measured: 1.30 %, 2,681 Hz; 2.75 %; 3 and
 /// 0 increments; no trip.
 #[test]
 fn the_48_v_preset_meets_the_issue_figures_after_auto_tune() {
@@ -60,7 +60,7 @@ fn the_48_v_preset_meets_the_issue_figures_after_auto_tune() {
             let step = scenarios::current_step(&Setup::default(), 2.0 * current).expect("current step").figures;
             let sweep = scenarios::bandwidth(&Setup::default(), 2.0 * current, 1.0 * current, &SWEEP_FREQUENCIES_HZ)
                 .expect("current sweep");
-            let csv = motion::csv_step(1, 100.0 * PlantScale::current_plant().speed).expect("csv step").0;
+            let csv = motion::csv_step(1, motion::csv_step_rpm()).expect("csv step").0;
             let csp = motion::csp(&motion::CspConfig::scaled_to_current_plant(1)).expect("csp").0;
             let duty = hal_sim::scenarios::duty_cycle::duty_cycle(1).expect("duty cycle").0;
             (step, sweep.bandwidth_hz, csv, csp, duty)

@@ -41,7 +41,7 @@ fn auto_tuned_geared_axis_follows_csp_within_3_degrees_and_settles_within_1_incr
         scenarios::with_parameters(parameters, || {
             let sc = PlantScale::current_plant();
             let (csp, _) = motion::csp(&motion::CspConfig::scaled_to_current_plant(1)).expect("csp");
-            let (velocity, _) = motion::csv_step(1, 100.0 * sc.speed).expect("csv step");
+            let (velocity, _) = motion::csv_step(1, motion::csv_step_rpm()).expect("csv step");
             let step = scenarios::current_step(&Setup::default(), 2.0 * sc.current).expect("current step").figures;
             (csp, velocity, step)
         })

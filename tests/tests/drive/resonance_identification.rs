@@ -13,7 +13,7 @@
 use firmware::od::generated::handles as h;
 use hal_sim::plant::PlantParams;
 use hal_sim::scenarios::identification::{identify, identify_then, IdentifyRun, Outcome};
-use hal_sim::scenarios::{self, motion, PlantScale};
+use hal_sim::scenarios::{self, motion};
 
 fn preset(name: &str) -> PlantParams {
     let path = format!("{}/../hal-sim/presets/{name}.toml", env!("CARGO_MANIFEST_DIR"));
@@ -96,7 +96,7 @@ fn a_master_pair_written_after_the_identification_replaces_the_measured_one() {
 }
 
 /// `drive-sim csv-sweep --plant geared-36v.toml --auto-tune`: with the measured pair the tuning takes the elastic
-/// design and the 100 rpm velocity step (scaled by the plant's speed) overshoots at most the 15 %; with the
+/// design and the 100 rpm velocity step (scaled as `motion::csv_step_rpm` says) overshoots at most the 15 %; with the
 /// rigid design (the pair zeroed before the tuning) it overshot 787 % before this step existed.
 #[test]
 fn geared_auto_tuned_velocity_step_is_stable_with_the_measured_pair() {
@@ -105,7 +105,7 @@ fn geared_auto_tuned_velocity_step_is_stable_with_the_measured_pair() {
     assert_done(&run, "geared-36v");
     assert!(run.identified.resonance_hz > 0.0, "an elastic load found");
     let figures = scenarios::with_plant(params, || {
-        let rpm = 100.0 * PlantScale::current_plant().speed;
+        let rpm = motion::csv_step_rpm();
         scenarios::with_parameters(run.parameters, || motion::csv_step(1, rpm).expect("csv step").0)
     });
     assert!(figures.overshoot_pct <= 15.0, "csv step overshoot {} %", figures.overshoot_pct);

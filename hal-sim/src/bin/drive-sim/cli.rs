@@ -23,7 +23,11 @@ the identification, followed by the auto-tuning 0x3205:01 = 1 again.
 
 Scaling against the reference plant, so a scenario means the same on every plant: speeds, accelerations and \
 distances in revolutions x max_speed_rpm / 5000 (a move keeps its timing; csp's acceleration at most what half \
-the peak torque kt * peak_current_a gives the inertia at the motor shaft, which no preset reaches); currents (steps, sweep bias and \
+the peak torque kt * peak_current_a gives the inertia at the motor shaft, which no preset reaches; csv-sweep's \
+velocity step 100 rpm x the larger of max_speed_rpm / 5000 and the acceleration kt * peak_current_a / inertia at \
+the motor shaft over the reference's, so that it asks at least the reference step's share of the peak current, at \
+most half the max speed; its sine sweep stays 600 +- 30 rpm, on a plant slower than 1,200 rpm scaled to half its \
+max speed); currents (steps, sweep bias and \
 amplitude, spinning base and high current) x peak_current_a / 10; load torques (at the output) x kt * \
 peak_current_a * gear_ratio * gear_efficiency / 0.335 N m. Scaled: current-step, spinning, csp, csv-sweep, ppm \
 (moves and quick stops), duty-cycle (velocity steps x max_speed_rpm / 5000, load torques x the peak torque at the \
