@@ -23,8 +23,10 @@
 //!    counting direction (the encoder's against the field's), counts per electrical turn by least squares (pole
 //!    pairs = counts per turn / that; not an integer, or not 0x3001:03: 0xFF16), the commutation offset (forced
 //!    angle minus encoder angle, averaged over both directions so that the friction lag cancels), the electrical
-//!    angle at each index pulse, and the angle of each Hall H1 edge (their sequence must be the forward one:
-//!    else 0xFF16). No encoder movement: 0xFF21; faster than the maximum speed: 0xFF22.
+//!    angle at each index pulse, and the angle of each Hall H1 edge (each change must be to a neighbouring
+//!    sector, and more of them must follow the field than run against it: else 0xFF16; a heavy rotor swings about
+//!    the turning field and may cross an edge backwards). No encoder movement: 0xFF21; faster than the maximum
+//!    speed: 0xFF22.
 //!
 //! The whole procedure has a timeout ([`IdentificationConfig::timeout_ticks`], 0xFF19).
 //!
@@ -392,6 +394,9 @@ pub struct ElectricalIdentification {
     offsets: AngleMean,
     last_hall: u8,
     hall_edges: AngleMean,
+    /// Hall transitions with the field's rotation, and against it (the rotor swinging about the field).
+    hall_along: u16,
+    hall_against: u16,
     index_count: u16,
     index_angles: AngleMean,
     max_speed_counts: i32,
@@ -465,6 +470,8 @@ impl ElectricalIdentification {
             offsets: AngleMean::default(),
             last_hall: 0,
             hall_edges: AngleMean::default(),
+            hall_along: 0,
+            hall_against: 0,
             index_count: 0,
             index_angles: AngleMean::default(),
             max_speed_counts,
@@ -822,8 +829,11 @@ impl ElectricalIdentification {
         self.finish()
     }
 
-    /// A Hall sample while turning: the sequence must follow the field; an H1 edge gives the Hall offset (before
-    /// the commutation offset is added).
+    /// A Hall sample while turning: each change must be to a neighbouring sector, and the changes must follow the
+    /// field on the whole (checked in [`Self::finish`]); an H1 edge gives the Hall offset (before the commutation
+    /// offset is added). A change against the field is allowed: a heavy rotor swings about the turning field (the
+    /// d current holds it like a spring, and little friction damps it), so it can cross an edge backwards and again
+    /// forwards; a sensor wired in the wrong order changes against the field at every edge.
     fn hall_edge(&mut self, hall: u8, p: i32, dp: i32, forward: bool) -> Result<(), IdentificationError> {
         let sector = HallSector::from_state(hall).map_err(|_| IdentificationError::HallSequence { state: hall })?;
         let last = self.last_hall;
@@ -831,9 +841,17 @@ impl ElectricalIdentification {
             return Ok(());
         }
         let previous = HallSector::from_state(last).map_err(|_| IdentificationError::HallSequence { state: last })?;
-        let expected = if forward { previous.next() } else { previous.previous() };
-        if sector != expected {
+        let moving_forward = if sector == previous.next() {
+            true
+        } else if sector == previous.previous() {
+            false
+        } else {
             return Err(IdentificationError::HallSequence { state: hall });
+        };
+        if moving_forward == forward {
+            self.hall_along = self.hall_along.saturating_add(1);
+        } else {
+            self.hall_against = self.hall_against.saturating_add(1);
         }
         if (hall ^ last) & 1 != 0 {
             // The edge lay between the two samples: their midpoint.
@@ -842,7 +860,7 @@ impl ElectricalIdentification {
             let mid = before.wrapping_add((now.wrapping_sub(before).cast_signed() / 2).cast_unsigned());
             let rising = hall & 1 != 0;
             // H1 rises at the offset moving forward (and falls there moving back); its other edge is half a turn on.
-            let edge = if rising == forward { mid } else { mid.wrapping_sub(1 << 31) };
+            let edge = if rising == moving_forward { mid } else { mid.wrapping_sub(1 << 31) };
             self.hall_edges.add(edge);
         }
         Ok(())
@@ -858,6 +876,9 @@ impl ElectricalIdentification {
             return IdentificationStatus::Failed(IdentificationError::PolePairs {
                 measured_x100: (measured * 100.0) as i32,
             });
+        }
+        if self.config.halls_present && self.hall_along <= self.hall_against {
+            return IdentificationStatus::Failed(IdentificationError::HallSequence { state: self.last_hall });
         }
         let Some(offset) = self.offsets.mean() else {
             return IdentificationStatus::Failed(IdentificationError::NoMovement { counts: 0 });
@@ -911,6 +932,65 @@ mod tests {
             IdentificationStatus::Running(Injection::Current { i_d, .. }) => i_d.to_bits() as f32 / 65_536.0,
             other => panic!("expected a current injection, got {other:?}"),
         }
+    }
+
+    /// The Hall states of a field turning forward from `start`, `n` sectors on.
+    fn hall_states_forward(start: u8, n: usize) -> std::vec::Vec<u8> {
+        let mut sector = HallSector::from_state(start).expect("a valid state");
+        (0..n)
+            .map(|_| {
+                sector = sector.next();
+                sector.state()
+            })
+            .collect()
+    }
+
+    /// A heavy rotor swings about the turning field and crosses a Hall edge backwards, then forwards again: both
+    /// changes are to a neighbouring sector and are accepted, counted against and along the field.
+    #[test]
+    fn a_rotor_swinging_back_over_a_hall_edge_is_no_sequence_error() {
+        let mut id = ElectricalIdentification::new(CONFIG);
+        let forward = hall_states_forward(1, 3);
+        id.last_hall = 1;
+        for (k, &state) in forward.iter().enumerate() {
+            assert_eq!(id.hall_edge(state, 100 * k as i32, 10, true), Ok(()));
+            id.last_hall = state;
+        }
+        let back = HallSector::from_state(id.last_hall).expect("valid").previous().state();
+        assert_eq!(id.hall_edge(back, 290, -10, true), Ok(()), "swung back over the edge");
+        id.last_hall = back;
+        let again = HallSector::from_state(back).expect("valid").next().state();
+        assert_eq!(id.hall_edge(again, 300, 10, true), Ok(()), "and forwards again");
+        assert_eq!((id.hall_along, id.hall_against), (4, 1));
+    }
+
+    /// IDX 0xFF16: a change across two sectors is no rotor movement (a wiring or sensor fault).
+    #[test]
+    fn a_hall_change_across_two_sectors_is_a_sequence_error() {
+        let mut id = ElectricalIdentification::new(CONFIG);
+        let two_on = hall_states_forward(1, 2)[1];
+        id.last_hall = 1;
+        assert_eq!(id.hall_edge(two_on, 0, 10, true), Err(IdentificationError::HallSequence { state: two_on }));
+    }
+
+    /// IDX 0xFF16: Halls whose changes run against the field on the whole (wired in the wrong order) fail the
+    /// rotation at its end, though the pole pairs (4,096 counts per turn over 7 x 585.14) fit.
+    #[test]
+    fn halls_changing_against_the_field_on_the_whole_fail_the_rotation() {
+        let fitted = |along: u16, against: u16| {
+            let mut id = ElectricalIdentification::new(CONFIG);
+            for k in 0..10 {
+                let turns = k as f32;
+                id.counts_fit.add(turns, turns * 4096.0 / 7.0);
+            }
+            id.offsets.add(0);
+            id.last_hall = 5;
+            (id.hall_along, id.hall_against) = (along, against);
+            id.finish()
+        };
+        assert_eq!(fitted(3, 40), IdentificationStatus::Failed(IdentificationError::HallSequence { state: 5 }));
+        assert_eq!(fitted(20, 20), IdentificationStatus::Failed(IdentificationError::HallSequence { state: 5 }));
+        assert!(matches!(fitted(40, 3), IdentificationStatus::Done(_)), "a swing on a forward sequence passes");
     }
 
     /// IDX 0xFF19: the identification ends at its timeout, whatever step it is in.

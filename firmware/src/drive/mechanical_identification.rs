@@ -7,7 +7,9 @@
 //! 1. Probe: a q current of 1/16 of the test current limit, doubled every [`PROBE_TICKS`] until the speed reaches
 //!    a quarter of the relay speed. The acceleration it took gives the current for the relay (a half cycle of
 //!    about [`HALF_CYCLE_TARGET_TICKS`]), so that an unknown inertia (10 to 3,200 g cm^2 on the presets) gets a
-//!    useful experiment. No movement at the full test current: [`MechanicalError::Obstructed`] (IDX 0xFF21).
+//!    useful experiment. Where that current exceeds the test current limit, the relay speed comes down by the
+//!    ratio instead (`slow_relay_to_limit`), so that a heavy load on a weak motor still gets its half cycles.
+//!    No movement at the full test current: [`MechanicalError::Obstructed`] (IDX 0xFF21).
 //! 2. Relay: +I until the speed reaches +w, -I until it reaches -w (w = half the max system speed, or less where
 //!    the q voltage nears the bus's linear range), the reversal ramped over [`RAMP_TICKS`] so that an elastic
 //!    coupling is excited less. The first three half cycles, and the first three after each lowering of the
@@ -534,6 +536,7 @@ impl MechanicalIdentification {
             // Acceleration a_p = gained / ticks (counts per block per tick) at `current`; the relay wants
             // a_r = 2 w / T: I = current a_r / a_p = current 2 w ticks / (T gained).
             let wanted = relay_current_for(current, self.relay_speed, ticks, gained.max(1)).unwrap_or(limit);
+            self.slow_relay_to_limit(wanted, limit);
             self.relay_current = wanted.max(limit >> (PROBE_LEVELS.saturating_add(1))).min(limit);
             self.phase = Phase::Relay { direction: 1 };
             self.half_start = (0, speed);
@@ -609,7 +612,22 @@ impl MechanicalIdentification {
         let wanted = relay_current_for(current, self.relay_speed, ticks, gained).unwrap_or(current);
         let limit = i64::from(self.config.current_limit.to_bits());
         let wanted = wanted.max(current / 2).min(current.saturating_mul(2));
+        self.slow_relay_to_limit(wanted, limit);
         self.relay_current = wanted.max(limit >> PROBE_LEVELS.saturating_add(1)).min(limit);
+    }
+
+    /// Where the current a half cycle of [`HALF_CYCLE_TARGET_TICKS`] wants exceeds the test current limit, lowers the
+    /// relay speed by their ratio (down to 1/16 of the max system speed, the bus limiter's floor), so that the half
+    /// cycles at the limit keep their length. A heavy load on a weak motor otherwise reverses every second or more
+    /// and the relay ends after [`MAX_RELAY_TICKS`] with too few half cycles for its two fits: a 5-pole-pair
+    /// motor of 0.039 Nm/A and 1.24 A on 1,787 g cm^2 ran 2 half cycles in 4.7 s at 1,575 rpm, and its inertia fit
+    /// came out negative (IDX 0xFF15).
+    fn slow_relay_to_limit(&mut self, wanted: i64, limit: i64) {
+        if wanted > limit && limit > 0 {
+            let slower =
+                wide::div_shl(i128::from(self.relay_speed).wrapping_mul(i128::from(limit)), i128::from(wanted), 0);
+            self.relay_speed = wide::sat_i64(slower).max(self.speed_limit / 16).max(2);
+        }
     }
 
     /// Moves the demand towards `target` by at most a [`RAMP_TICKS`]-th of a full reversal. The bounds here and in
