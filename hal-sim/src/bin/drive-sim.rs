@@ -345,11 +345,8 @@ fn csv_sweep(seed: u64, dir: &Path) -> Result<(), String> {
     );
     write(&trace, &plot, dir, "csv_step")?;
     let (points, bw) = motion::csv_sweep(seed).map_err(|e| e.to_string())?;
-    println!(
-        "  velocity-loop response, {:.0} rpm +- {:.0} rpm sine (speed / velocity demand):",
-        motion::csv_sweep_rpm().0,
-        motion::csv_sweep_rpm().1
-    );
+    let (offset_rpm, amplitude_rpm) = motion::csv_sweep_rpm();
+    println!("  velocity-loop response, {offset_rpm:.0} rpm +- {amplitude_rpm:.0} rpm sine (speed / velocity demand):");
     println!("  {:>8}  {:>8}  {:>9}", "f [Hz]", "gain[dB]", "phase[deg]");
     let mut t = Trace::new(&["freq_hz", "gain_db", "phase_deg"]);
     for p in &points {

@@ -94,11 +94,40 @@ pub struct IdentifyRun {
     pub parameters: Parameters,
 }
 
+/// Issue 18's bounds ("What it must show") on [`IdentifyRun::errors_pct`], percent: R, Lq and kt 3 %, Ld 5 %, the
+/// total inertia 5 % (a rigid load).
+pub const ISSUE_BOUNDS_RIGID_PCT: [f64; 5] = [3.0, 5.0, 3.0, 3.0, 5.0];
+
 impl IdentifyRun {
     /// Error of an identified value against the truth, percent.
     #[must_use]
     pub fn error_pct(identified: f64, truth: f64) -> f64 {
         (identified - truth) / truth * 100.0
+    }
+
+    /// The identified R, Ld, Lq, kt and total inertia against the plant `truth`: each name and its error, percent.
+    #[must_use]
+    pub fn errors_pct(&self, truth: &PlantParams) -> [(&'static str, f64); 5] {
+        let id = &self.identified;
+        [
+            ("R", Self::error_pct(id.resistance_ohm, truth.phase_resistance_ohm)),
+            ("Ld", Self::error_pct(id.ld_h, truth.ld_h)),
+            ("Lq", Self::error_pct(id.lq_h, truth.lq_h)),
+            ("kt", Self::error_pct(id.kt_nm_per_a, truth.torque_constant_nm_per_a())),
+            ("inertia", Self::error_pct(id.inertia_kg_m2, truth.total_inertia_kg_m2())),
+        ]
+    }
+
+    /// Every one of [`Self::errors_pct`] outside its bound in `bounds_pct` (the same order), as "name +x.xx %
+    /// (bound b %)"; empty when all are within.
+    #[must_use]
+    pub fn errors_outside(&self, truth: &PlantParams, bounds_pct: [f64; 5]) -> Vec<String> {
+        self.errors_pct(truth)
+            .into_iter()
+            .zip(bounds_pct)
+            .filter(|((_, error), bound)| error.abs() > *bound || error.is_nan())
+            .map(|((name, error), bound)| format!("{name} {error:+.2} % (bound {bound} %)"))
+            .collect()
     }
 }
 

@@ -106,19 +106,24 @@ pub struct PlantScale {
     pub acceleration: f64,
 }
 
+/// The acceleration the peak torque at the motor shaft (`kt * peak_current_a`) gives the inertia there, rad/s^2.
+#[must_use]
+pub fn peak_acceleration_rad_s2(params: &PlantParams) -> f64 {
+    params.torque_constant_nm_per_a() * params.peak_current_a / params.total_inertia_kg_m2()
+}
+
 impl PlantScale {
     /// The scale of `params` (all 1 exactly for the reference plant).
     pub fn of(params: &PlantParams) -> Self {
         let r = PlantParams::reference();
         let peak_torque =
             |p: &PlantParams| p.torque_constant_nm_per_a() * p.peak_current_a * p.gear_ratio * p.gear_efficiency;
-        let acceleration = |p: &PlantParams| p.torque_constant_nm_per_a() * p.peak_current_a / p.total_inertia_kg_m2();
         Self {
             speed: params.max_speed_rpm / r.max_speed_rpm,
             current: params.peak_current_a / r.peak_current_a,
             torque: peak_torque(params) / peak_torque(&r),
             inertia: params.total_inertia_kg_m2() / r.total_inertia_kg_m2(),
-            acceleration: acceleration(params) / acceleration(&r),
+            acceleration: peak_acceleration_rad_s2(params) / peak_acceleration_rad_s2(&r),
         }
     }
 

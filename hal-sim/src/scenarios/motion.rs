@@ -228,10 +228,8 @@ impl CspConfig {
     #[must_use]
     pub fn scaled_to_current_plant(seed: u64) -> Self {
         let speed = super::PlantScale::current_plant().speed;
-        let p = super::scenario_plant();
-        let peak_torque_nm = p.torque_constant_nm_per_a() * p.peak_current_a;
-        let reachable_rpm_per_s =
-            CSP_ACCELERATION_TORQUE_SHARE * peak_torque_nm / p.total_inertia_kg_m2() * 60.0 / core::f64::consts::TAU;
+        let peak_acceleration = super::peak_acceleration_rad_s2(&super::scenario_plant());
+        let reachable_rpm_per_s = CSP_ACCELERATION_TORQUE_SHARE * peak_acceleration * 60.0 / core::f64::consts::TAU;
         let d = Self::default();
         Self {
             seed,

@@ -11,7 +11,7 @@
 use hal_sim::plant::PlantParams;
 use std::path::Path;
 
-use hal_sim::scenarios::identification::{self, IdentifyRun, Outcome};
+use hal_sim::scenarios::identification::{self, Outcome, ISSUE_BOUNDS_RIGID_PCT};
 use hal_sim::scenarios::{self, motion, PlantScale, Setup, SWEEP_FREQUENCIES_HZ};
 
 /// `hal-sim/presets/nema23-48v.toml`.
@@ -30,17 +30,8 @@ fn the_48_v_preset_identifies_within_the_issue_bounds() {
     let plant = nema23();
     let run = identification::identify(&plant, 1, |_| {});
     assert_eq!(run.outcome, Outcome::Done);
-    let id = &run.identified;
-    let errors = [
-        ("R", IdentifyRun::error_pct(id.resistance_ohm, plant.phase_resistance_ohm), 3.0),
-        ("Ld", IdentifyRun::error_pct(id.ld_h, plant.ld_h), 5.0),
-        ("Lq", IdentifyRun::error_pct(id.lq_h, plant.lq_h), 3.0),
-        ("kt", IdentifyRun::error_pct(id.kt_nm_per_a, plant.torque_constant_nm_per_a()), 3.0),
-        ("inertia", IdentifyRun::error_pct(id.inertia_kg_m2, plant.total_inertia_kg_m2()), 5.0),
-    ];
-    for (name, error, bound) in errors {
-        assert!(error.abs() <= bound, "{name} {error:+.2} % (issue: within {bound} %)");
-    }
+    let outside = run.errors_outside(&plant, ISSUE_BOUNDS_RIGID_PCT);
+    assert!(outside.is_empty(), "{}", outside.join(", "));
     assert!(run.identify_s <= 20.0, "{} s", run.identify_s);
 }
 

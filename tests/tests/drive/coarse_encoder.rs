@@ -12,7 +12,7 @@
 //! coarse-encoder cap the then 20 rpm step limit-cycled at 4.33 rpm RMS.
 
 use hal_sim::plant::PlantParams;
-use hal_sim::scenarios::identification::{self, IdentifyRun, Outcome};
+use hal_sim::scenarios::identification::{self, Outcome, ISSUE_BOUNDS_RIGID_PCT};
 use hal_sim::scenarios::{self, motion};
 
 /// The motor of the module documentation.
@@ -82,15 +82,6 @@ fn the_stepper_class_motor_identifies_within_the_issue_bounds() {
     let plant = stepper_class();
     let run = identification::identify(&plant, 1, |_| {});
     assert_eq!(run.outcome, Outcome::Done);
-    let id = &run.identified;
-    let lq = IdentifyRun::error_pct(id.lq_h, plant.lq_h);
-    let kt = IdentifyRun::error_pct(id.kt_nm_per_a, plant.torque_constant_nm_per_a());
-    let r = IdentifyRun::error_pct(id.resistance_ohm, plant.phase_resistance_ohm);
-    let ld = IdentifyRun::error_pct(id.ld_h, plant.ld_h);
-    let inertia = IdentifyRun::error_pct(id.inertia_kg_m2, plant.total_inertia_kg_m2());
-    assert!(r.abs() <= 3.0, "R {r:+.2} %");
-    assert!(ld.abs() <= 5.0, "Ld {ld:+.2} %");
-    assert!(lq.abs() <= 3.0, "Lq {lq:+.2} %");
-    assert!(kt.abs() <= 3.0, "kt {kt:+.2} %");
-    assert!(inertia.abs() <= 5.0, "inertia {inertia:+.2} %");
+    let outside = run.errors_outside(&plant, ISSUE_BOUNDS_RIGID_PCT);
+    assert!(outside.is_empty(), "{}", outside.join(", "));
 }

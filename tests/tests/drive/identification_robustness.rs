@@ -19,7 +19,7 @@
 //! bus-voltage limiter's default 51 V (0x3202:02), and a supply too close to it.
 
 use hal_sim::plant::PlantParams;
-use hal_sim::scenarios::identification::{identify, IdentifyRun, Outcome};
+use hal_sim::scenarios::identification::{identify, IdentifyRun, Outcome, ISSUE_BOUNDS_RIGID_PCT};
 
 fn preset(name: &str) -> PlantParams {
     let path = format!("{}/../hal-sim/presets/{name}.toml", env!("CARGO_MANIFEST_DIR"));
@@ -188,17 +188,8 @@ fn a_heavy_rotor_on_a_weak_motor_identifies_within_the_issue_bounds() {
     for seed in 1..=2 {
         let run = identify(&params, seed, |_| {});
         assert_eq!(run.outcome, Outcome::Done, "seed {seed}");
-        let id = &run.identified;
-        let errors = [
-            ("R", IdentifyRun::error_pct(id.resistance_ohm, params.phase_resistance_ohm), 3.0),
-            ("Ld", IdentifyRun::error_pct(id.ld_h, params.ld_h), 5.0),
-            ("Lq", IdentifyRun::error_pct(id.lq_h, params.lq_h), 3.0),
-            ("kt", IdentifyRun::error_pct(id.kt_nm_per_a, params.torque_constant_nm_per_a()), 3.0),
-            ("inertia", IdentifyRun::error_pct(id.inertia_kg_m2, params.total_inertia_kg_m2()), 5.0),
-        ];
-        for (name, error, bound) in errors {
-            assert!(error.abs() <= bound, "seed {seed}: {name} {error:+.2} % (bound {bound} %)");
-        }
+        let outside = run.errors_outside(&params, ISSUE_BOUNDS_RIGID_PCT);
+        assert!(outside.is_empty(), "seed {seed}: {}", outside.join(", "));
     }
 }
 
@@ -232,16 +223,7 @@ fn a_heavy_load_with_halls_finishes_the_rotation_and_the_relay() {
     for seed in 1..=2 {
         let run = identify(&params, seed, |_| {});
         assert_eq!(run.outcome, Outcome::Done, "seed {seed}");
-        let id = &run.identified;
-        let errors = [
-            ("R", IdentifyRun::error_pct(id.resistance_ohm, params.phase_resistance_ohm), 1.0),
-            ("Ld", IdentifyRun::error_pct(id.ld_h, params.ld_h), 1.0),
-            ("Lq", IdentifyRun::error_pct(id.lq_h, params.lq_h), 1.0),
-            ("kt", IdentifyRun::error_pct(id.kt_nm_per_a, params.torque_constant_nm_per_a()), 4.0),
-            ("inertia", IdentifyRun::error_pct(id.inertia_kg_m2, params.total_inertia_kg_m2()), 5.0),
-        ];
-        for (name, error, bound) in errors {
-            assert!(error.abs() <= bound, "seed {seed}: {name} {error:+.2} % (bound {bound} %)");
-        }
+        let outside = run.errors_outside(&params, [1.0, 1.0, 1.0, 4.0, 5.0]);
+        assert!(outside.is_empty(), "seed {seed}: {}", outside.join(", "));
     }
 }
